@@ -1,0 +1,12 @@
+"""GeoCon core: ground-truth-free scoring of geometric consistency in video.
+
+The package imports nothing heavy at import time; import the stage modules you need:
+
+- :mod:`geocon_core.geometry`: pure two-view geometry (homographies, Sampson distance, poses);
+- :mod:`geocon_core.gate`: the translation gate (H / F / U);
+- :mod:`geocon_core.synth`: synthetic scenes with exact ground truth (``geocon synth``).
+"""
+
+from ._version import __version__
+
+__all__ = ["__version__"]

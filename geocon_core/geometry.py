@@ -1,0 +1,160 @@
+"""Pure multi-view geometry on numpy arrays.
+
+Conventions (used everywhere in GeoCon):
+
+- Camera coordinates follow OpenCV: x right, y down, z forward (viewing direction).
+- Pixel coordinates put pixel *centres* at integer positions; (0, 0) is the centre of the
+  top-left pixel.
+- A 4x4 rigid transform is named after the frames it maps: ``T_a_b`` maps points expressed
+  in frame ``b`` into frame ``a`` (``X_a = T_a_b @ X_b``). ``T_cam_world`` is therefore the
+  world-to-camera transform, and the translation column of ``T_cam0_camT`` is the centre of
+  camera ``T`` expressed in the coordinates of camera 0 (the DUSt3R cam-to-world convention
+  with the first camera as world).
+- A homography ``H_2from1`` (3x3) maps homogeneous pixels of image 1 to image 2; a
+  fundamental matrix ``F_21`` satisfies ``x2^T F_21 x1 = 0``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "intrinsics_from_fov",
+    "rotation_xyz",
+    "make_pose",
+    "invert_pose",
+    "relative_pose",
+    "rotation_angle_deg",
+    "skew",
+    "homography_from_rotation",
+    "homography_from_plane",
+    "fundamental_from_pose",
+    "to_homogeneous",
+    "apply_homography",
+    "symmetric_transfer_error",
+    "sampson_distance",
+    "t_inf_from_pose",
+]
+
+
+def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray:
+    """Pinhole matrix ``K`` (3x3) with square pixels, principal point at the image centre
+    (``((W-1)/2, (H-1)/2)`` in the integer-pixel-centre convention) and the focal length
+    that gives a horizontal field of view of ``fov_x_deg`` degrees."""
+    if not (0.0 < fov_x_deg < 180.0):
+        raise ValueError(f"fov_x_deg must be in (0, 180), got {fov_x_deg}")
+    f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2.0)
+    return np.array(
+        [[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]]
+    )
+
+
+def rotation_xyz(yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
+    """Camera-to-world rotation (3x3) of a camera that pans by ``yaw`` (about +y, positive turns
+    right), tilts by ``pitch`` (about +x, positive looks up) and rolls by ``roll`` (about the
+    viewing axis +z), applied as ``R = R_y(yaw) @ R_x(-pitch) @ R_z(roll)``."""
+    y, p, r = (math.radians(v) for v in (yaw_deg, -pitch_deg, roll_deg))
+    Ry = np.array([[math.cos(y), 0, math.sin(y)], [0, 1, 0], [-math.sin(y), 0, math.cos(y)]])
+    Rx = np.array([[1, 0, 0], [0, math.cos(p), -math.sin(p)], [0, math.sin(p), math.cos(p)]])
+    Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
+    return Ry @ Rx @ Rz
+
+
+def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """4x4 rigid transform from a rotation (3x3) and a translation (3,)."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
+    return T
+
+
+def invert_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of a 4x4 rigid transform (exact for rotations: uses the transpose)."""
+    R, t = T[:3, :3], T[:3, 3]
+    return make_pose(R.T, -R.T @ t)
+
+
+def relative_pose(T_cam0_world: np.ndarray, T_camT_world: np.ndarray) -> np.ndarray:
+    """``T_cam0_camT``: the pose of camera T in the coordinates of camera 0 (4x4)."""
+    return T_cam0_world @ invert_pose(T_camT_world)
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Rotation angle (degrees) of a 3x3 rotation matrix."""
+    c = (np.trace(R) - 1.0) / 2.0
+    return math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrix ``[v]_x`` (3x3) with ``[v]_x @ w = v x w``."""
+    x, y, z = np.asarray(v, dtype=float).reshape(3)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def homography_from_rotation(K: np.ndarray, R_2from1: np.ndarray) -> np.ndarray:
+    """``H_2from1 = K R K^-1`` for a camera that only rotates (``X_2 = R_2from1 X_1``)."""
+    return K @ R_2from1 @ np.linalg.inv(K)
+
+
+def homography_from_plane(
+    K1: np.ndarray, K2: np.ndarray, T_2_1: np.ndarray, m_1: np.ndarray
+) -> np.ndarray:
+    """Homography induced by the plane ``{X_1 : m_1 . X_1 = 1}`` (plane vector ``m = n / d`` in
+    camera-1 coordinates) between two views with ``X_2 = T_2_1 X_1``:
+    ``H_2from1 = K2 (R + t m^T) K1^-1``."""
+    R, t = T_2_1[:3, :3], T_2_1[:3, 3]
+    return K2 @ (R + np.outer(t, np.asarray(m_1, dtype=float))) @ np.linalg.inv(K1)
+
+
+def fundamental_from_pose(K1: np.ndarray, K2: np.ndarray, T_2_1: np.ndarray) -> np.ndarray:
+    """``F_21 = K2^-T [t]_x R K1^-1`` for ``X_2 = R X_1 + t``; normalised to unit Frobenius norm."""
+    R, t = T_2_1[:3, :3], T_2_1[:3, 3]
+    F = np.linalg.inv(K2).T @ skew(t) @ R @ np.linalg.inv(K1)
+    return F / np.linalg.norm(F)
+
+
+def to_homogeneous(x: np.ndarray) -> np.ndarray:
+    """(N, 2) -> (N, 3) by appending ones."""
+    x = np.asarray(x, dtype=float)
+    return np.concatenate([x, np.ones((x.shape[0], 1))], axis=1)
+
+
+def apply_homography(H: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Map (N, 2) pixels through a 3x3 homography; points mapped to infinity become NaN."""
+    y = to_homogeneous(x) @ np.asarray(H, dtype=float).T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = y[:, :2] / y[:, 2:3]
+    out[~np.isfinite(out).all(axis=1)] = np.nan
+    return out
+
+
+def symmetric_transfer_error(H_2from1: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Per-match symmetric transfer error in pixels, shape (N,):
+    ``0.5 * ||x2 - H x1|| + 0.5 * ||x1 - H^-1 x2||``."""
+    fwd = np.linalg.norm(x2 - apply_homography(H_2from1, x1), axis=1)
+    bwd = np.linalg.norm(x1 - apply_homography(np.linalg.inv(H_2from1), x2), axis=1)
+    return 0.5 * fwd + 0.5 * bwd
+
+
+def sampson_distance(F_21: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """First-order geometric (Sampson) distance of each match to the epipolar geometry, shape
+    (N,), in the units of the coordinates given (NOT squared):
+    ``|x2^T F x1| / sqrt((F x1)_1^2 + (F x1)_2^2 + (F^T x2)_1^2 + (F^T x2)_2^2)``."""
+    h1, h2 = to_homogeneous(x1), to_homogeneous(x2)
+    Fx1 = h1 @ F_21.T
+    Ftx2 = h2 @ F_21
+    num = np.abs(np.sum(h2 * Fx1, axis=1))
+    den = np.sqrt(Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, num / den, np.inf)
+
+
+def t_inf_from_pose(T_cam0_camT: np.ndarray, mean_scene_distance: float) -> float:
+    """``t_inf = max(|tx|, |ty|, |tz|)`` of the first->last relative pose on the DUSt3R scale,
+    i.e. after scaling the scene so that the mean distance of the visible scene points from
+    the first camera is 1."""
+    if not mean_scene_distance > 0:
+        raise ValueError(f"mean_scene_distance must be positive, got {mean_scene_distance}")
+    return float(np.max(np.abs(T_cam0_camT[:3, 3])) / mean_scene_distance)

@@ -1,0 +1,22 @@
+"""Synthetic scenes with exact geometry for validating every GeoCon metric.
+
+>>> from geocon_core.synth import ClipPlan, write_clip
+>>> gt = write_clip(ClipPlan("C3"), "out/")          # doctest: +SKIP
+>>> gt.t_inf, gt.expected_gate                        # doctest: +SKIP
+"""
+
+from .failures import FAILURES, Failure, FailureSpec, make_failure
+from .families import FAMILIES, Family, build_scene, family_info
+from .render import RenderedFrame, render_frame
+from .scene import ObjectTrack, Scene, SurfaceView, TexturedPlane
+from .truth import FailureTruth, GroundTruth, ObjectTruth, load_ground_truth
+from .writer import DEFAULT_FAILURE_VARIANTS, ClipPlan, mean_scene_distance, plan_clips, write_clip
+
+__all__ = [
+    "FAILURES", "Failure", "FailureSpec", "make_failure",
+    "FAMILIES", "Family", "build_scene", "family_info",
+    "RenderedFrame", "render_frame",
+    "ObjectTrack", "Scene", "SurfaceView", "TexturedPlane",
+    "FailureTruth", "GroundTruth", "ObjectTruth", "load_ground_truth",
+    "DEFAULT_FAILURE_VARIANTS", "ClipPlan", "mean_scene_distance", "plan_clips", "write_clip",
+]

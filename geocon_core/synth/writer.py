@@ -1,0 +1,223 @@
+"""Writing synthetic clips: video, object masks, ground truth and benchmark sidecar.
+
+For a clip ``ID`` in ``OUT`` this writes
+
+- ``OUT/ID.mp4``: H.264 video;
+- ``OUT/ID.masks/NNNNN.png``: one 8-bit label image per frame (0 = background, k = object
+  id k), the external-mask layout the scorer reads;
+- ``OUT/ID.gt.json``: :class:`~geocon_core.synth.truth.GroundTruth`;
+- ``OUT/ID.meta.json``: benchmark sidecar with the fields of SPEC section 6.
+
+Files are written under temporary names and renamed when complete, so an interrupted run
+never leaves a clip that looks finished.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from .._version import __version__
+from ..gate import binary_gate, hysteresis_gate
+from ..geometry import relative_pose, rotation_angle_deg, t_inf_from_pose
+from .failures import FAILURES, failure_spec, make_failure
+from .families import FAMILIES, build_scene, family_info
+from .render import render_frame
+from .scene import Scene
+from .truth import FailureTruth, GroundTruth, ObjectTruth
+
+__all__ = ["ClipPlan", "DEFAULT_FAILURE_VARIANTS", "plan_clips", "write_clip", "mean_scene_distance"]
+
+DEFAULT_FAILURE_VARIANTS: tuple[tuple[str, str], ...] = (
+    ("C1", "boiling"),
+    ("C2", "breathing"),
+    ("C3", "slide"),
+    ("C3", "missing_parallax"),
+    ("C4", "elastic"),
+    ("C5", "letterbox"),
+)
+"""(family, failure) pairs that ``geocon synth all`` renders at default severity."""
+
+_NEEDS = {"missing_parallax": ("C3", "C5", "C6"), "elastic": ("C4", "C6")}
+
+
+@dataclass(frozen=True)
+class ClipPlan:
+    """One clip to render: a family and an optional failure with its severity."""
+
+    family: str
+    failure: str | None = None
+    severity: float | None = None
+
+    @property
+    def clip_id(self) -> str:
+        slug = FAMILIES[self.family].slug
+        if self.failure is None:
+            return slug
+        return f"{slug}__{self.failure}-s{self.severity:g}"
+
+
+def plan_clips(family: str, failure: str | None = None, severity: float | None = None) -> list[ClipPlan]:
+    """The clips for ``geocon synth FAMILY|all [--failure KIND --severity X]``.
+
+    ``all`` without a failure gives every clean family plus :data:`DEFAULT_FAILURE_VARIANTS`;
+    ``all`` with a failure gives that failure on every family that can carry it."""
+    if severity is not None and failure is None:
+        raise ValueError("--severity needs --failure")
+    if failure is not None:
+        spec = failure_spec(failure)
+        severity = spec.check(spec.default if severity is None else severity)
+    if family.strip().lower() == "all":
+        if failure is None:
+            clean = [ClipPlan(code) for code in FAMILIES]
+            variants = [ClipPlan(code, kind, FAILURES[kind].default) for code, kind in DEFAULT_FAILURE_VARIANTS]
+            return clean + variants
+        codes = _NEEDS.get(failure, tuple(FAMILIES))
+        return [ClipPlan(code, failure, severity) for code in codes]
+    code = family_info(family).code
+    if failure is not None and code not in _NEEDS.get(failure, (code,)):
+        raise ValueError(f"failure {failure!r} needs one of the families {', '.join(_NEEDS[failure])}, not {code}")
+    return [ClipPlan(code, failure, severity)]
+
+
+def mean_scene_distance(depth: np.ndarray, K: np.ndarray) -> float:
+    """Mean Euclidean distance from the camera of the points seen in a depth map (H, W)."""
+    H, W = depth.shape
+    gy, gx = np.mgrid[0:H, 0:W].astype(np.float64)
+    Kinv = np.linalg.inv(K)
+    rx = Kinv[0, 0] * gx + Kinv[0, 1] * gy + Kinv[0, 2]
+    ry = Kinv[1, 1] * gy + Kinv[1, 2]
+    dist = depth * np.sqrt(rx**2 + ry**2 + 1.0)
+    finite = np.isfinite(dist)
+    if not finite.any():
+        raise ValueError("the first frame shows no scene point")
+    return float(dist[finite].mean())
+
+
+def write_clip(
+    plan: ClipPlan,
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    width: int = 640,
+    height: int = 360,
+    num_frames: int = 48,
+    fps: float = 24.0,
+    on_frame: Callable[[int], None] | None = None,
+) -> GroundTruth:
+    """Render ``plan`` into ``out_dir`` and return its ground truth. ``on_frame(t)`` is called
+    after each frame (progress reporting)."""
+    from ..video import Mp4Writer
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = build_scene(plan.family, seed=seed, width=width, height=height, num_frames=num_frames, fps=fps)
+    failure = make_failure(plan.failure, scene, plan.severity) if plan.failure else None
+    cid = plan.clip_id
+    video, masks, gt_path, meta_path = out / f"{cid}.mp4", out / f"{cid}.masks", out / f"{cid}.gt.json", out / f"{cid}.meta.json"
+    tmp_video, tmp_masks = out / f".{cid}.mp4.part", out / f".{cid}.masks.part"
+    shutil.rmtree(tmp_masks, ignore_errors=True)
+    tmp_masks.mkdir()
+
+    content = failure.content_box(scene) if failure else (0, 0, width, height)
+    x0, y0, x1, y1 = content
+    content_area = (x1 - x0) * (y1 - y0)
+    masked_share = np.zeros(num_frames)
+    visible: dict[int, list[int]] = {o.object_id: [] for o in scene.objects}
+    first_depth = None
+    try:
+        with Mp4Writer(tmp_video, width, height, fps) as writer:
+            for t in range(num_frames):
+                frame = render_frame(scene, t, failure)
+                if t == 0:
+                    first_depth = frame.depth
+                writer.write(frame.rgb)
+                if not cv2.imwrite(str(tmp_masks / f"{t:05d}.png"), frame.labels, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
+                    raise OSError(f"could not write mask {tmp_masks / f'{t:05d}.png'}")
+                masked_share[t] = np.count_nonzero(frame.labels[y0:y1, x0:x1]) / content_area
+                for oid in np.unique(frame.labels):
+                    if oid:
+                        visible[int(oid)].append(t)
+                if on_frame is not None:
+                    on_frame(t)
+    except BaseException:
+        shutil.rmtree(tmp_masks, ignore_errors=True)
+        tmp_video.unlink(missing_ok=True)
+        raise
+
+    assert first_depth is not None
+    gt = _ground_truth(scene, plan, failure, first_depth, masked_share, visible, content, video.name, masks.name)
+    shutil.rmtree(masks, ignore_errors=True)
+    tmp_masks.rename(masks)
+    tmp_video.replace(video)
+    gt.write(gt_path)
+    meta_path.write_text(json.dumps(_sidecar(gt, scene), indent=1) + "\n")
+    return gt
+
+
+def _ground_truth(scene: Scene, plan: ClipPlan, failure, first_depth, masked_share, visible, content, video_name, masks_name) -> GroundTruth:
+    T_0T = relative_pose(scene.T_cam_world[0], scene.T_cam_world[-1])
+    dist = mean_scene_distance(first_depth, scene.K)
+    t_inf = t_inf_from_pose(T_0T, dist)
+    non_rigid = failure.non_rigid_object_ids() if failure else frozenset()
+    objects = tuple(
+        ObjectTruth(object_id=o.object_id, name=o.name, rigid=o.object_id not in non_rigid, visible_frames=tuple(visible[o.object_id]))
+        for o in scene.objects
+    )
+    fail = None
+    if failure is not None:
+        fail = FailureTruth(kind=failure.kind, severity=failure.severity, unit=FAILURES[failure.kind].unit, params=failure.params())
+    return GroundTruth(
+        clip_id=plan.clip_id,
+        family=scene.family,
+        family_title=FAMILIES[scene.family].title,
+        seed=scene.seed,
+        width=scene.width,
+        height=scene.height,
+        fps=scene.fps,
+        num_frames=scene.num_frames,
+        fov_x_deg=scene.fov_x_deg,
+        K=scene.K,
+        T_cam_world=scene.T_cam_world,
+        T_cam0_camT=T_0T,
+        mean_scene_distance=dist,
+        t_inf=t_inf,
+        rotation_deg=rotation_angle_deg(T_0T[:3, :3]),
+        expected_gate=hysteresis_gate(t_inf),
+        expected_gate_binary=binary_gate(t_inf),
+        objects=objects,
+        masks_path=masks_name,
+        masked_share=masked_share,
+        content_box=tuple(int(v) for v in content),
+        failure=fail,
+        video_path=video_name,
+    )
+
+
+def _sidecar(gt: GroundTruth, scene: Scene) -> dict:
+    """Benchmark metadata (SPEC section 6). Each failure kind acts as its own "platform";
+    clean and damaged renders of one scene share ``scene_id``."""
+    prompt = f"synthetic {gt.family}: {gt.family_title}"
+    if gt.failure:
+        prompt += f" (injected {gt.failure.kind}, severity {gt.failure.severity:g} {gt.failure.unit})"
+    return {
+        "clip_id": gt.clip_id,
+        "prompt": prompt,
+        "model": "geocon-synth" if gt.failure is None else f"geocon-synth/{gt.failure.kind}",
+        "model_version": __version__,
+        "seed": gt.seed,
+        "resolution": [gt.width, gt.height],
+        "fps": gt.fps,
+        "duration": gt.num_frames / gt.fps,
+        "masks_path": gt.masks_path,
+        "category": gt.family,
+        "scene_id": f"synth-{gt.family}-seed{gt.seed}",
+        "video": gt.video_path,
+        "ground_truth": f"{gt.clip_id}.gt.json",
+    }

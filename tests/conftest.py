@@ -1,0 +1,55 @@
+"""Shared test helpers: decoding clips and matching features independently of the code under test."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def read_video(path: Path) -> list[np.ndarray]:
+    """All frames of a video as RGB uint8 arrays (OpenCV's decoder, not GeoCon's)."""
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    ok, frame = cap.read()
+    while ok:
+        frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2RGB))
+        ok, frame = cap.read()
+    cap.release()
+    assert frames, f"could not decode {path}"
+    return frames
+
+
+def sift_matches(img1: np.ndarray, img2: np.ndarray, *, ratio: float = 0.7, mask1: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Mutual nearest-neighbour SIFT matches passing Lowe's ratio test: (N, 2) pixel arrays."""
+    sift = cv2.SIFT_create(nfeatures=4000)
+    g1, g2 = (cv2.cvtColor(i, cv2.COLOR_RGB2GRAY) for i in (img1, img2))
+    m1 = None if mask1 is None else mask1.astype(np.uint8) * 255
+    k1, d1 = sift.detectAndCompute(g1, m1)
+    k2, d2 = sift.detectAndCompute(g2, None)
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    fwd = matcher.knnMatch(d1, d2, k=2)
+    bwd = {m.queryIdx: m.trainIdx for m in matcher.match(d2, d1)}
+    pairs = [(m.queryIdx, m.trainIdx) for m, n in (p for p in fwd if len(p) == 2) if m.distance < ratio * n.distance and bwd.get(m.trainIdx) == m.queryIdx]
+    x1 = np.array([k1[i].pt for i, _ in pairs], dtype=float).reshape(-1, 2)
+    x2 = np.array([k2[j].pt for _, j in pairs], dtype=float).reshape(-1, 2)
+    return x1, x2
+
+
+@pytest.fixture(scope="session")
+def synth_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Clips rendered once per session (640x360, 24 frames, seed 3) by the public API."""
+    from geocon_core.synth import ClipPlan, write_clip
+
+    out = tmp_path_factory.mktemp("synth")
+    plans = [
+        ClipPlan("C1"), ClipPlan("C2"), ClipPlan("C3"), ClipPlan("C4"),
+        ClipPlan("C1", "breathing", 3.0), ClipPlan("C5", "letterbox", 0.1),
+    ]
+    for plan in plans:
+        write_clip(plan, out, seed=3, num_frames=24)
+    return out
