@@ -157,7 +157,6 @@ def demo(
 
     plan = ClipPlan("C4", "elastic", 4.0)
     (gt,) = _render_plans([plan], out_dir, seed=seed, width=640, height=360, frames=48, fps=24.0, quiet=False)
-    _print_table([gt], out_dir)
     table = Table(title="what the demo clip contains", title_justify="left", show_header=False)
     table.add_column(style="bold")
     table.add_column()

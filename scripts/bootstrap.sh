@@ -40,6 +40,12 @@ spec="."; [ -z "$extras" ] || spec=".[${extras}]"
 stamp=".venv/.geocon-install-$(cat pyproject.toml | sha256sum | cut -c1-16)-${extras:-core}"
 if [ ! -f "$stamp" ]; then
     echo "geocon: installing ${spec} into .venv" >&2
-    .venv/bin/python -m pip install -q -e "$spec"
+    log=".venv/pip-install.log"
+    if ! .venv/bin/python -m pip install -e "$spec" >"$log" 2>&1; then
+        tail -n 40 "$log" >&2
+        echo "geocon: pip install failed; full log in $log" >&2
+        exit 1
+    fi
+    rm -f .venv/.geocon-install-*
     touch "$stamp"
 fi

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..geometry import intrinsics_from_fov, make_pose, rotation_xyz
 from .scene import ObjectTrack, Scene, TexturedPlane, pose_from_center
-from .textures import procedural_texture, shape_alpha
+from .textures import object_texture, procedural_texture, shape_alpha
 
 __all__ = ["Family", "FAMILIES", "family_info", "build_scene"]
 
@@ -46,8 +46,11 @@ def _panel(
     u, v = R @ np.array([texel, 0.0, 0.0]), R @ np.array([0.0, texel, 0.0])
     c = np.zeros(3) if parent_center else np.asarray(center, dtype=float)
     origin = c - u * (tw - 1) / 2 - v * (th - 1) / 2
-    texture = procedural_texture(rng, th, tw, contrast=contrast)
     alpha = shape_alpha(th, tw, shape) if shape else None
+    if alpha is not None and parent_center:
+        texture = object_texture(rng, alpha)
+    else:
+        texture = procedural_texture(rng, th, tw, contrast=contrast)
     return TexturedPlane(name=name, origin=origin, axis_u=u, axis_v=v, texture=texture, alpha=alpha)
 
 
