@@ -176,9 +176,16 @@ def test_elastic_warp_moves_object_content_by_the_field():
     obj = rigid.labels == failure.object_id
     assert np.linalg.norm(field[obj], axis=1).max() == pytest.approx(5.0, rel=0.05)
     x1, x2 = sift_matches(rigid.rgb, elastic.rgb, mask1=cv2.erode(obj.astype(np.uint8), np.ones((9, 9))) > 0)
-    assert len(x1) > 20
+    assert len(x1) > 10
     predicted = sample(field, x2)
-    assert np.median(np.linalg.norm((x2 - x1) - predicted, axis=1)) < 0.25
+    assert np.median(np.linalg.norm((x2 - x1) - predicted, axis=1)) < 0.5
+    # densely: the elastic frame is the rigid frame re-sampled at x - d(x) inside the object
+    gy, gx = np.mgrid[0 : scene.height, 0 : scene.width].astype(np.float32)
+    resampled = cv2.remap(rigid.rgb, gx - field[..., 0].astype(np.float32), gy - field[..., 1].astype(np.float32), cv2.INTER_LINEAR)
+    inner = cv2.erode(((rigid.labels == failure.object_id) & (elastic.labels == failure.object_id)).astype(np.uint8), np.ones((11, 11))) > 0
+    warped_err = np.abs(resampled.astype(int) - elastic.rgb.astype(int))[inner].mean()
+    unwarped_err = np.abs(rigid.rgb.astype(int) - elastic.rgb.astype(int))[inner].mean()
+    assert warped_err < 2.0 and unwarped_err > 4 * warped_err, (warped_err, unwarped_err)
     # nothing else changes
     untouched = (rigid.labels != failure.object_id) & (elastic.labels != failure.object_id)
     np.testing.assert_array_equal(rigid.rgb[untouched], elastic.rgb[untouched])

@@ -235,9 +235,15 @@ class Elastic(Failure):
         return {"object_id": self.object_id, "period_frames": self.period}
 
 
+def _box_corners(box: np.ndarray) -> np.ndarray:
+    x0, y0, x1, y1 = box
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+
+
 class Boiling(Failure):
-    """A background region (a box on the surface seen at a central image point in frame 0)
-    has its texture re-synthesised every frame: ``(1 - s) * texture + s * fresh_noise_t``."""
+    """A background region (a texel box on the surface seen at a central image point in
+    frame 0) has its texture re-synthesised every frame:
+    ``(1 - s) * texture + s * fresh_noise_t``. ``image_box0`` bounds the region in frame 0."""
 
     kind = "boiling"
 
@@ -254,13 +260,15 @@ class Boiling(Failure):
         view0 = plane_view(plane, scene.T_cam_world[0], role="background")
         assert view0 is not None
         box = np.array([[cx - 0.15 * W, cy - 0.15 * H], [cx + 0.15 * W, cy + 0.15 * H]])
-        self.image_box0 = [float(v) for v in box.reshape(-1)]
-        corners = np.array([box[0], [box[1, 0], box[0, 1]], box[1], [box[0, 0], box[1, 1]]])
-        tex = apply_homography(view0.H_tex_ray @ np.linalg.inv(scene.K), corners)
+        H_tex_img = view0.H_tex_ray @ np.linalg.inv(scene.K)
+        tex = apply_homography(H_tex_img, _box_corners(box.reshape(-1)))
         tw, th = plane.texture_size
         x0, y0 = np.clip(np.floor(np.nanmin(tex, axis=0)).astype(int), 0, [tw - 1, th - 1])
         x1, y1 = np.clip(np.ceil(np.nanmax(tex, axis=0)).astype(int) + 1, 1, [tw, th])
         self.texel_box = (int(x0), int(y0), int(x1), int(y1))
+        # the region actually re-synthesised, as seen in frame 0 (bounding box, pixels)
+        img = apply_homography(np.linalg.inv(H_tex_img), _box_corners(np.array(self.texel_box, float) - [0.5, 0.5, 0.5, 0.5]))
+        self.image_box0 = [float(v) for v in (*np.nanmin(img, axis=0), *np.nanmax(img, axis=0))]
         self._texture = plane.texture
 
     def texture_at(self, t: int) -> np.ndarray:

@@ -42,7 +42,7 @@ def procedural_texture(
     canvas = (canvas * 255).astype(np.uint8)
 
     # Shapes: circles, rectangles, strokes of random colour and size (3..40 texels).
-    n_shapes = int(width * height / 600)
+    n_shapes = int(width * height / 350)
     kinds = rng.integers(0, 3, n_shapes)
     centers = rng.uniform(0, 1, (n_shapes, 2)) * (width, height)
     sizes = np.exp(rng.uniform(math.log(3), math.log(40), n_shapes))
@@ -92,7 +92,7 @@ def object_texture(rng: np.random.Generator, alpha: np.ndarray) -> np.ndarray:
     silhouette, so that objects stand out from the background for a human viewer."""
     h, w = alpha.shape
     tex = procedural_texture(rng, h, w).astype(np.float32)
-    tex = 0.6 * tex + 0.4 * 255
+    tex = 0.75 * tex + 0.25 * 255
     width = max(2, round(min(h, w) / 40))
     inner = cv2.erode(alpha, np.ones((2 * width + 1, 2 * width + 1), np.uint8))
     tex[(alpha >= 128) & (inner < 128)] = (25, 25, 35)
