@@ -52,7 +52,7 @@ def _main(
     """GeoCon: is a generated video geometrically real?"""
 
 
-def _render_plans(plans, out_dir: Path, *, seed: int, width: int, height: int, frames: int, fps: float, quiet: bool):
+def _render_plans(plans, out_dir: Path, *, seed: int, width: int, height: int, frames: int, fps: float, quiet: bool, noise: float = 1.0):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from .synth import write_clip
@@ -64,7 +64,7 @@ def _render_plans(plans, out_dir: Path, *, seed: int, width: int, height: int, f
         for i, plan in enumerate(plans, 1):
             progress.update(task, description=f"[{i}/{len(plans)}] {plan.clip_id}")
             gt = write_clip(
-                plan, out_dir, seed=seed, width=width, height=height, num_frames=frames, fps=fps,
+                plan, out_dir, seed=seed, width=width, height=height, num_frames=frames, fps=fps, noise=noise,
                 on_frame=lambda _t: progress.advance(task),
             )
             results.append(gt)
@@ -113,6 +113,7 @@ def synth(
     seed: Annotated[int, typer.Option(help="Random seed; the same seed gives identical files.")] = 0,
     failure: Annotated[Optional[str], typer.Option(help="Inject a failure: breathing, slide, missing_parallax, elastic, boiling, letterbox.")] = None,
     severity: Annotated[Optional[float], typer.Option(help="Failure severity in the failure's unit (see `geocon synth-failures`).")] = None,
+    noise: Annotated[float, typer.Option(min=0.0, help="Sensor noise, standard deviation in grey levels.")] = 1.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout instead of a table.")] = False,
 ) -> None:
     """Render synthetic clips with exact ground truth: video (mp4), object masks, ground truth
@@ -124,7 +125,7 @@ def synth(
     width, height = _parse_size(size)
     try:
         plans = plan_clips(family, failure, severity)
-        gts = _render_plans(plans, out_dir, seed=seed, width=width, height=height, frames=frames, fps=fps, quiet=as_json)
+        gts = _render_plans(plans, out_dir, seed=seed, width=width, height=height, frames=frames, fps=fps, quiet=as_json, noise=noise)
     except ValueError as exc:
         raise _fail(str(exc)) from None
     if as_json:

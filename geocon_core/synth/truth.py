@@ -52,6 +52,7 @@ class GroundTruth:
     t_inf: ``max |t|`` of the first->last translation on that unit scale (SPEC section 1).
     masked_share: (T,) share of content pixels covered by object masks, per frame.
     content_box: (x0, y0, x1, y1) end-exclusive region of real image content.
+    sensor_noise_sigma: standard deviation (grey levels) of the Gaussian noise in the video.
     """
 
     clip_id: str
@@ -77,6 +78,7 @@ class GroundTruth:
     content_box: tuple[int, int, int, int]
     failure: FailureTruth | None
     video_path: str
+    sensor_noise_sigma: float = 0.0
 
     def __post_init__(self) -> None:
         T = self.num_frames

@@ -109,10 +109,15 @@ def write_clip(
     height: int = 360,
     num_frames: int = 48,
     fps: float = 24.0,
+    noise: float = 1.0,
     on_frame: Callable[[int], None] | None = None,
 ) -> GroundTruth:
-    """Render ``plan`` into ``out_dir`` and return its ground truth. ``on_frame(t)`` is called
-    after each frame (progress reporting)."""
+    """Render ``plan`` into ``out_dir`` and return its ground truth. ``noise`` is the standard
+    deviation (grey levels) of seeded Gaussian sensor noise added to every frame, so that no
+    two frames are bit-identical (as with any real camera or generator). ``on_frame(t)`` is
+    called after each frame (progress reporting)."""
+    if noise < 0:
+        raise ValueError(f"noise must be non-negative, got {noise}")
     from ..video import Mp4Writer
 
     out = Path(out_dir)
@@ -137,7 +142,7 @@ def write_clip(
                 frame = render_frame(scene, t, failure)
                 if t == 0:
                     first_depth = frame.depth
-                writer.write(frame.rgb)
+                writer.write(_add_noise(frame.rgb, noise, seed, t))
                 if not cv2.imwrite(str(tmp_masks / f"{t:05d}.png"), frame.labels, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
                     raise OSError(f"could not write mask {tmp_masks / f'{t:05d}.png'}")
                 masked_share[t] = np.count_nonzero(frame.labels[y0:y1, x0:x1]) / content_area
@@ -152,7 +157,7 @@ def write_clip(
         raise
 
     assert first_depth is not None
-    gt = _ground_truth(scene, plan, failure, first_depth, masked_share, visible, content, video.name, masks.name)
+    gt = _ground_truth(scene, plan, failure, first_depth, masked_share, visible, content, video.name, masks.name, noise)
     shutil.rmtree(masks, ignore_errors=True)
     tmp_masks.rename(masks)
     tmp_video.replace(video)
@@ -161,7 +166,15 @@ def write_clip(
     return gt
 
 
-def _ground_truth(scene: Scene, plan: ClipPlan, failure, first_depth, masked_share, visible, content, video_name, masks_name) -> GroundTruth:
+def _add_noise(rgb: np.ndarray, sigma: float, seed: int, t: int) -> np.ndarray:
+    if sigma == 0:
+        return rgb
+    rng = np.random.default_rng([seed, 9001, t])
+    noisy = rgb.astype(np.float32) + rng.normal(0.0, sigma, rgb.shape).astype(np.float32)
+    return np.clip(noisy + 0.5, 0, 255).astype(np.uint8)
+
+
+def _ground_truth(scene: Scene, plan: ClipPlan, failure, first_depth, masked_share, visible, content, video_name, masks_name, noise) -> GroundTruth:
     T_0T = relative_pose(scene.T_cam_world[0], scene.T_cam_world[-1])
     dist = mean_scene_distance(first_depth, scene.K)
     t_inf = t_inf_from_pose(T_0T, dist)
@@ -197,6 +210,7 @@ def _ground_truth(scene: Scene, plan: ClipPlan, failure, first_depth, masked_sha
         content_box=tuple(int(v) for v in content),
         failure=fail,
         video_path=video_name,
+        sensor_noise_sigma=float(noise),
     )
 
 
