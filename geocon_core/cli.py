@@ -25,7 +25,9 @@ out = Console()
 
 
 def _fail(message: str) -> typer.Exit:
-    err.print(f"[bold red]error:[/] {message}")
+    from rich.markup import escape
+
+    err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
     return typer.Exit(code=2)
 
 
@@ -153,7 +155,9 @@ def demo(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
     """Run the built-in demo: render a static-camera scene with two moving objects, one of
-    which deforms non-rigidly, and print what the clip contains."""
+    which deforms non-rigidly, print what the clip contains, then score it."""
+    from .config import ScoreConfig
+    from .record import write_record
     from .synth import ClipPlan
 
     plan = ClipPlan("C4", "elastic", 4.0)
@@ -171,6 +175,121 @@ def demo(
         table.add_row(f"object {o.object_id}", f"{o.name}, {'rigid' if o.rigid else 'NON-RIGID (injected elastic warp)'}, visible in {len(o.visible_frames)}/{gt.num_frames} frames")
     table.add_row("masked share", f"{gt.masked_share.mean():.1%} of the frame on average")
     out.print(table)
+    clip = out_dir / gt.video_path
+    record = _score_with_progress(clip, ScoreConfig())
+    target = out_dir / "record"
+    write_record(record, target)
+    _print_record(record, target)
+    out.print(
+        "note: the moving objects are not masked out yet, so their matches count as background "
+        "outliers and lower IR; the audit record keeps every match and residual for inspection.",
+        soft_wrap=True,
+    )
+
+
+def _fmt(v: float | None, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def _print_record(record, out_dir: Path | None) -> None:
+    """The readable summary of a scored clip."""
+    g, bg = record.gate, record.background
+    table = Table(title=f"GeoCon: {record.clip}", title_justify="left", show_header=False)
+    table.add_column(style="bold")
+    table.add_column()
+    if g.pose_present:
+        gate = f"{g.label} -> model {g.model}   t_inf {g.t_inf:.4f}   margin {g.margin:+.4f}   ({g.backend} pose, {g.pose['method']})"
+    else:
+        gate = f"F (no pose: {g.pose.get('reason')}; fail->F)   backend {g.backend}"
+    table.add_row("gate", gate)
+    tau = f"tau_H {record.config.tau_h:g} px" if bg.model == "H" else f"tau_F {record.config.tau_f:g} (~{_fmt(bg.tau_f_px, '.1f')} px)"
+    table.add_row("background", f"{bg.model}: IR {_fmt(bg.ir, '.3f')}   GE {_fmt(bg.ge, '.2f')} px   ({tau})")
+    if len(bg.chosen.per_gap) > 1:
+        table.add_row("per gap", "   ".join(f"gap {p.gap}: IR {_fmt(p.ir, '.3f')} GE {_fmt(p.ge, '.2f')}" for p in bg.chosen.per_gap))
+    table.add_row("other family", f"{bg.other.family}: IR {_fmt(bg.other.ir, '.3f')}   GE {_fmt(bg.other.ge, '.2f')} px (best-of, not the score)")
+    reasons = ", ".join(f"{k} {v}" for k, v in bg.chosen.invalid_reasons.items()) or "none"
+    table.add_row("coverage", f"{bg.valid_pairs}/{bg.total_pairs} pair-scales valid; {record.video['num_frames']} frames; invalid: {reasons}")
+    if bg.consistent is None:
+        verdict = "[yellow]not judged[/] (no valid pair)"
+    elif bg.consistent:
+        verdict = f"[green]consistent[/] (IR >= {record.config.ir_gate:g} and GE <= {record.config.ge_gate:g} px)"
+    else:
+        verdict = f"[red]inconsistent[/] (needs IR >= {record.config.ir_gate:g} and GE <= {record.config.ge_gate:g} px)"
+    table.add_row("verdict", verdict)
+    table.add_row("config", f"{record.config.preset} preset, hash {record.config_hash}")
+    for w in record.warnings:
+        table.add_row("[yellow]warning[/]", w)
+    if out_dir is not None:
+        table.add_row("record", f"{out_dir}/record.json (+ matches.npz)")
+    out.print(table)
+
+
+def _score_with_progress(clip: Path, cfg, *, pose_log: Path | None = None, quiet: bool = False):
+    """Score a clip with a progress bar on stderr that appears once the clip is readable."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from .scorer import score_clip
+
+    columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn())
+    with Progress(*columns, console=err, disable=quiet) as bar:
+        task = bar.add_task("score", total=None, visible=False)
+        return score_clip(
+            clip, cfg, pose_log=pose_log,
+            progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
+        )
+
+
+def _default_out(clip: Path) -> Path:
+    return Path("geocon-out") / (clip.name if clip.is_dir() else clip.stem)
+
+
+@app.command()
+def score(
+    clip: Annotated[Path, typer.Argument(help="Video (mp4, avi, mov, webm, gif) or a folder of PNG/JPEG frames.")],
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="Folder for the record (default: geocon-out/<clip name>).")] = None,
+    preset_name: Annotated[str, typer.Option("--preset", help="Named settings; see `geocon presets`.")] = "paper",
+    pose_log: Annotated[Optional[Path], typer.Option(help="External first->last pose (geocon-pose/1 JSON, e.g. from DUSt3R) instead of the classical pose.")] = None,
+    matcher: Annotated[Optional[str], typer.Option(help="Correspondences: sift (default), orb, klt.")] = None,
+    fov: Annotated[Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
+) -> None:
+    """Score a clip: translation gate (H/F), background inlier ratio (IR) and geometric error
+    (GE) per frame pair and scale, the report verdict; writes the audit record."""
+    from .config import preset
+    from .reader import ClipError
+    from .record import write_record
+
+    try:
+        cfg = preset(preset_name)
+        overrides = {k: v for k, v in (("matcher", matcher), ("fov_x_deg", fov)) if v is not None}
+        if overrides:
+            cfg = cfg.with_(**overrides)
+        from .features import make_matcher
+
+        make_matcher(cfg.matcher)
+        record = _score_with_progress(clip, cfg, pose_log=pose_log, quiet=as_json)
+    except (ClipError, ValueError) as exc:
+        raise _fail(str(exc)) from None
+    target = out_dir or _default_out(clip)
+    write_record(record, target)
+    if as_json:
+        sys.stdout.write(json.dumps(record.summary(), indent=1) + "\n")
+    else:
+        _print_record(record, target)
+
+
+@app.command()
+def presets() -> None:
+    """List the named scoring presets and their settings."""
+    from .config import PRESETS, config_hash
+
+    for name, (text, cfg) in PRESETS.items():
+        table = Table(title=f"{name}: {text} (hash {config_hash(cfg)})", title_justify="left", show_header=False)
+        table.add_column(style="bold")
+        table.add_column()
+        for key, value in cfg.to_dict().items():
+            table.add_row(key, str(value))
+        out.print(table)
 
 
 def main() -> None:

@@ -12,6 +12,8 @@ __all__ = [
     "TAU_T_HIGH",
     "binary_gate",
     "hysteresis_gate",
+    "gate_margin",
+    "gate_decision",
 ]
 
 GateLabel = Literal["H", "F", "U"]
@@ -38,3 +40,30 @@ def hysteresis_gate(t_inf: float, low: float = TAU_T_LOW, high: float = TAU_T_HI
     if t_inf >= high:
         return "F"
     return "U"
+
+
+def gate_margin(label: GateLabel, t_inf: float, low: float = TAU_T_LOW, high: float = TAU_T_HIGH) -> float:
+    """Distance of ``t_inf`` from the threshold its label depends on: ``low - t_inf`` for H,
+    ``t_inf - high`` for F; for U, minus the distance to the nearer threshold (negative inside
+    the gray zone)."""
+    if label == "H":
+        return low - t_inf
+    if label == "F":
+        return t_inf - high
+    return -min(t_inf - low, high - t_inf)
+
+
+def gate_decision(
+    t_inf: float | None,
+    *,
+    pose_present: bool,
+    tau_t: float = TAU_T_BINARY,
+    low: float = TAU_T_LOW,
+    high: float = TAU_T_HIGH,
+) -> tuple[GateLabel, GateLabel, float | None]:
+    """(hysteresis label, binary label, margin). Without a pose the clip is gated F with no
+    margin (the fail->F policy)."""
+    if not pose_present or t_inf is None:
+        return "F", "F", None
+    label = hysteresis_gate(t_inf, low, high)
+    return label, binary_gate(t_inf, tau_t), gate_margin(label, t_inf, low, high)

@@ -36,6 +36,7 @@ __all__ = [
     "symmetric_transfer_error",
     "sampson_distance",
     "t_inf_from_pose",
+    "scale_intrinsics",
 ]
 
 
@@ -158,3 +159,10 @@ def t_inf_from_pose(T_cam0_camT: np.ndarray, mean_scene_distance: float) -> floa
     if not mean_scene_distance > 0:
         raise ValueError(f"mean_scene_distance must be positive, got {mean_scene_distance}")
     return float(np.max(np.abs(T_cam0_camT[:3, 3])) / mean_scene_distance)
+
+
+def scale_intrinsics(K: np.ndarray, scale: float) -> np.ndarray:
+    """Intrinsics of an image resized by ``scale`` (pixel centres at integers, so a pixel x maps
+    to ``(x + 0.5) * scale - 0.5``, as ``cv2.resize`` does)."""
+    S = np.array([[scale, 0.0, 0.5 * scale - 0.5], [0.0, scale, 0.5 * scale - 0.5], [0.0, 0.0, 1.0]])
+    return S @ K

@@ -77,7 +77,7 @@ def _with_offset(view: SurfaceView, displacement: np.ndarray) -> SurfaceView:
 class Breathing(Failure):
     """Rubber-sheet warp of the background: content near pixel x is displaced by
     ``d_t(x) = severity * sin(2 pi t / period) * phi(x)``, where ``phi`` is a smooth random
-    field (three plane waves per component, wavelengths 0.8-3.3 image sizes) normalised so
+    field (three plane waves per component, 0.6-2 cycles per image size) normalised so
     that ``max_x |phi(x)| = 1``. Frame 0 is unwarped."""
 
     kind = "breathing"
@@ -86,7 +86,7 @@ class Breathing(Failure):
     def __init__(self, scene: Scene, severity: float) -> None:
         super().__init__(scene, severity)
         rng = np.random.default_rng([scene.seed, 7001])
-        self.freqs = rng.uniform(0.3, 1.2, (2, 3, 2)) * rng.choice([-1, 1], (2, 3, 2))
+        self.freqs = rng.uniform(0.6, 2.0, (2, 3, 2)) * rng.choice([-1, 1], (2, 3, 2))
         self.phases = rng.uniform(0, 2 * math.pi, (2, 3))
         self.amps = rng.uniform(0.5, 1.0, (2, 3))
         gy, gx = np.mgrid[0 : scene.height, 0 : scene.width].astype(np.float64)

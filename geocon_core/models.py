@@ -1,0 +1,217 @@
+"""Background models per SPEC section 3: homography (H) with the symmetric transfer error and
+fundamental matrix (F) with the Sampson distance in Hartley-normalised coordinates.
+
+OpenCV's USAC (MAGSAC++ scoring, seeded) only *proposes* a model; the model is then refined on
+its inliers, and the reported inlier set is exactly ``{i : r_i <= tau}`` under the paper's
+residual for the final model. Residuals are rounded to float32 before anything is computed
+from them, so re-gating the stored residuals reproduces IR and GE exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from .geometry import sampson_distance, symmetric_transfer_error, to_homogeneous
+
+__all__ = ["ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_stats"]
+
+Family = Literal["H", "F"]
+
+
+@dataclass(frozen=True, eq=False)
+class ModelFit:
+    """One robust model fit on one pair's correspondences (N matches).
+
+    model: (3, 3) ``H_2from1`` or ``F_21`` in pixel coordinates of the scale, or None.
+    residuals: (N,) float32 residual under the family's inlier rule: H: symmetric transfer
+        error (px); F: Sampson distance in Hartley-normalised units.
+    residuals_px: (N,) float32 residual in pixels (H: same as ``residuals``; F: Sampson
+        distance of the denormalised F on pixel coordinates).
+    inliers: (N,) bool, exactly ``residuals <= tau``.
+    ir: inlier ratio; ge: median of ``residuals_px`` over the inliers (px).
+    tau_px: the pixel equivalent of ``tau`` (H: tau itself; F: tau divided by the geometric
+        mean of the two images' Hartley scales).
+    valid: False when the pair cannot be judged (``reason`` says why).
+    """
+
+    family: Family
+    valid: bool
+    reason: str | None
+    model: np.ndarray | None
+    residuals: np.ndarray
+    residuals_px: np.ndarray
+    inliers: np.ndarray
+    ir: float | None
+    ge: float | None
+    tau: float
+    tau_px: float | None
+
+    @property
+    def n_inliers(self) -> int:
+        return int(np.count_nonzero(self.inliers))
+
+
+def inlier_stats(residuals: np.ndarray, residuals_px: np.ndarray, tau: float) -> tuple[np.ndarray, float | None, float | None]:
+    """Inlier mask, IR and GE from stored float32 residuals at threshold ``tau`` (the rule every
+    re-gating uses)."""
+    inl = residuals <= np.float32(tau)
+    n = residuals.shape[0]
+    if n == 0:
+        return inl, None, None
+    k = int(np.count_nonzero(inl))
+    ge = float(np.median(residuals_px[inl])) if k else None
+    return inl, k / n, ge
+
+
+def _failed(family: Family, reason: str, n: int, tau: float) -> ModelFit:
+    z = np.full(n, np.inf, np.float32)
+    return ModelFit(family, False, reason, None, z, z.copy(), np.zeros(n, bool), None, None, tau, None)
+
+
+def _usac(threshold: float, seed: int, iters: int, confidence: float) -> cv2.UsacParams:
+    p = cv2.UsacParams()
+    p.threshold = float(threshold)
+    p.confidence = float(confidence)
+    p.maxIterations = int(iters)
+    p.randomGeneratorState = int(seed) & 0x7FFFFFFF
+    p.sampler = cv2.SAMPLING_UNIFORM
+    p.score = cv2.SCORE_METHOD_MAGSAC
+    p.loMethod = cv2.LOCAL_OPTIM_SIGMA
+    p.loIterations = 10
+    p.loSampleSize = 14
+    p.final_polisher = cv2.MAGSAC
+    p.final_polisher_iterations = 10
+    p.isParallel = False
+    return p
+
+
+def _finish(family: Family, model: np.ndarray, res: np.ndarray, res_px: np.ndarray, tau: float, tau_px: float | None, min_inliers: int) -> ModelFit:
+    inl, ir, ge = inlier_stats(res, res_px, tau)
+    k = int(np.count_nonzero(inl))
+    valid, reason = (True, None) if k >= min_inliers else (False, "too_few_inliers")
+    return ModelFit(family, valid, reason, model, res, res_px, inl, ir, ge, tau, tau_px)
+
+
+def fit_homography(
+    x1: np.ndarray,
+    x2: np.ndarray,
+    *,
+    tau: float = 2.0,
+    min_inliers: int = 30,
+    seed: int = 0,
+    iters: int = 2000,
+    confidence: float = 0.9999,
+    refine_steps: int = 3,
+) -> ModelFit:
+    """Robust homography ``H_2from1`` from (N, 2) correspondences; inliers are matches with
+    symmetric transfer error <= ``tau`` px."""
+    n = x1.shape[0]
+    if n < max(4, min_inliers):
+        return _failed("H", "too_few_matches", n, tau)
+    try:
+        H, _ = cv2.findHomography(x1, x2, _usac(tau, seed, iters, confidence))
+    except cv2.error:  # USAC asserts on degenerate samples
+        H = None
+    if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-12:
+        return _failed("H", "model_failed", n, tau)
+    best = _h_residuals(H, x1, x2)
+    best_k = int(np.count_nonzero(best <= np.float32(tau)))
+    for _ in range(refine_steps):  # least-squares refit on the inliers, kept while it helps
+        inl = best <= np.float32(tau)
+        if np.count_nonzero(inl) < 8:
+            break
+        try:
+            H_ref, _ = cv2.findHomography(x1[inl], x2[inl], 0)
+        except cv2.error:
+            break
+        if H_ref is None or abs(np.linalg.det(H_ref)) < 1e-12:
+            break
+        res = _h_residuals(H_ref, x1, x2)
+        k = int(np.count_nonzero(res <= np.float32(tau)))
+        if k < best_k or (k == best_k and np.median(res[res <= tau]) >= np.median(best[best <= tau])):
+            break
+        H, best, best_k = H_ref, res, k
+    return _finish("H", H / H[2, 2], best, best, tau, tau, min_inliers)
+
+
+def _h_residuals(H: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    r = symmetric_transfer_error(H, x1, x2)
+    return np.where(np.isfinite(r), r, np.inf).astype(np.float32)
+
+
+def hartley_normalisation(x: np.ndarray) -> np.ndarray:
+    """Similarity T (3x3) moving the centroid of (N, 2) points to the origin with mean
+    distance sqrt(2)."""
+    c = x.mean(axis=0)
+    d = np.linalg.norm(x - c, axis=1).mean()
+    s = np.sqrt(2.0) / d if d > 0 else 1.0
+    return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
+
+
+def _rank2(F: np.ndarray) -> np.ndarray:
+    U, S, Vt = np.linalg.svd(F)
+    S[2] = 0.0
+    F = U @ np.diag(S) @ Vt
+    return F / np.linalg.norm(F)
+
+
+def _eight_point(x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Linear 8-point F on already-normalised points, rank 2 enforced."""
+    h1, h2 = to_homogeneous(x1), to_homogeneous(x2)
+    A = (h2[:, :, None] * h1[:, None, :]).reshape(-1, 9)
+    _, _, Vt = np.linalg.svd(A, full_matrices=False)
+    return _rank2(Vt[-1].reshape(3, 3))
+
+
+def fit_fundamental(
+    x1: np.ndarray,
+    x2: np.ndarray,
+    *,
+    tau: float = 0.1,
+    min_inliers: int = 30,
+    seed: int = 0,
+    iters: int = 2000,
+    confidence: float = 0.9999,
+    refine_steps: int = 3,
+    proposal_px: float = 1.0,
+) -> ModelFit:
+    """Robust fundamental matrix ``F_21`` from (N, 2) pixel correspondences. Each image's points
+    are Hartley-normalised; inliers have normalised Sampson distance <= ``tau``; GE is the
+    median Sampson distance in pixels of the denormalised ``F = T2^T F_hat T1``. USAC proposes
+    the model in pixels with threshold ``proposal_px``."""
+    n = x1.shape[0]
+    if n < max(8, min_inliers):
+        return _failed("F", "too_few_matches", n, tau)
+    T1, T2 = hartley_normalisation(x1), hartley_normalisation(x2)
+    n1 = (to_homogeneous(x1) @ T1.T)[:, :2]
+    n2 = (to_homogeneous(x2) @ T2.T)[:, :2]
+    # USAC proposes in pixels (its scoring assumes pixel-scale coordinates); the paper's rule is
+    # then applied to the proposal expressed in normalised coordinates.
+    try:
+        F_px, _ = cv2.findFundamentalMat(x1, x2, _usac(proposal_px, seed, iters, confidence))
+    except cv2.error:  # USAC asserts on degenerate samples
+        F_px = None
+    if F_px is None or F_px.shape != (3, 3) or not np.isfinite(F_px).all():
+        return _failed("F", "model_failed", n, tau)
+    F_hat = _rank2(np.linalg.inv(T2).T @ F_px @ np.linalg.inv(T1))
+    best = sampson_distance(F_hat, n1, n2).astype(np.float32)
+    best_k = int(np.count_nonzero(best <= np.float32(tau)))
+    for _ in range(refine_steps):  # 8-point refit on the inliers, kept only if it gains inliers
+        inl = best <= np.float32(tau)
+        if np.count_nonzero(inl) < 8:
+            break
+        F_ref = _eight_point(n1[inl], n2[inl])
+        res = sampson_distance(F_ref, n1, n2).astype(np.float32)
+        k = int(np.count_nonzero(res <= np.float32(tau)))
+        if k <= best_k:
+            break
+        F_hat, best, best_k = F_ref, res, k
+    F = T2.T @ F_hat @ T1
+    F /= np.linalg.norm(F)
+    res_px = sampson_distance(F, x1, x2).astype(np.float32)
+    tau_px = tau / float(np.sqrt(T1[0, 0] * T2[0, 0]))
+    return _finish("F", F, best, res_px, tau, tau_px, min_inliers)
