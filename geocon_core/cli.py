@@ -54,7 +54,7 @@ def _main(
     """GeoCon: is a generated video geometrically real?"""
 
 
-def _render_plans(plans, out_dir: Path, *, seed: int, width: int, height: int, frames: int, fps: float, quiet: bool, noise: float = 1.0):
+def _render_plans(plans, out_dir: Path, *, seed: int, width: int, height: int, frames: int, fps: float, quiet: bool, noise: float = 2.0):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from .synth import write_clip
@@ -115,7 +115,7 @@ def synth(
     seed: Annotated[int, typer.Option(help="Random seed; the same seed gives identical files.")] = 0,
     failure: Annotated[Optional[str], typer.Option(help="Inject a failure: breathing, slide, missing_parallax, elastic, boiling, letterbox.")] = None,
     severity: Annotated[Optional[float], typer.Option(help="Failure severity in the failure's unit (see `geocon synth-failures`).")] = None,
-    noise: Annotated[float, typer.Option(min=0.0, help="Sensor noise, standard deviation in grey levels.")] = 1.0,
+    noise: Annotated[float, typer.Option(min=0.0, help="Sensor noise, standard deviation in grey levels.")] = 2.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout instead of a table.")] = False,
 ) -> None:
     """Render synthetic clips with exact ground truth: video (mp4), object masks, ground truth

@@ -37,6 +37,7 @@ __all__ = [
     "sampson_distance",
     "t_inf_from_pose",
     "scale_intrinsics",
+    "project",
 ]
 
 
@@ -166,3 +167,11 @@ def scale_intrinsics(K: np.ndarray, scale: float) -> np.ndarray:
     to ``(x + 0.5) * scale - 0.5``, as ``cv2.resize`` does)."""
     S = np.array([[scale, 0.0, 0.5 * scale - 0.5], [0.0, scale, 0.5 * scale - 0.5], [0.0, 0.0, 1.0]])
     return S @ K
+
+
+def project(K: np.ndarray, T_cam_world: np.ndarray, X_world: np.ndarray) -> np.ndarray:
+    """Pixels (N, 2) of world points (N, 3) seen by a camera with intrinsics K and world-to-camera
+    pose ``T_cam_world`` (points behind the camera are projected all the same)."""
+    X = np.asarray(X_world, dtype=float) @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    x = X @ np.asarray(K, dtype=float).T
+    return x[:, :2] / x[:, 2:3]

@@ -17,7 +17,7 @@ import numpy as np
 
 from .geometry import sampson_distance, symmetric_transfer_error, to_homogeneous
 
-__all__ = ["ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_stats"]
+__all__ = ["usac_params", "ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_stats"]
 
 Family = Literal["H", "F"]
 
@@ -72,7 +72,17 @@ def _failed(family: Family, reason: str, n: int, tau: float) -> ModelFit:
     return ModelFit(family, False, reason, None, z, z.copy(), np.zeros(n, bool), None, None, tau, None)
 
 
-def _usac(threshold: float, seed: int, iters: int, confidence: float) -> cv2.UsacParams:
+def usac_params(
+    threshold: float,
+    seed: int,
+    iters: int,
+    confidence: float,
+    *,
+    lo_method: int = cv2.LOCAL_OPTIM_SIGMA,
+    polisher: int = cv2.MAGSAC,
+) -> cv2.UsacParams:
+    """Seeded, single-threaded OpenCV USAC settings (uniform sampling, MAGSAC++ scoring): the
+    same input and seed give the same model."""
     p = cv2.UsacParams()
     p.threshold = float(threshold)
     p.confidence = float(confidence)
@@ -80,10 +90,10 @@ def _usac(threshold: float, seed: int, iters: int, confidence: float) -> cv2.Usa
     p.randomGeneratorState = int(seed) & 0x7FFFFFFF
     p.sampler = cv2.SAMPLING_UNIFORM
     p.score = cv2.SCORE_METHOD_MAGSAC
-    p.loMethod = cv2.LOCAL_OPTIM_SIGMA
+    p.loMethod = lo_method
     p.loIterations = 10
     p.loSampleSize = 14
-    p.final_polisher = cv2.MAGSAC
+    p.final_polisher = polisher
     p.final_polisher_iterations = 10
     p.isParallel = False
     return p
@@ -113,7 +123,7 @@ def fit_homography(
     if n < max(4, min_inliers):
         return _failed("H", "too_few_matches", n, tau)
     try:
-        H, _ = cv2.findHomography(x1, x2, _usac(tau, seed, iters, confidence))
+        H, _ = cv2.findHomography(x1, x2, usac_params(tau, seed, iters, confidence))
     except cv2.error:  # USAC asserts on degenerate samples
         H = None
     if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-12:
@@ -192,7 +202,7 @@ def fit_fundamental(
     # USAC proposes in pixels (its scoring assumes pixel-scale coordinates); the paper's rule is
     # then applied to the proposal expressed in normalised coordinates.
     try:
-        F_px, _ = cv2.findFundamentalMat(x1, x2, _usac(proposal_px, seed, iters, confidence))
+        F_px, _ = cv2.findFundamentalMat(x1, x2, usac_params(proposal_px, seed, iters, confidence))
     except cv2.error:  # USAC asserts on degenerate samples
         F_px = None
     if F_px is None or F_px.shape != (3, 3) or not np.isfinite(F_px).all():

@@ -115,6 +115,7 @@ import cv2
 import numpy as np
 
 from .geometry import make_pose, rotation_angle_deg
+from .models import usac_params
 
 __all__ = [
     "PoseEstimate",
@@ -549,18 +550,9 @@ class ClassicalPose:
         n1 = (np.c_[x1, np.ones(len(x1))] @ Kinv.T)[:, :2]
         f = _focal(K)
         thr = self.essential_px / f
-        params = cv2.UsacParams()
-        params.threshold = thr
-        params.confidence = self.confidence
-        params.maxIterations = self.ransac_iters
-        params.randomGeneratorState = int(seed) & 0x7FFFFFFF
-        params.isParallel = False
-        params.sampler = cv2.SAMPLING_UNIFORM
-        params.score = cv2.SCORE_METHOD_MAGSAC
-        params.loMethod = cv2.LOCAL_OPTIM_INNER_LO
-        params.loIterations = 10
-        params.loSampleSize = 14
-        params.final_polisher = cv2.NONE_POLISHER
+        params = usac_params(
+            thr, seed, self.ransac_iters, self.confidence, lo_method=cv2.LOCAL_OPTIM_INNER_LO, polisher=cv2.NONE_POLISHER
+        )
         I3 = np.eye(3)
         try:
             E, _ = cv2.findEssentialMat(

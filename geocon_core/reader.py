@@ -17,7 +17,8 @@ frames in natural order (``frame_2`` before ``frame_10``). Unusable input raises
 Coordinates: source pixels are those of the decoded frames, (w, h); working pixels are those of
 the canvas, (W, H). A source pixel edge ``x`` maps to ``offset + x * scale`` in working pixels
 (pixel centres at integer coordinates, as in the rest of GeoCon: centre ``u`` maps to
-``offset + (u + 0.5) * scale - 0.5``).
+``offset + (u + 0.5) * scale - 0.5``), up to the rounding of the scaled size to whole pixels
+(under half a working pixel).
 """
 
 from __future__ import annotations
@@ -63,14 +64,18 @@ CUT_THUMB_WIDTH = 64
 """Width (px) of the grey thumbnails compared for hard cuts; height keeps the aspect ratio."""
 CUT_HIST_BINS = 32
 """Grey-level histogram bins of a thumbnail."""
-CUT_MIN_DISTANCE = 0.35
-"""A cut needs a Bhattacharyya distance between consecutive thumbnails above this..."""
-CUT_MEDIAN_FACTOR = 4.0
-"""...and above this many times the median distance of the clip's other consecutive pairs..."""
+CUT_MIN_DISTANCE = 0.1
+"""A hard cut between two frames needs all of: a Bhattacharyya distance between their thumbnail
+histograms above this (0..1)...,"""
 CUT_MIN_MAD = 20.0
-"""...and a thumbnail mean absolute difference (grey levels) above this..."""
-CUT_MAD_MEDIAN_FACTOR = 2.0
-"""...and above this many times the median thumbnail difference of the other pairs."""
+"""...a thumbnail mean absolute difference above this (grey levels)...,"""
+CUT_MEDIAN_FACTOR = 2.5
+"""...a distance above this many times the median distance of the clip's other pairs...,"""
+CUT_NEIGHBOUR_FACTOR = 2.0
+"""...and above this many times the larger distance of the adjacent pairs (a cut is an isolated
+spike; a fast pan or a passing occluder raises several consecutive distances)."""
+CUT_LONE_DISTANCE = 0.35
+"""The distance a pair needs when the clip has no other pair to compare it with."""
 
 _VIDEO_MAGIC = (b"GIF87a", b"GIF89a", b"RIFF", b"\x1aE\xdf\xa3", b"OggS", b"FLV")
 _MP4_BOXES = (b"ftyp", b"moov", b"mdat", b"free", b"wide", b"skip", b"pnot")
@@ -202,23 +207,25 @@ def probe_clip(path: str | Path, config: ScoreConfig = ScoreConfig()) -> ClipInf
     name = str(path)
     kind, files = _resolve(Path(path), name)
     fps = DEFAULT_FPS
-    row_max = col_max = None
+    row_max: np.ndarray | None = None
+    col_max: np.ndarray | None = None
     prev_gray = prev_thumb = prev_hist = None
     dup_flags: list[bool] = []
     hist_dist: list[float] = []
     thumb_mad: list[float] = []
     n = 0
     size = (0, 0)
-    frames = _image_frames(files, name) if files is not None else _video_frames(name)
-    if files is None:
-        fps = _video_fps(name)
+    frames = _image_frames(files, name) if files is not None else None
+    if frames is None:
+        fps, frames = _open_video(name)
     for bgr in frames:
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         h, w = gray.shape
         if n == 0:
             size = (w, h)
         elif (w, h) != size:
-            raise ClipError(f"{name}: frame {n} is {w}x{h} but frame 0 is {size[0]}x{size[1]}")
+            which = f"frame {n}" if files is None else f"frame {n} ({files[n].name})"
+            raise ClipError(f"{name}: {which} is {w}x{h} but frame 0 is {size[0]}x{size[1]}")
         rows = cv2.reduce(gray, 1, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
         cols = cv2.reduce(gray, 0, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
         row_max = rows if row_max is None else np.maximum(row_max, rows)
@@ -231,9 +238,7 @@ def probe_clip(path: str | Path, config: ScoreConfig = ScoreConfig()) -> ClipInf
             thumb_mad.append(float(cv2.mean(cv2.absdiff(thumb, prev_thumb))[0]))
         prev_gray, prev_thumb, prev_hist = gray, thumb, hist
         n += 1
-    if n == 0:
-        if files is not None:  # pragma: no cover - _resolve only returns readable image lists
-            raise ClipError(f"{name}: no frame could be decoded")
+    if n == 0:  # only a video can get here: every file of an image folder decodes or raises
         raise ClipError(f"{name}: unreadable bytes (the container opened but no frame could be decoded)")
     if n == 1:
         raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
@@ -271,7 +276,7 @@ def iter_frames(info: ClipInfo) -> Iterator[Frame]:
     else:
         if not Path(name).is_file():
             raise ClipError(f"{name}: no such file")
-        frames = _video_frames(name)
+        _, frames = _open_video(name)
     layout = _layout(info.source_size, info.working_size)
     W, H = info.working_size
     content = info.content_mask
@@ -318,10 +323,11 @@ def _resolve(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
     return kind, None
 
 
-def _natural_key(path: Path) -> list[tuple[int, int | str]]:
-    """Sort key putting ``frame_2`` before ``frame_10`` (digit runs compare as numbers)."""
+def _natural_key(path: Path) -> tuple[list[tuple[int, int | str]], str]:
+    """Sort key putting ``frame_2`` before ``frame_10`` (digit runs compare as numbers); the
+    exact name breaks ties (``f01`` / ``f1``) so that the order never depends on the file system."""
     parts = re.split(r"(\d+)", path.name.lower())
-    return [(0, int(p)) if p.isdigit() else (1, p) for p in parts if p]
+    return [(0, int(p)) if p.isdigit() else (1, p) for p in parts if p], path.name
 
 
 def _imread(path: Path) -> np.ndarray | None:
@@ -357,21 +363,20 @@ def _open_capture(name: str) -> cv2.VideoCapture:
     return cap
 
 
-def _video_fps(name: str) -> float:
-    """The container's frame rate, or :data:`DEFAULT_FPS` when it reports none."""
+def _open_video(name: str) -> tuple[float, Iterator[np.ndarray]]:
+    """The frame rate of the video or GIF ``name`` (:data:`DEFAULT_FPS` when the container reports
+    none) and an iterator over its (h, w, 3) uint8 BGR frames until the decoder stops."""
     cap = _open_capture(name)
     try:
         fps = float(cap.get(cv2.CAP_PROP_FPS))
     except cv2.error:
         fps = 0.0
-    finally:
-        cap.release()
-    return fps if math.isfinite(fps) and 0.0 < fps < 1000.0 else DEFAULT_FPS
+    fps = fps if math.isfinite(fps) and 0.0 < fps < 1000.0 else DEFAULT_FPS
+    return fps, _read_capture(cap, name)
 
 
-def _video_frames(name: str) -> Iterator[np.ndarray]:
-    """(h, w, 3) uint8 BGR frames of a video or GIF until the decoder stops."""
-    cap = _open_capture(name)
+def _read_capture(cap: cv2.VideoCapture, name: str) -> Iterator[np.ndarray]:
+    """(h, w, 3) uint8 BGR frames of an opened capture; releases it when done."""
     t = 0
     try:
         while True:
@@ -484,21 +489,26 @@ def _thumbnail(gray: np.ndarray) -> np.ndarray:
 
 
 def _hard_cuts(dist: np.ndarray, mad: np.ndarray, duplicate: np.ndarray) -> tuple[int, ...]:
-    """Frame indices t with a hard cut between t - 1 and t, from the per-pair (T-1,) thumbnail
-    histogram distance ``dist`` (Bhattacharyya, 0..1) and thumbnail mean absolute difference
-    ``mad`` (grey levels). Pair i = (i, i + 1) is a cut when both measures are large in absolute
-    terms and outliers against the medians of the clip's other non-duplicate pairs."""
+    """Frame indices t with a hard cut between frames t - 1 and t.
+
+    Inputs are per pair i = (i, i + 1), shape (T - 1,): ``dist`` the Bhattacharyya distance
+    (0..1) between the thumbnails' grey histograms, ``mad`` their mean absolute difference (grey
+    levels), ``duplicate`` the duplicate flags. Duplicate pairs are never cuts and are left out of
+    the medians and neighbours. Thresholds: :data:`CUT_MIN_DISTANCE`, :data:`CUT_MIN_MAD`,
+    :data:`CUT_MEDIAN_FACTOR`, :data:`CUT_NEIGHBOUR_FACTOR`, :data:`CUT_LONE_DISTANCE`."""
+    valid = ~duplicate
     cuts = []
-    for i in range(dist.size):
-        if dist[i] <= CUT_MIN_DISTANCE or mad[i] <= CUT_MIN_MAD:
-            continue
-        others = np.ones(dist.size, dtype=bool)
+    for i in np.flatnonzero(valid & (dist > CUT_MIN_DISTANCE) & (mad > CUT_MIN_MAD)):
+        others = valid.copy()
         others[i] = False
-        others &= ~duplicate
-        if others.any():
-            if dist[i] <= CUT_MEDIAN_FACTOR * float(np.median(dist[others])):
-                continue
-            if mad[i] <= CUT_MAD_MEDIAN_FACTOR * float(np.median(mad[others])):
-                continue
-        cuts.append(i + 1)
+        if not others.any():
+            if dist[i] > CUT_LONE_DISTANCE:
+                cuts.append(int(i) + 1)
+            continue
+        if dist[i] <= CUT_MEDIAN_FACTOR * float(np.median(dist[others])):
+            continue
+        neighbours = [dist[j] for j in (i - 1, i + 1) if 0 <= j < dist.size and valid[j]]
+        if neighbours and dist[i] <= CUT_NEIGHBOUR_FACTOR * float(max(neighbours)):
+            continue
+        cuts.append(int(i) + 1)
     return tuple(cuts)

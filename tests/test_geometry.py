@@ -15,6 +15,7 @@ from geocon_core.geometry import (
     intrinsics_from_fov,
     invert_pose,
     make_pose,
+    project,
     relative_pose,
     rotation_angle_deg,
     rotation_xyz,
@@ -26,12 +27,6 @@ from geocon_core.geometry import (
 K = intrinsics_from_fov(640, 360, 60.0)
 angles = st.floats(-20, 20)
 shifts = st.floats(-0.5, 0.5)
-
-
-def project(K: np.ndarray, T: np.ndarray, X: np.ndarray) -> np.ndarray:
-    Xc = X @ T[:3, :3].T + T[:3, 3]
-    x = Xc @ K.T
-    return x[:, :2] / x[:, 2:3]
 
 
 def test_intrinsics_give_the_requested_field_of_view():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from geocon_core import geometry
 from geocon_core.geometry import fundamental_from_pose, homography_from_plane, intrinsics_from_fov, make_pose, rotation_xyz, sampson_distance
 from geocon_core.models import fit_fundamental, fit_homography, hartley_normalisation, inlier_stats
 
@@ -12,9 +13,7 @@ K = intrinsics_from_fov(1024, 576, 60.0)
 
 
 def project(T, X):
-    Xc = X @ T[:3, :3].T + T[:3, 3]
-    x = Xc @ K.T
-    return x[:, :2] / x[:, 2:3]
+    return geometry.project(K, T, X)
 
 
 def plane_scene(rng, n=300):

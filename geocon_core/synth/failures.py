@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..geometry import apply_homography, invert_pose
+from ..geometry import apply_homography, invert_pose, project
 from .render import RenderedFrame, render_frame
 from .scene import Scene, SurfaceView, plane_view
 from .textures import procedural_texture
@@ -210,10 +210,7 @@ class Elastic(Failure):
 
     def object_frame(self, scene: Scene, t: int) -> tuple[np.ndarray, float]:
         """Projected centre (2,) and half-extent (px) of the object at frame t."""
-        T = scene.T_cam_world[t]
-        X = self._obj.plane_at(t).corners() @ T[:3, :3].T + T[:3, 3]
-        x = X @ scene.K.T
-        x = x[:, :2] / x[:, 2:3]
+        x = project(scene.K, scene.T_cam_world[t], self._obj.plane_at(t).corners())
         return x.mean(axis=0), 0.5 * float(max(np.ptp(x[:, 0]), np.ptp(x[:, 1])))
 
     def displacement(self, scene: Scene, t: int) -> np.ndarray:

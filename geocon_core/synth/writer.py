@@ -109,7 +109,7 @@ def write_clip(
     height: int = 360,
     num_frames: int = 48,
     fps: float = 24.0,
-    noise: float = 1.0,
+    noise: float = 2.0,
     on_frame: Callable[[int], None] | None = None,
 ) -> GroundTruth:
     """Render ``plan`` into ``out_dir`` and return its ground truth. ``noise`` is the standard
