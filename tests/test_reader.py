@@ -292,7 +292,7 @@ def test_duplicate_threshold_comes_from_the_config(tmp_path):
 
 
 def test_hard_cut_at_the_junction_of_two_clips(clips, tmp_path):
-    frames = read_video(clips["C1"]) + read_video(clips["C3"])  # different scenes and seeds
+    frames = read_video(clips["C2"]) + read_video(clips["C3"])  # different scenes and seeds, both moving
     path = tmp_path / "two_shots.mp4"
     with Mp4Writer(path, W, H, 24) as writer:
         for rgb in frames:
