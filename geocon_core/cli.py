@@ -180,9 +180,11 @@ def demo(
     target = out_dir / "record"
     write_record(record, target)
     _print_record(record, target)
+    truth = {o.object_id: o.rigid for o in gt.objects}
     out.print(
-        "note: the moving objects are not masked out yet, so their matches count as background "
-        "outliers and lower IR; the audit record keeps every match and residual for inspection.",
+        f"the built-in motion segmentation found {len(record.objects)} object(s); the ground truth has "
+        f"{len(truth)} ({', '.join(f'{k}: ' + ('rigid' if v else 'non-rigid') for k, v in truth.items())}). "
+        "Higher AdaDFRC means less rigid motion.",
         soft_wrap=True,
     )
 
@@ -216,6 +218,16 @@ def _print_record(record, out_dir: Path | None) -> None:
     else:
         verdict = f"[red]inconsistent[/] (needs IR >= {record.config.ir_gate:g} and GE <= {record.config.ge_gate:g} px)"
     table.add_row("verdict", verdict)
+    if record.category is not None:
+        table.add_row("category", f"{record.category.label}: {record.category.rule}")
+    share = max(record.masked_share) if record.masked_share else 0.0
+    table.add_row("objects", f"{len(record.objects)} from {record.masks_source} masks (masked share up to {share:.1%} of the content)")
+    for o in record.objects:
+        table.add_row(
+            f"  object {o.object_id}",
+            f"frames {o.first_frame}-{o.last_frame} ({o.frames}), AdaDFRC {_fmt(o.adadfrc, '.3f')} px², "
+            f"W2 {_fmt(o.adadfrc_w2, '.3f')} px², AdaP90 {_fmt(o.adap90, '.3f')} px², masked {o.masked_share:.1%}",
+        )
     table.add_row("config", f"{record.config.preset} preset, hash {record.config_hash}")
     for w in record.warnings:
         table.add_row("[yellow]warning[/]", w)
@@ -224,7 +236,7 @@ def _print_record(record, out_dir: Path | None) -> None:
     out.print(table)
 
 
-def _score_with_progress(clip: Path, cfg, *, pose_log: Path | None = None, quiet: bool = False):
+def _score_with_progress(clip: Path, cfg, *, pose_log: Path | None = None, masks: Path | None = None, quiet: bool = False):
     """Score a clip with a progress bar on stderr that appears once the clip is readable."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -234,7 +246,7 @@ def _score_with_progress(clip: Path, cfg, *, pose_log: Path | None = None, quiet
     with Progress(*columns, console=err, disable=quiet) as bar:
         task = bar.add_task("score", total=None, visible=False)
         return score_clip(
-            clip, cfg, pose_log=pose_log,
+            clip, cfg, pose_log=pose_log, masks=masks,
             progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
         )
 
@@ -249,6 +261,8 @@ def score(
     out_dir: Annotated[Optional[Path], typer.Option("--out", help="Folder for the record (default: geocon-out/<clip name>).")] = None,
     preset_name: Annotated[str, typer.Option("--preset", help="Named settings; see `geocon presets`.")] = "paper",
     pose_log: Annotated[Optional[Path], typer.Option(help="External first->last pose (geocon-pose/1 JSON, e.g. from DUSt3R) instead of the classical pose.")] = None,
+    masks: Annotated[Optional[Path], typer.Option(help="External object masks: a folder of label PNGs, per-object folders, or an .npz (see the README).")] = None,
+    no_masks: Annotated[bool, typer.Option("--no-masks", help="Do not separate moving objects (score the whole content as background).")] = False,
     matcher: Annotated[Optional[str], typer.Option(help="Correspondences: sift (default), orb, klt.")] = None,
     fov: Annotated[Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
@@ -262,12 +276,16 @@ def score(
     try:
         cfg = preset(preset_name)
         overrides = {k: v for k, v in (("matcher", matcher), ("fov_x_deg", fov)) if v is not None}
+        if no_masks:
+            if masks is not None:
+                raise ValueError("--masks and --no-masks exclude each other")
+            overrides["masks"] = "none"
         if overrides:
             cfg = cfg.with_(**overrides)
         from .features import make_matcher
 
         make_matcher(cfg.matcher)
-        record = _score_with_progress(clip, cfg, pose_log=pose_log, quiet=as_json)
+        record = _score_with_progress(clip, cfg, pose_log=pose_log, masks=masks, quiet=as_json)
     except (ClipError, ValueError) as exc:
         raise _fail(str(exc)) from None
     target = out_dir or _default_out(clip)

@@ -38,6 +38,14 @@ class ScoreConfig:
     ratio: float = 0.8
     max_features: int = 2000
     """Features per frame at scale 1; ``max_features * scale`` at smaller scales."""
+    # mask-first separation and object rigidity (SPEC sections 2, 4)
+    masks: str = "motion"
+    """Where object masks come from: ``motion`` (built-in segmentation, no weights) or ``none``;
+    external masks are given as a path (``geocon score --masks DIR``)."""
+    flow: str = "dis"
+    grid: int = 8
+    """AdaDFRC grid: N x N cells on each object's box."""
+    min_cells: int = 3
     # background models (SPEC section 3)
     tau_h: float = 2.0
     tau_f: float = 0.1
@@ -63,6 +71,10 @@ class ScoreConfig:
             raise ValueError(f"scales must be in (0, 1], got {self.scales}")
         if not self.gaps or any(g < 1 for g in self.gaps):
             raise ValueError(f"gaps must be positive integers, got {self.gaps}")
+        if self.masks not in ("motion", "none", "external"):
+            raise ValueError(f"masks must be 'motion', 'none' or 'external', got {self.masks!r}")
+        if self.grid < 1 or self.min_cells < 1:
+            raise ValueError("grid and min_cells must be positive")
         if self.aggregation not in ("median", "worst"):
             raise ValueError(f"aggregation must be 'median' or 'worst', got {self.aggregation!r}")
         if not self.tau_t_low <= self.tau_t_high:

@@ -34,6 +34,11 @@ __all__ = [
     "BackgroundSummary",
     "GateWindow",
     "GateRecord",
+    "ObjectEntry",
+    "ObjectScaleSummary",
+    "ObjectSummary",
+    "CellArrays",
+    "Category",
     "ClipRecord",
     "write_record",
     "read_record",
@@ -129,6 +134,97 @@ class MatchArrays:
             parts = [np.asarray(p[name], dtype) for p in per_pair]
             cat[name] = np.concatenate(parts) if parts else np.zeros(shape, dtype)
         return cls(offsets=offsets, **cat)
+
+
+@dataclass(frozen=True, eq=False)
+class CellArrays:
+    """Per-cell AdaDFRC vectors of all object entries, concatenated; rows of entry i are
+    ``offsets[i]:offsets[i+1]``.
+
+    cells: (C, 2) int16 grid indices (row, col); positions: (C, 2) float32 pixel where the
+    cell's flow was observed (pixels of the entry's scale); observed, predicted: (C, 2) float32
+    median and affine-predicted flow (px); weights: (C,) float32 reliable pixel counts.
+    """
+
+    offsets: np.ndarray
+    cells: np.ndarray
+    positions: np.ndarray
+    observed: np.ndarray
+    predicted: np.ndarray
+    weights: np.ndarray
+
+    NAMES = ("offsets", "cells", "positions", "observed", "predicted", "weights")
+
+    def entry(self, index: int) -> dict[str, np.ndarray]:
+        sl = slice(int(self.offsets[index]), int(self.offsets[index + 1]))
+        return {name: getattr(self, name)[sl] for name in self.NAMES[1:]}
+
+    @classmethod
+    def concatenate(cls, per_entry: list[dict[str, np.ndarray] | None]) -> "CellArrays":
+        counts = [0 if e is None else len(e["weights"]) for e in per_entry]
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        out = {}
+        for name, dtype, shape in (("cells", np.int16, (0, 2)), ("positions", np.float32, (0, 2)), ("observed", np.float32, (0, 2)),
+                                   ("predicted", np.float32, (0, 2)), ("weights", np.float32, (0,))):
+            parts = [np.asarray(e[name], dtype).reshape((-1,) + shape[1:]) for e in per_entry if e is not None]
+            out[name] = np.concatenate(parts) if parts else np.zeros(shape, dtype)
+        return cls(offsets=offsets, **out)
+
+
+@dataclass(frozen=True)
+class ObjectEntry:
+    """AdaDFRC of one object on frames (t0, t1) at one scale. ``d_t`` (the paper's score) and
+    ``w2`` in px^2 of the scale; ``affine`` is [M | b] (2x3) with v_pred(p) = M p + b; ``index``
+    addresses the entry's cells in :class:`CellArrays`. ``reason`` says why an entry is skipped."""
+
+    index: int
+    object_id: int
+    t0: int
+    t1: int
+    scale: float
+    valid: bool
+    reason: str | None
+    d_t: float | None
+    w2: float | None
+    n_pixels: int
+    affine: list[list[float]] | None
+
+
+@dataclass(frozen=True)
+class ObjectScaleSummary:
+    scale: float
+    adadfrc: float | None
+    adadfrc_w2: float | None
+    adap90: float | None
+    valid_frames: int
+    skipped: dict[str, int]
+
+
+@dataclass(frozen=True)
+class ObjectSummary:
+    """One tracked object: frames where it is visible, its mean masked share of the content,
+    and per scale the mean ``D_t`` (``adadfrc`` = S), mean W2 and AdaP90; the headline values are
+    those of the largest scale."""
+
+    object_id: int
+    frames: int
+    first_frame: int
+    last_frame: int
+    masked_share: float
+    adadfrc: float | None
+    adadfrc_w2: float | None
+    adap90: float | None
+    per_scale: tuple[ObjectScaleSummary, ...]
+
+
+@dataclass(frozen=True)
+class Category:
+    """Post-hoc scene family (SPEC section 5) with the inputs of the decision and the rule that
+    fired."""
+
+    label: str
+    rule: str
+    inputs: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -227,8 +323,13 @@ class ClipRecord:
     pairs: tuple[PairRecord, ...]
     matches: MatchArrays
     intrinsics: list[list[float]]
-    category: str | None = None
+    category: Category | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    masks_source: str = "none"
+    masked_share: tuple[float, ...] = ()
+    objects: tuple[ObjectSummary, ...] = ()
+    object_entries: tuple[ObjectEntry, ...] = ()
+    cells: CellArrays | None = None
 
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
@@ -261,7 +362,13 @@ class ClipRecord:
                 "cuts": len(self.video.get("cuts", [])),
                 "invalid_reasons": bg.chosen.invalid_reasons,
             },
-            "category": self.category,
+            "objects": [
+                {"id": o.object_id, "frames": o.frames, "adadfrc": o.adadfrc, "adadfrc_w2": o.adadfrc_w2,
+                 "adap90": o.adap90, "masked_share": o.masked_share}
+                for o in self.objects
+            ],
+            "masks": self.masks_source,
+            "category": None if self.category is None else self.category.label,
             "preset": self.config.preset,
             "config_hash": self.config_hash,
             "versions": self.versions,
@@ -281,8 +388,12 @@ class ClipRecord:
             "gate": asdict(self.gate),
             "background": asdict(self.background),
             "pairs": [asdict(p) for p in self.pairs],
-            "category": self.category,
+            "category": None if self.category is None else asdict(self.category),
             "warnings": list(self.warnings),
+            "masks_source": self.masks_source,
+            "masked_share": list(self.masked_share),
+            "objects": [asdict(o) for o in self.objects],
+            "object_entries": [asdict(e) for e in self.object_entries],
         }
 
 
@@ -308,12 +419,15 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
+    arrays = {name: getattr(record.matches, name) for name in MatchArrays.NAMES}
+    if record.cells is not None:
+        arrays.update({f"cells_{name}": getattr(record.cells, name) for name in CellArrays.NAMES})
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for name in MatchArrays.NAMES:
+        for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_DEFLATED
             arr = io.BytesIO()
-            np.lib.format.write_array(arr, np.ascontiguousarray(getattr(record.matches, name)), allow_pickle=False)
+            np.lib.format.write_array(arr, np.ascontiguousarray(value), allow_pickle=False)
             zf.writestr(info, arr.getvalue())
     for name, data in (("matches.npz", buf.getvalue()), ("record.json", _dumps(record.to_json_dict()).encode())):
         tmp = out / f".{name}.part"
@@ -331,6 +445,7 @@ def read_record(path: str | Path) -> ClipRecord:
         raise ValueError(f"{folder / 'record.json'}: not a GeoCon record (format {d.get('format')!r}, expected {RECORD_FORMAT!r})")
     with np.load(folder / "matches.npz", allow_pickle=False) as z:
         matches = MatchArrays(**{name: z[name] for name in MatchArrays.NAMES})
+        cells = CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES}) if "cells_offsets" in z.files else None
     g = d["gate"]
     gate = GateRecord(**{**g, "timeline": tuple(GateWindow(**w) for w in g["timeline"])})
     b = d["background"]
@@ -339,5 +454,11 @@ def read_record(path: str | Path) -> ClipRecord:
     return ClipRecord(
         clip=d["clip"], video=d["video"], config=ScoreConfig.from_dict(d["config"]), config_hash=d["config_hash"],
         versions=d["versions"], gate=gate, background=background, pairs=pairs, matches=matches,
-        intrinsics=d["intrinsics"], category=d["category"], warnings=tuple(d["warnings"]),
+        intrinsics=d["intrinsics"], category=None if d["category"] is None else Category(**d["category"]),
+        warnings=tuple(d["warnings"]), masks_source=d["masks_source"], masked_share=tuple(d["masked_share"]),
+        objects=tuple(
+            ObjectSummary(**{**o, "per_scale": tuple(ObjectScaleSummary(**p) for p in o["per_scale"])}) for o in d["objects"]
+        ),
+        object_entries=tuple(ObjectEntry(**e) for e in d["object_entries"]),
+        cells=cells,
     )

@@ -15,22 +15,31 @@ import threading
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable
 
+import cv2
 import numpy as np
 
 from ._version import __version__
+from .category import categorize
 from .config import ScoreConfig, config_hash
 from .features import FeatureSet, Matcher, make_matcher, scaled_inputs
+from .flow import FlowBackend, make_flow_backend
 from .gate import gate_decision
 from .geometry import scale_intrinsics
+from .masks import make_mask_source
 from .models import ModelFit, fit_fundamental, fit_homography
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
+from .rigidity import adadfrc_pair, object_scores
 from .record import (
     BackgroundSummary,
+    CellArrays,
+    ObjectEntry,
+    ObjectScaleSummary,
+    ObjectSummary,
     ClipRecord,
     FamilySummary,
     FitSummary,
@@ -42,19 +51,10 @@ from .record import (
     ScaleSummary,
 )
 
-__all__ = ["score_clip", "BackgroundMasks", "software_versions"]
-
-
-class BackgroundMasks(Protocol):
-    """Hook for mask-first separation: the background mask ``B_t`` (H, W) bool at working
-    resolution, or None to use the whole content."""
-
-    def background(self, t: int) -> np.ndarray | None: ...
+__all__ = ["score_clip", "software_versions"]
 
 
 def software_versions() -> dict[str, str]:
-    import cv2
-
     versions = {"geocon": __version__, "python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__}
     return versions
 
@@ -100,17 +100,14 @@ class _Timer:
 
 
 class _Pipeline:
-    def __init__(self, info: ClipInfo, config: ScoreConfig, matcher: Matcher, masks: BackgroundMasks | None, timer: _Timer) -> None:
-        self.info, self.config, self.matcher, self.masks, self.timer = info, config, matcher, masks, timer
+    def __init__(self, info: ClipInfo, config: ScoreConfig, matcher: Matcher, flow: FlowBackend | None, timer: _Timer) -> None:
+        self.info, self.config, self.matcher, self.flow, self.timer = info, config, matcher, flow, timer
         self.s_max = max(config.scales)
 
-    def extract(self, frame: Frame) -> dict[float, FeatureSet]:
+    def extract(self, frame: Frame, background: np.ndarray | None) -> dict[float, FeatureSet]:
+        """Features of frame t inside ``B_t`` = content minus object masks, at every scale."""
         start = time.perf_counter()
-        mask = frame.content
-        if self.masks is not None:
-            bg = self.masks.background(frame.index)
-            if bg is not None:
-                mask = mask & bg
+        mask = frame.content if background is None else frame.content & background
         out = {}
         for s in self.config.scales:
             g, m = scaled_inputs(frame.gray, mask, s)
@@ -134,6 +131,41 @@ class _Pipeline:
             results.append(_Scored(t0, t1, gap, s, None, x1, x2, h, f))
         return results
 
+    def score_objects(self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None) -> list[tuple]:
+        """AdaDFRC of every object of frame t0 on the pair (t0, t1), at every scale:
+        (object_id, t0, t1, scale, RigidityResult | reason)."""
+        start = time.perf_counter()
+        out: list[tuple] = []
+        ids = [int(i) for i in np.unique(labels0) if i]
+        for s in self.config.scales:
+            if s == 1.0:
+                g0, g1, lab = f0.gray, f1.gray, labels0
+            else:
+                h, w = f0.gray.shape
+                size = (max(1, round(w * s)), max(1, round(h * s)))
+                g0 = cv2.resize(f0.gray, size, interpolation=cv2.INTER_AREA)
+                g1 = cv2.resize(f1.gray, size, interpolation=cv2.INTER_AREA)
+                lab = cv2.resize(labels0, size, interpolation=cv2.INTER_NEAREST)
+            for oid in ids:
+                if skip is not None:
+                    out.append((oid, f0.index, f1.index, s, skip))
+                    continue
+                mask = lab == oid
+                ys, xs = np.nonzero(mask)
+                if len(xs) == 0:
+                    out.append((oid, f0.index, f1.index, s, "empty_mask"))
+                    continue
+                box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+                field = self.flow.compute(g0, g1, box)
+                x0, y0, x1, y1 = field.box
+                res = adadfrc_pair(
+                    field.flow, mask[y0:y1, x0:x1], field.reliable,
+                    grid=self.config.grid, min_cells=self.config.min_cells, origin=(float(x0), float(y0)),
+                )
+                out.append((oid, f0.index, f1.index, s, res))
+        self.timer.add("objects", start)
+        return out
+
     def pose(self, fa: Future, fb: Future, backend: PoseBackend, K: np.ndarray, t0: int, t1: int) -> PoseEstimate:
         a, b = fa.result()[self.s_max], fb.result()[self.s_max]
         start = time.perf_counter()
@@ -154,22 +186,34 @@ def score_clip(
     config: ScoreConfig | None = None,
     *,
     pose_log: str | Path | None = None,
-    masks: BackgroundMasks | None = None,
+    masks: str | Path | None = None,
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     timings: dict[str, float] | None = None,
 ) -> ClipRecord:
     """Score one clip. ``pose_log`` replaces the pose backend by an external pose (JSON, see
-    :mod:`geocon_core.pose`); ``progress(done, total)`` is called as frames are processed;
-    ``timings``, if given, receives seconds per stage (summed over worker threads).
-    Raises :class:`~geocon_core.reader.ClipError` for unusable input."""
+    :mod:`geocon_core.pose`); ``masks`` is a path to external object masks (see
+    :mod:`geocon_core.masks`), otherwise ``config.masks`` chooses the built-in segmentation or
+    none; ``progress(done, total)`` is called as frames are processed; ``timings``, if given,
+    receives seconds per stage (summed over worker threads). Raises
+    :class:`~geocon_core.reader.ClipError` for unusable input."""
     cfg = config or ScoreConfig()
+    if masks is not None:
+        cfg = cfg.with_(masks="external")
     timer = _Timer(timings)
     start = time.perf_counter()
     info = probe_clip(path, cfg)
     start = timer.add("probe", start)
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio)
     backend: PoseBackend = load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend)
+    mask_source = None
+    if cfg.masks == "external":
+        if masks is None:
+            raise ValueError("config.masks is 'external' but no masks path was given")
+        mask_source = make_mask_source("external", info, path=masks)
+    elif cfg.masks == "motion":
+        mask_source = make_mask_source("motion", info, flow=make_flow_backend(cfg.flow), seed=cfg.seed)
+    flow = make_flow_backend(cfg.flow) if mask_source is not None else None
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
     K_pose = scale_intrinsics(K, max(cfg.scales))
     n = info.num_frames
@@ -179,30 +223,40 @@ def score_clip(
         window_ends.setdefault(w[1], []).append(w)
     anchors = {0} | {w[0] for w in windows}
     max_gap = max(cfg.gaps)
+    lookahead = 0 if mask_source is None else mask_source.lookahead
+    content = info.content_mask
+    content_px = max(1, int(np.count_nonzero(content)))
 
     workers = workers or min(2, os.cpu_count() or 1)
     feats: dict[int, Future] = {}
     inflight: deque[Future] = deque()
     pair_futures: list[Future] = []
+    object_futures: list[Future] = []
     skipped: list[_Scored] = []
     window_futures: list[tuple[tuple[int, int], Future]] = []
     first_last: Future | None = None
+    frames_buf: dict[int, Frame] = {}
+    labels_buf: dict[int, np.ndarray] = {}
+    masked_share = np.zeros(n)
+
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        pipe = _Pipeline(info, cfg, matcher, masks, timer)
-        frames = iter_frames(info)
-        while True:
-            start = time.perf_counter()
-            frame = next(frames, None)
-            timer.add("decode", start)
-            if frame is None:
-                break
-            t = frame.index
+        pipe = _Pipeline(info, cfg, matcher, flow, timer)
+
+        def process(t: int) -> None:
+            """Everything that needs frame t and its mask; runs once labels(t) are final."""
+            nonlocal first_last
+            frame = frames_buf[t]
+            labels = None
+            if mask_source is not None:
+                labels = mask_source.labels(t)
+                labels_buf[t] = labels
+                masked_share[t] = np.count_nonzero((labels > 0) & content) / content_px
             # bounded read-ahead: a few frames wait for features, a few pairs for fitting
             while len(inflight) > workers:
                 inflight.popleft().result()
             while sum(not f.done() for f in pair_futures[-4 * workers :]) >= 2 * workers:
                 next(f for f in pair_futures if not f.done()).result()
-            feats[t] = pool.submit(pipe.extract, frame)
+            feats[t] = pool.submit(pipe.extract, frame, None if labels is None else labels == 0)
             inflight.append(feats[t])
             for gap in cfg.gaps:
                 t0 = t - gap
@@ -214,6 +268,10 @@ def score_clip(
                     skipped.extend(_Scored(t0, t, gap, s, reason, empty, empty, None, None) for s in cfg.scales)
                 else:
                     pair_futures.append(pool.submit(pipe.score_pair, feats[t0], feats[t], t0, t, gap))
+            if labels is not None and t >= 1 and (t - 1) in labels_buf:
+                object_futures.append(
+                    pool.submit(pipe.score_objects, frames_buf[t - 1], frame, labels_buf[t - 1], info.pair_skip_reason(t - 1, t))
+                )
             for w in window_ends.get(t, []):
                 if pose_log is None and w != (0, n - 1):
                     window_futures.append((w, pool.submit(pipe.pose, feats[w[0]], feats[t], backend, K_pose, w[0], t)))
@@ -223,15 +281,46 @@ def score_clip(
                 del feats[old]
             for a in [k for k in anchors if k in feats and all(e < t for s, e in windows if s == k) and k != 0]:
                 del feats[a]
+            for old in [k for k in frames_buf if k < t - 1]:
+                del frames_buf[old]
+            for old in [k for k in labels_buf if k < t - 1]:
+                del labels_buf[old]
+            if mask_source is not None:
+                mask_source.release(t - 1)
             if progress is not None:
                 progress(t + 1, n)
+
+        frames = iter_frames(info)
+        next_t = 0
+        while True:
+            start = time.perf_counter()
+            frame = next(frames, None)
+            timer.add("decode", start)
+            if frame is None:
+                break
+            frames_buf[frame.index] = frame
+            if mask_source is not None:
+                start = time.perf_counter()
+                mask_source.push(frame)
+                timer.add("masks", start)
+            while next_t <= frame.index - lookahead:
+                process(next_t)
+                next_t += 1
+        if mask_source is not None:
+            mask_source.finish()
+        while next_t < n:
+            process(next_t)
+            next_t += 1
         assert first_last is not None
         pose = first_last.result()
         scored = [r for f in pair_futures for r in f.result()] + skipped
         timeline_poses = [(w, f.result()) for w, f in window_futures]
+        object_results = [r for f in object_futures for r in f.result()]
 
     scored.sort(key=lambda r: (r.gap, r.t0, r.scale))
-    return _assemble(str(path), info, cfg, K, backend, pose, timeline_poses, windows, scored)
+    object_results.sort(key=lambda r: (r[0], r[1], r[3]))
+    record = _assemble(str(path), info, cfg, K, backend, pose, timeline_poses, windows, scored)
+    return _with_objects(record, cfg, mask_source, masks, masked_share, object_results)
 
 
 def _aggregate(family: str, scored: list[_Scored], cfg: ScoreConfig) -> FamilySummary:
@@ -350,4 +439,79 @@ def _assemble(clip, info, cfg, K, backend, pose, timeline_poses, windows, scored
         clip=clip, video=info.to_dict(), config=cfg, config_hash=config_hash(cfg), versions=software_versions(),
         gate=gate, background=background, pairs=tuple(pairs), matches=MatchArrays.concatenate(arrays),
         intrinsics=[[float(v) for v in row] for row in K], category=None, warnings=tuple(warnings),
+    )
+
+
+def _with_objects(record: ClipRecord, cfg: ScoreConfig, mask_source, masks_path, masked_share: np.ndarray, results: list[tuple]) -> ClipRecord:
+    """Add object entries, per-object summaries, masked share and the category to a record."""
+    entries: list[ObjectEntry] = []
+    cells: list[dict | None] = []
+    for oid, t0, t1, s, res in results:
+        i = len(entries)
+        if isinstance(res, str):
+            entries.append(ObjectEntry(i, oid, t0, t1, s, False, res, None, None, 0, None))
+            cells.append(None)
+            continue
+        affine = None if res.affine is None else [[float(v) for v in row] for row in res.affine]
+        entries.append(ObjectEntry(i, oid, t0, t1, s, res.valid, res.reason, res.d_t, res.w2, res.n_pixels, affine))
+        c = res.cells
+        cells.append(None if c is None else {
+            "cells": c.cells, "positions": c.positions, "observed": c.observed, "predicted": c.predicted, "weights": c.weights,
+        })
+    summaries = []
+    s_max = max(cfg.scales)
+    for oid in sorted({e.object_id for e in entries}):
+        mine = [e for e in entries if e.object_id == oid]
+        frames = sorted({e.t0 for e in mine})
+        per_scale = []
+        for s in cfg.scales:
+            valid = [e for e in mine if e.scale == s and e.valid]
+            skipped: dict[str, int] = {}
+            for e in mine:
+                if e.scale == s and not e.valid:
+                    skipped[e.reason or "invalid"] = skipped.get(e.reason or "invalid", 0) + 1
+            if valid:
+                S, p90 = object_scores([e.d_t for e in valid])
+                w2 = float(np.mean([e.w2 for e in valid]))
+            else:
+                S = p90 = w2 = None
+            per_scale.append(ObjectScaleSummary(s, S, w2, p90, len(valid), dict(sorted(skipped.items()))))
+        head = next(p for p in per_scale if p.scale == s_max)
+        shares = [float(masked_share[t]) for t in frames]
+        summaries.append(ObjectSummary(
+            object_id=oid, frames=len(frames), first_frame=frames[0], last_frame=frames[-1],
+            masked_share=float(np.mean(shares)) if shares else 0.0,
+            adadfrc=head.adadfrc, adadfrc_w2=head.adadfrc_w2, adap90=head.adap90, per_scale=tuple(per_scale),
+        ))
+    warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
+    source = "none" if mask_source is None else (f"external:{masks_path}" if masks_path is not None else mask_source.name)
+    category = _categorize(record, cfg, [o.frames for o in summaries])
+    return replace(
+        record, masks_source=source, masked_share=tuple(float(v) for v in masked_share), objects=tuple(summaries),
+        object_entries=tuple(entries), cells=CellArrays.concatenate(cells), warnings=tuple(warnings), category=category,
+    )
+
+
+def _categorize(record: ClipRecord, cfg: ScoreConfig, object_frames: list[int]):
+    """Inputs of the category rule, measured from the record (see :mod:`geocon_core.category`)."""
+    s_max = max(cfg.scales)
+    motions, matches = [], []
+    for p in record.pairs:
+        if p.gap != 1 or p.scale != s_max or p.skip is not None or p.h is None or not p.h.valid:
+            continue
+        arr = record.matches.pair(p.index)
+        inl = arr["h_inl"]
+        motions.append(float(np.median(np.linalg.norm(arr["x2"][inl] - arr["x1"][inl], axis=1))))
+        matches.append(p.n_matches)
+    bg = record.background
+    return categorize(
+        gate_model=record.gate.model,
+        pose_present=record.gate.pose_present,
+        t_inf=record.gate.t_inf,
+        rotation_deg=record.gate.pose.get("rotation_deg"),
+        background_motion_px=float(np.median(motions)) if motions else None,
+        valid_share=bg.valid_pairs / bg.total_pairs if bg.total_pairs else 0.0,
+        median_matches=float(np.median(matches)) if matches else None,
+        background_ir=bg.ir,
+        object_frames=object_frames,
     )

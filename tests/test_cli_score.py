@@ -34,7 +34,7 @@ def test_json_summary_has_the_documented_keys_and_is_stable(clip, tmp_path):
     for key in ("ir", "ge", "valid_pairs", "consistent", "tau_f_px"):
         assert key in s["background"]
     assert set(s["per_gap"]) == {"1", "4", "8"} and {"ir", "ge"} <= set(s["per_gap"]["1"])
-    assert s["category"] is None and len(s["config_hash"]) == 16
+    assert s["category"] == "C3" and len(s["config_hash"]) == 16
     assert (tmp_path / "a" / "record.json").read_bytes() == (tmp_path / "b" / "record.json").read_bytes()
     assert s["gate"]["label"] == "F"
 

@@ -1,0 +1,240 @@
+"""Dense optical flow behind one small interface (:class:`FlowBackend`).
+
+>>> backend = make_flow_backend("dis")                     # doctest: +SKIP
+>>> field = backend.compute(gray0, gray1, box=(x0, y0, x1, y1))  # doctest: +SKIP
+>>> field.flow, field.reliable, field.fb_error             # doctest: +SKIP
+
+A backend turns two grey frames ``I_t``, ``I_{t+1}`` ((h, w) uint8, same size) into a
+:class:`FlowField`: the forward flow ``F`` (``I_t(x) ~ I_{t+1}(x + F(x))``, pixels, pixel
+centres at integer coordinates), the forward-backward error and a reliability mask.
+
+Reliability (every backend): with ``B`` the backward flow ``I_{t+1} -> I_t``, sampled
+bilinearly at ``x + F(x)``, ``fb_error(x) = |F(x) + B(x + F(x))|`` and ``x`` is reliable iff
+
+* ``x + F(x)`` lies inside the computed region (``0 <= x' <= w - 1``, ``0 <= y' <= h - 1``):
+  a pixel that leaves the view has no partner; its ``fb_error`` is ``inf``;
+* ``fb_error(x) <= fb_abs + fb_rel * |F(x)|``: occluded pixels (whose partner is another
+  surface, which flows back elsewhere) and mismatches fail it.
+
+With a ``box`` only the box grown by ``margin`` pixels (clipped to the frame) is computed and
+the field is cropped back to the box, so small objects are cheap; the margin gives the
+coarse-to-fine search context and room for pixels that move out of the box. ``box=None`` is
+the whole frame.
+
+A backend may also offer ``compute_both(gray0, gray1, box)``, the forward field and the
+backward field (``gray1 -> gray0``, on ``gray1``'s pixels) from the same two flow runs;
+:class:`DisFlow` does, and the motion segmentation uses it when present (else it calls
+``compute`` twice).
+
+Backends
+--------
+``dis`` (:class:`DisFlow`, default, no weights)
+    OpenCV's Dense Inverse Search (Kroeger et al. 2016) with the ``MEDIUM`` preset (8 px
+    patches every 3 px down to 1/2 resolution, 25 gradient-descent iterations, variational
+    refinement; ``FAST`` stops at 1/4 resolution with patches every 4 px): on translated or affinely warped textures the median error is 0.02-0.08 px
+    (tests: < 0.1 px); about 6 ms per direction at 512x288 and 23 ms at 1024x576 on an idle
+    2-core machine (``FAST``: 1.4 / 5 ms, similar error on strong texture, worse on weak).
+    Forward-backward threshold ``fb_abs = 0.5`` px plus ``fb_rel = 5 %`` of the flow length
+    (flow errors grow with the displacement). DIS is deterministic (also across thread
+    counts, and an instance's earlier calls do not change its results); each thread gets its
+    own OpenCV instance, so :meth:`DisFlow.compute` is thread-safe.
+``raft``
+    Not available in this build: RAFT needs torch and a trained checkpoint, and
+    :func:`make_flow_backend` says so instead of pretending.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import threading
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import cv2
+import numpy as np
+
+__all__ = ["FlowField", "FlowBackend", "DisFlow", "FLOW_BACKENDS", "DIS_PRESETS", "make_flow_backend", "forward_backward"]
+
+Box = tuple[int, int, int, int]
+
+DIS_PRESETS: dict[str, int] = {
+    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
+}
+"""OpenCV DIS presets by name."""
+
+MIN_DIS_SIDE = 16
+"""Regions narrower or lower than this (px) are padded (edge pixels repeated) before DIS,
+which needs at least one patch (12 px with the medium preset)."""
+
+
+@dataclass(frozen=True, eq=False)
+class FlowField:
+    """Forward flow over a region of a frame.
+
+    box: (x0, y0, x1, y1), end-exclusive, frame pixels: the region the arrays cover.
+    flow: (y1 - y0, x1 - x0, 2) float32 forward flow ``I_t -> I_{t+1}`` in pixels, (dx, dy);
+        the pixel at array index (i, j) is frame pixel (x0 + j, y0 + i) and moves to
+        (x0 + j + dx, y0 + i + dy).
+    reliable: (h, w) bool: forward-backward consistent and not leaving the computed region.
+    fb_error: (h, w) float32 ``|F(x) + B(x + F(x))|`` in pixels; ``inf`` where ``x + F(x)``
+        leaves the computed region.
+    """
+
+    box: Box
+    flow: np.ndarray
+    reliable: np.ndarray
+    fb_error: np.ndarray
+
+    def __post_init__(self) -> None:
+        x0, y0, x1, y1 = self.box
+        shape = (y1 - y0, x1 - x0)
+        if self.flow.shape != (*shape, 2) or self.reliable.shape != shape or self.fb_error.shape != shape:
+            raise ValueError(
+                f"FlowField arrays {self.flow.shape}, {self.reliable.shape}, {self.fb_error.shape} do not match box {self.box}"
+            )
+
+
+class FlowBackend(Protocol):
+    """Dense optical flow between two grey frames."""
+
+    name: str
+
+    def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:
+        """Forward flow ``gray0 -> gray1`` ((h, w) uint8 each) over ``box`` (whole frame if
+        None), with its forward-backward reliability."""
+        ...
+
+
+def forward_backward(
+    fwd: np.ndarray, bwd: np.ndarray, fb_abs: float, fb_rel: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(fb_error, reliable)`` of the forward flow ``fwd`` (h, w, 2) given the backward flow
+    ``bwd`` (h, w, 2) of the same region (the rule in the module docstring)."""
+    h, w = fwd.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    mx, my = gx + fwd[..., 0], gy + fwd[..., 1]
+    back = cv2.remap(bwd, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    s = fwd + back
+    err = cv2.magnitude(s[..., 0], s[..., 1])
+    inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+    err[~inside] = np.inf
+    mag = cv2.magnitude(np.ascontiguousarray(fwd[..., 0]), np.ascontiguousarray(fwd[..., 1]))
+    reliable = inside & (err <= np.float32(fb_abs) + np.float32(fb_rel) * mag)
+    return err, reliable
+
+
+def _check_images(gray0: np.ndarray, gray1: np.ndarray) -> None:
+    for name, g in (("gray0", gray0), ("gray1", gray1)):
+        if not isinstance(g, np.ndarray) or g.ndim != 2 or g.dtype != np.uint8:
+            raise ValueError(f"{name} must be an (h, w) uint8 grey image, got {getattr(g, 'shape', None)} {getattr(g, 'dtype', type(g))}")
+    if gray0.shape != gray1.shape:
+        raise ValueError(f"gray0 and gray1 differ in size: {gray0.shape} vs {gray1.shape}")
+    if min(gray0.shape) < 2:
+        raise ValueError(f"images of {gray0.shape} are too small for optical flow")
+
+
+def _check_box(box: Box | None, shape: tuple[int, int]) -> Box:
+    h, w = shape
+    if box is None:
+        return (0, 0, w, h)
+    if len(box) != 4:
+        raise ValueError(f"box must be (x0, y0, x1, y1), got {box!r}")
+    x0, y0, x1, y1 = (int(v) for v in box)
+    if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+        raise ValueError(f"box {tuple(box)} is empty or outside the {w}x{h} frame")
+    return (x0, y0, x1, y1)
+
+
+class DisFlow:
+    """OpenCV DIS optical flow (``name = "dis"``); see the module docstring for the preset and
+    the reliability rule.
+
+    preset: ``"medium"`` (default), ``"fast"`` or ``"ultrafast"``.
+    fb_abs, fb_rel: forward-backward threshold ``fb_abs + fb_rel * |F|`` (px).
+    margin: context (px) computed around a ``box`` on every side.
+    """
+
+    name = "dis"
+
+    def __init__(self, *, preset: str = "medium", fb_abs: float = 0.5, fb_rel: float = 0.05, margin: int = 16) -> None:
+        key = str(preset).strip().lower()
+        if key not in DIS_PRESETS:
+            raise ValueError(f"unknown DIS preset {preset!r}; valid: {', '.join(DIS_PRESETS)}")
+        if not (fb_abs >= 0 and fb_rel >= 0):
+            raise ValueError(f"fb_abs and fb_rel must be non-negative, got {fb_abs}, {fb_rel}")
+        if int(margin) < 0:
+            raise ValueError(f"margin must be non-negative, got {margin}")
+        self.preset = key
+        self.fb_abs = float(fb_abs)
+        self.fb_rel = float(fb_rel)
+        self.margin = int(margin)
+        self._local = threading.local()
+
+    def __repr__(self) -> str:
+        return f"DisFlow(preset={self.preset!r}, fb_abs={self.fb_abs}, fb_rel={self.fb_rel}, margin={self.margin})"
+
+    def _calc(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        h, w = a.shape
+        ph, pw = max(0, MIN_DIS_SIDE - h), max(0, MIN_DIS_SIDE - w)
+        if ph or pw:  # DIS needs a side of at least one patch: pad tiny regions, crop back
+            a = cv2.copyMakeBorder(a, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
+            b = cv2.copyMakeBorder(b, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
+        dis = getattr(self._local, "dis", None)
+        if dis is None:  # one OpenCV instance per thread: thread-safe, and reuse saves ~3 ms a call
+            dis = self._local.dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.preset])
+        return np.ascontiguousarray(dis.calc(a, b, None)[:h, :w])
+
+    def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:
+        """Forward flow ``gray0 -> gray1`` over ``box`` (the whole frame if None)."""
+        return self.compute_both(gray0, gray1, box)[0]
+
+    def compute_both(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> tuple[FlowField, FlowField]:
+        """The forward field ``gray0 -> gray1`` (on ``gray0``'s pixels) and the backward field
+        ``gray1 -> gray0`` (on ``gray1``'s pixels) over the same ``box``, each with its own
+        forward-backward check; one pair of DIS runs serves both."""
+        _check_images(gray0, gray1)
+        h, w = gray0.shape
+        x0, y0, x1, y1 = _check_box(box, (h, w))
+        m = self.margin
+        rx0, ry0, rx1, ry1 = max(0, x0 - m), max(0, y0 - m), min(w, x1 + m), min(h, y1 + m)
+        a = np.ascontiguousarray(gray0[ry0:ry1, rx0:rx1])
+        b = np.ascontiguousarray(gray1[ry0:ry1, rx0:rx1])
+        fwd, bwd = self._calc(a, b), self._calc(b, a)
+        err_f, rel_f = forward_backward(fwd, bwd, self.fb_abs, self.fb_rel)
+        err_b, rel_b = forward_backward(bwd, fwd, self.fb_abs, self.fb_rel)
+        sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
+        out = []
+        for flow, err, rel in ((fwd, err_f, rel_f), (bwd, err_b, rel_b)):
+            out.append(FlowField(
+                box=(x0, y0, x1, y1),
+                flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
+                reliable=np.ascontiguousarray(rel[sl]),
+                fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
+            ))
+        return out[0], out[1]
+
+
+FLOW_BACKENDS: dict[str, type] = {"dis": DisFlow}
+"""Available flow backends by name."""
+
+
+def _raft_missing() -> str:
+    torch = "torch is installed" if importlib.util.find_spec("torch") is not None else "torch is not installed"
+    return (
+        f"RAFT needs torch and a checkpoint: {torch}, and this build ships neither RAFT weights nor a "
+        f"loader for them; use one of: {', '.join(FLOW_BACKENDS)}"
+    )
+
+
+def make_flow_backend(name: str, **kwargs: Any) -> FlowBackend:
+    """The flow backend called ``name`` (case-insensitive), built with ``kwargs``. Raises
+    ValueError for unknown names (listing the valid ones) and for ``raft``, which this build
+    cannot run."""
+    key = str(name).strip().lower()
+    if key == "raft":
+        raise ValueError(_raft_missing())
+    if key not in FLOW_BACKENDS:
+        raise ValueError(f"unknown flow backend {name!r}; valid: {', '.join(FLOW_BACKENDS)} (raft needs torch and a checkpoint)")
+    return FLOW_BACKENDS[key](**kwargs)
