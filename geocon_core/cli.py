@@ -176,17 +176,22 @@ def demo(
     table.add_row("masked share", f"{gt.masked_share.mean():.1%} of the frame on average")
     out.print(table)
     clip = out_dir / gt.video_path
-    record = _score_with_progress(clip, ScoreConfig())
+    # the clip ships its object masks (as a benchmark dataset does through masks_path)
+    record = _score_with_progress(clip, ScoreConfig(), masks=out_dir / gt.masks_path)
     target = out_dir / "record"
     write_record(record, target)
     _print_record(record, target)
-    truth = {o.object_id: o.rigid for o in gt.objects}
-    out.print(
-        f"the built-in motion segmentation found {len(record.objects)} object(s); the ground truth has "
-        f"{len(truth)} ({', '.join(f'{k}: ' + ('rigid' if v else 'non-rigid') for k, v in truth.items())}). "
-        "Higher AdaDFRC means less rigid motion.",
-        soft_wrap=True,
-    )
+    truth = {o.object_id: o for o in gt.objects}
+    for o in record.objects:
+        t = truth.get(o.object_id)
+        if t is not None:
+            out.print(
+                f"object {o.object_id} ({t.name}, {'rigid' if t.rigid else 'non-rigid by construction'}): "
+                f"AdaDFRC {_fmt(o.adadfrc, '.3f')} px²",
+                soft_wrap=True,
+            )
+    out.print("Higher AdaDFRC means less rigid motion. Score any clip: geocon score CLIP (built-in masks) or "
+              "geocon score CLIP --masks DIR.", soft_wrap=True)
 
 
 def _fmt(v: float | None, spec: str) -> str:

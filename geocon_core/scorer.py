@@ -128,7 +128,8 @@ class _Pipeline:
             h = fit_homography(x1, x2, tau=cfg.tau_h, **kw)
             f = fit_fundamental(x1, x2, tau=cfg.tau_f, **kw)
             self.timer.add("model_fitting", start)
-            results.append(_Scored(t0, t1, gap, s, None, x1, x2, h, f))
+            # kept as the record stores them (float32), so memory per match stays small
+            results.append(_Scored(t0, t1, gap, s, None, x1.astype(np.float32), x2.astype(np.float32), h, f))
         return results
 
     def score_objects(self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None) -> list[tuple]:
@@ -238,6 +239,7 @@ def score_clip(
     frames_buf: dict[int, Frame] = {}
     labels_buf: dict[int, np.ndarray] = {}
     masked_share = np.zeros(n)
+    object_share: dict[int, dict[int, float]] = {}
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pipe = _Pipeline(info, cfg, matcher, flow, timer)
@@ -250,7 +252,10 @@ def score_clip(
             if mask_source is not None:
                 labels = mask_source.labels(t)
                 labels_buf[t] = labels
-                masked_share[t] = np.count_nonzero((labels > 0) & content) / content_px
+                inside = labels[content]
+                masked_share[t] = np.count_nonzero(inside) / content_px
+                ids, counts = np.unique(inside[inside > 0], return_counts=True)
+                object_share[t] = {int(i): int(c) / content_px for i, c in zip(ids, counts)}
             # bounded read-ahead: a few frames wait for features, a few pairs for fitting
             while len(inflight) > workers:
                 inflight.popleft().result()
@@ -320,7 +325,7 @@ def score_clip(
     scored.sort(key=lambda r: (r.gap, r.t0, r.scale))
     object_results.sort(key=lambda r: (r[0], r[1], r[3]))
     record = _assemble(str(path), info, cfg, K, backend, pose, timeline_poses, windows, scored)
-    return _with_objects(record, cfg, mask_source, masks, masked_share, object_results)
+    return _with_objects(record, cfg, mask_source, masks, masked_share, object_share, object_results)
 
 
 def _aggregate(family: str, scored: list[_Scored], cfg: ScoreConfig) -> FamilySummary:
@@ -442,7 +447,10 @@ def _assemble(clip, info, cfg, K, backend, pose, timeline_poses, windows, scored
     )
 
 
-def _with_objects(record: ClipRecord, cfg: ScoreConfig, mask_source, masks_path, masked_share: np.ndarray, results: list[tuple]) -> ClipRecord:
+def _with_objects(
+    record: ClipRecord, cfg: ScoreConfig, mask_source, masks_path, masked_share: np.ndarray,
+    object_share: dict[int, dict[int, float]], results: list[tuple],
+) -> ClipRecord:
     """Add object entries, per-object summaries, masked share and the category to a record."""
     entries: list[ObjectEntry] = []
     cells: list[dict | None] = []
@@ -477,7 +485,7 @@ def _with_objects(record: ClipRecord, cfg: ScoreConfig, mask_source, masks_path,
                 S = p90 = w2 = None
             per_scale.append(ObjectScaleSummary(s, S, w2, p90, len(valid), dict(sorted(skipped.items()))))
         head = next(p for p in per_scale if p.scale == s_max)
-        shares = [float(masked_share[t]) for t in frames]
+        shares = [object_share.get(t, {}).get(oid, 0.0) for t in frames]
         summaries.append(ObjectSummary(
             object_id=oid, frames=len(frames), first_frame=frames[0], last_frame=frames[-1],
             masked_share=float(np.mean(shares)) if shares else 0.0,

@@ -66,3 +66,7 @@ def test_failure_listing_and_demo(tmp_path):
     gt = load_ground_truth(tmp_path / "c4_objects__elastic-s4.gt.json")
     assert [o.rigid for o in gt.objects] == [False, True]
     assert "NON-RIGID" in res.output and "t_inf = 0.000" in res.output
+    record = json.loads((tmp_path / "record" / "record.json").read_text())
+    scores = {o["object_id"]: o["adadfrc"] for o in record["objects"]}
+    assert scores[1] > 2 * scores[2], scores  # the elastic disc is the less rigid one
+    assert record["category"]["label"] == "C4" and record["summary"]["background"]["consistent"]

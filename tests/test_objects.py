@@ -42,6 +42,8 @@ def test_rigid_objects_are_found_with_stable_ids(synth, c4):
     assert len(c4.objects) == 2, [o.object_id for o in c4.objects]
     for o in c4.objects:
         assert o.frames >= SIZE["num_frames"] - 4  # one stable id over (almost) the whole clip
+    # per-object shares add up to the frame's masked share
+    assert sum(o.masked_share for o in c4.objects) == pytest.approx(np.mean(c4.masked_share[1:-1]), rel=0.15)
     # masked share close to the truth (truth is per frame of the source; shares are resolution-free)
     measured = np.array(c4.masked_share[2:-2])
     truth = gt.masked_share[2:-2]
