@@ -208,13 +208,13 @@ def score_clip(
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio)
     backend: PoseBackend = load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend)
     mask_source = None
+    flow = make_flow_backend(cfg.flow) if cfg.masks != "none" else None  # shared: thread-safe per instance
     if cfg.masks == "external":
         if masks is None:
             raise ValueError("config.masks is 'external' but no masks path was given")
         mask_source = make_mask_source("external", info, path=masks)
     elif cfg.masks == "motion":
-        mask_source = make_mask_source("motion", info, flow=make_flow_backend(cfg.flow), seed=cfg.seed)
-    flow = make_flow_backend(cfg.flow) if mask_source is not None else None
+        mask_source = make_mask_source("motion", info, flow=flow, seed=cfg.seed)
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
     K_pose = scale_intrinsics(K, max(cfg.scales))
     n = info.num_frames
