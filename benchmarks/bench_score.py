@@ -3,12 +3,14 @@
     .venv/bin/python benchmarks/bench_score.py [--frames 120] [--size 1024x720] [--preset paper]
     .venv/bin/python benchmarks/bench_score.py --memory      # 120 vs 480 frames
     .venv/bin/python benchmarks/bench_score.py --matcher klt # a faster matcher
+    .venv/bin/python benchmarks/bench_score.py --rrd         # cost and size of the Rerun recording
 
 Renders a C4 clip (static camera, two moving objects) once into a cache folder, then scores
 it in a fresh process per measurement, without and with mask-first separation (built-in
 motion segmentation, flow and AdaDFRC-W2), and prints frames per second end to end, seconds
 per stage (summed over the worker threads, so they can exceed the wall time) and the peak
-resident memory.
+resident memory. With ``--rrd`` it scores the clip (paper preset, motion masks) without and with
+the Rerun recording streamed while scoring, and prints the recording's size and the time it adds.
 """
 
 from __future__ import annotations
@@ -36,13 +38,20 @@ def clip(frames: int, size: str) -> Path:
     return path
 
 
-def measure(path: Path, preset_name: str, masks: str, matcher: str) -> dict:
+def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "-") -> dict:
     from geocon_core.config import preset
     from geocon_core.scorer import score_clip
 
     timings: dict[str, float] = {}
+    sink = None
+    if rrd != "-":
+        from geocon_viewer.rerun_log import RrdSink
+
+        sink = RrdSink(rrd)
     t0 = time.perf_counter()
-    record = score_clip(path, preset(preset_name).with_(masks=masks, matcher=matcher), timings=timings)
+    record = score_clip(path, preset(preset_name).with_(masks=masks, matcher=matcher), timings=timings, on_frame=sink)
+    if sink is not None:
+        sink.finish(record)
     wall = time.perf_counter() - t0
     n = record.video["num_frames"]
     return {
@@ -56,7 +65,29 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str) -> dict:
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         "ir": record.background.ir,
         "gate": record.gate.label,
+        "rrd_mb": round(Path(rrd).stat().st_size / 1e6, 2) if sink is not None else None,
     }
+
+
+def _child(path: Path, preset_name: str, masks: str, matcher: str, rrd: str) -> dict:
+    cmd = [sys.executable, __file__, "--child", str(path), preset_name, masks, matcher, rrd]
+    return json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout)
+
+
+def rrd_overhead(path: Path, preset_name: str, matcher: str, repeats: int = 2) -> None:
+    """Best of ``repeats`` runs each way, alternating, so that a busy moment hits both sides alike."""
+    with tempfile.TemporaryDirectory() as tmp:
+        plain, recorded = [], []
+        for _ in range(repeats):
+            plain.append(_child(path, preset_name, "motion", matcher, "-"))
+            recorded.append(_child(path, preset_name, "motion", matcher, str(Path(tmp) / "bench.rrd")))
+    a = min(plain, key=lambda r: r["wall_s"])
+    b = min(recorded, key=lambda r: r["wall_s"])
+    extra = b["wall_s"] / a["wall_s"] - 1.0
+    print(f"{path.parent.name}: {a['frames']} frames, {preset_name} {matcher} masks=motion ({a['objects']} objects)")
+    print(f"  scoring alone      {a['wall_s']:7.1f} s  ({a['fps']:.2f} frames/s, peak RSS {a['peak_rss_mib']:.0f} MiB)")
+    print(f"  scoring + .rrd     {b['wall_s']:7.1f} s  ({b['fps']:.2f} frames/s, peak RSS {b['peak_rss_mib']:.0f} MiB)")
+    print(f"  recording adds     {100 * extra:+.1f} % time; .rrd {b['rrd_mb']:.1f} MB (targets: <= 30 %, <= 15 MB)")
 
 
 def main() -> None:
@@ -66,10 +97,14 @@ def main() -> None:
     ap.add_argument("--preset", default=None, help="paper or strict (default: both)")
     ap.add_argument("--memory", action="store_true", help="compare peak memory at 120 and 480 frames")
     ap.add_argument("--matcher", default="sift")
-    ap.add_argument("--child", nargs=4, metavar=("CLIP", "PRESET", "MASKS", "MATCHER"), help=argparse.SUPPRESS)
+    ap.add_argument("--rrd", action="store_true", help="time and size of the Rerun recording (paper preset, motion masks)")
+    ap.add_argument("--child", nargs=5, metavar=("CLIP", "PRESET", "MASKS", "MATCHER", "RRD"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(measure(Path(args.child[0]), *args.child[1:])))
+        return
+    if args.rrd:
+        rrd_overhead(clip(args.frames, args.size), args.preset or "paper", args.matcher)
         return
     presets = [args.preset] if args.preset else ["paper", "strict"]
     lengths = [120, 480] if args.memory else [args.frames]
@@ -77,8 +112,7 @@ def main() -> None:
         path = clip(n, args.size)
         for name in presets:
             for masks in ("none", "motion"):
-                cmd = [sys.executable, __file__, "--child", str(path), name, masks, args.matcher]
-                r = json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout)
+                r = _child(path, name, masks, args.matcher, "-")
                 print(f"{args.size} x {r['frames']} frames, {r['preset']:6} {args.matcher} masks={masks:6} ({r['objects']} objects): "
                       f"{r['fps']:6.2f} frames/s  wall {r['wall_s']:6.1f} s  peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
                       flush=True)

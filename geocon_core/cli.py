@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Callable, Optional
 
 import typer
 from rich.console import Console
@@ -22,6 +22,13 @@ app = typer.Typer(
 )
 err = Console(stderr=True)
 out = Console()
+
+FRAME_SINKS: dict[str, Callable[..., Any]] = {}
+"""Recorders other packages contribute (``geocon_viewer`` registers ``"rrd"``: a factory
+``(path) -> sink`` where ``sink(FrameDiagnostics)`` is called per frame and
+``sink.finish(record)`` at the end). The core never imports them."""
+MAX_OBJECT_ROWS = 12
+"""The summary table lists at most this many objects (the longest-lived ones)."""
 
 
 def _fail(message: str) -> typer.Exit:
@@ -157,7 +164,6 @@ def demo(
     """Run the built-in demo: render a static-camera scene with two moving objects, one of
     which deforms non-rigidly, print what the clip contains, then score it."""
     from .config import ScoreConfig
-    from .record import write_record
     from .synth import ClipPlan
 
     plan = ClipPlan("C4", "elastic", 4.0)
@@ -177,9 +183,8 @@ def demo(
     out.print(table)
     clip = out_dir / gt.video_path
     # the clip ships its object masks (as a benchmark dataset does through masks_path)
-    record = _score_with_progress(clip, ScoreConfig(), masks=out_dir / gt.masks_path)
-    target = out_dir / "record"
-    write_record(record, target)
+    target, rrd = out_dir / "record", (out_dir / "demo.rrd" if "rrd" in FRAME_SINKS else None)
+    record = _score_with_progress(clip, ScoreConfig(), out_dir=target, masks=out_dir / gt.masks_path, rrd=rrd)
     _print_record(record, target)
     truth = {o.object_id: o for o in gt.objects}
     for o in record.objects:
@@ -192,6 +197,18 @@ def demo(
             )
     out.print("Higher AdaDFRC means less rigid motion. Score any clip: geocon score CLIP (built-in masks) or "
               "geocon score CLIP --masks DIR.", soft_wrap=True)
+    if rrd is not None:
+        out.print(f"Rerun recording: {rrd}. Browse it with `geocon view {target}` (web viewer on 127.0.0.1 when there is no display), "
+                  f"or `rerun {rrd}` with rerun-sdk {_rerun_version()}.", soft_wrap=True)
+
+
+def _rerun_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("rerun-sdk")
+    except PackageNotFoundError:
+        return "?"
 
 
 def _fmt(v: float | None, spec: str) -> str:
@@ -227,12 +244,16 @@ def _print_record(record, out_dir: Path | None) -> None:
         table.add_row("category", f"{record.category.label}: {record.category.rule}")
     share = max(record.masked_share) if record.masked_share else 0.0
     table.add_row("objects", f"{len(record.objects)} from {record.masks_source} masks (masked share up to {share:.1%} of the content)")
-    for o in record.objects:
+    # Long-lived objects first; a clip with dozens of short motion blobs keeps a readable table.
+    shown = sorted(record.objects, key=lambda o: (-o.frames, o.object_id))[:MAX_OBJECT_ROWS]
+    for o in sorted(shown, key=lambda o: o.object_id):
         table.add_row(
             f"  object {o.object_id}",
             f"frames {o.first_frame}-{o.last_frame} ({o.frames}), AdaDFRC {_fmt(o.adadfrc, '.3f')} px², "
             f"W2 {_fmt(o.adadfrc_w2, '.3f')} px², AdaP90 {_fmt(o.adap90, '.3f')} px², masked {o.masked_share:.1%}",
         )
+    if len(record.objects) > len(shown):
+        table.add_row("", f"... {len(record.objects) - len(shown)} shorter-lived objects not listed (all are in record.json)")
     table.add_row("config", f"{record.config.preset} preset, hash {record.config_hash}")
     for w in record.warnings:
         table.add_row("[yellow]warning[/]", w)
@@ -241,19 +262,47 @@ def _print_record(record, out_dir: Path | None) -> None:
     out.print(table)
 
 
-def _score_with_progress(clip: Path, cfg, *, pose_log: Path | None = None, masks: Path | None = None, quiet: bool = False):
-    """Score a clip with a progress bar on stderr that appears once the clip is readable."""
+def _rrd_factory() -> Callable[[Path], Any]:
+    factory = FRAME_SINKS.get("rrd")
+    if factory is None:
+        raise _fail("writing a Rerun recording needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)")
+    return factory
+
+
+def _score_with_progress(
+    clip: Path, cfg, *, out_dir: Path, pose_log: Path | None = None, masks: Path | None = None, quiet: bool = False, rrd: Path | None = None,
+):
+    """Score a clip with a progress bar on stderr that appears once the clip is readable; write
+    the record (with its overlays) into ``out_dir`` and, with ``rrd``, a Rerun recording."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+    from .diagnostics import OverlayWriter
+    from .record import write_record
     from .scorer import score_clip
+
+    factory = None if rrd is None else _rrd_factory()
+    sinks: list = []  # made at the first frame, so that unusable input leaves no files behind
+
+    def on_frame(fd) -> None:
+        if not sinks:
+            sinks.append(OverlayWriter(out_dir))
+            if factory is not None:
+                sinks.append(factory(rrd))
+        for sink in sinks:
+            sink(fd)
 
     columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn())
     with Progress(*columns, console=err, disable=quiet) as bar:
         task = bar.add_task("score", total=None, visible=False)
-        return score_clip(
-            clip, cfg, pose_log=pose_log, masks=masks,
+        record = score_clip(
+            clip, cfg, pose_log=pose_log, masks=masks, on_frame=on_frame,
             progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
         )
+    sinks[0].close()
+    write_record(record, out_dir)
+    if len(sinks) > 1:
+        sinks[1].finish(record)
+    return record
 
 
 def _default_out(clip: Path) -> Path:
@@ -271,12 +320,12 @@ def score(
     matcher: Annotated[Optional[str], typer.Option(help="Correspondences: sift (default), orb, klt.")] = None,
     fov: Annotated[Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
+    rrd: Annotated[Optional[Path], typer.Option("--rrd", help="Also write a Rerun recording (.rrd) of the audit: frames, matches, residual maps, objects, time series, 3D.")] = None,
 ) -> None:
     """Score a clip: translation gate (H/F), background inlier ratio (IR) and geometric error
     (GE) per frame pair and scale, the report verdict; writes the audit record."""
     from .config import preset
     from .reader import ClipError
-    from .record import write_record
 
     try:
         cfg = preset(preset_name)
@@ -290,11 +339,12 @@ def score(
         from .features import make_matcher
 
         make_matcher(cfg.matcher)
-        record = _score_with_progress(clip, cfg, pose_log=pose_log, masks=masks, quiet=as_json)
+        target = out_dir or _default_out(clip)
+        record = _score_with_progress(clip, cfg, out_dir=target, pose_log=pose_log, masks=masks, quiet=as_json, rrd=rrd)
     except (ClipError, ValueError) as exc:
         raise _fail(str(exc)) from None
-    target = out_dir or _default_out(clip)
-    write_record(record, target)
+    if rrd is not None and not as_json:
+        err.print(f"Rerun recording written to {rrd} (rerun-sdk {_rerun_version()}; open it with `geocon view {target}` or `rerun {rrd}`)")
     if as_json:
         sys.stdout.write(json.dumps(record.summary(), indent=1) + "\n")
     else:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "t_inf_from_pose",
     "scale_intrinsics",
     "project",
+    "triangulate_two_view",
 ]
 
 
@@ -175,3 +177,29 @@ def project(K: np.ndarray, T_cam_world: np.ndarray, X_world: np.ndarray) -> np.n
     X = np.asarray(X_world, dtype=float) @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
     x = X @ np.asarray(K, dtype=float).T
     return x[:, :2] / x[:, 2:3]
+
+
+def triangulate_two_view(
+    K: np.ndarray, T_cam0_cam1: np.ndarray, x0: np.ndarray, x1: np.ndarray, *, max_reproj_px: float = 2.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linear (DLT) triangulation of (N, 2) matches between camera 0 (at the origin) and camera 1
+    with pose ``T_cam0_cam1`` (camera 1 in camera-0 coordinates), both with intrinsics K.
+    Returns points (N, 3) in camera-0 coordinates and a mask (N,) of the points in front of
+    both cameras whose reprojection error is at most ``max_reproj_px`` in both images."""
+    x0, x1 = np.asarray(x0, dtype=float).reshape(-1, 2), np.asarray(x1, dtype=float).reshape(-1, 2)
+    if x0.shape[0] == 0:
+        return np.zeros((0, 3)), np.zeros(0, bool)
+    T_1_0 = invert_pose(T_cam0_cam1)
+    P0 = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
+    P1 = K @ T_1_0[:3, :]
+    Xh = cv2.triangulatePoints(P0, P1, x0.T, x1.T)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = (Xh[:3] / Xh[3]).T
+    finite = np.isfinite(X).all(axis=1)
+    X = np.where(finite[:, None], X, 0.0)
+    z0 = X[:, 2]
+    z1 = X @ T_1_0[2, :3] + T_1_0[2, 3]
+    e0 = np.linalg.norm(project(K, np.eye(4), X) - x0, axis=1)
+    e1 = np.linalg.norm(project(K, T_1_0, X) - x1, axis=1)
+    ok = finite & (z0 > 0) & (z1 > 0) & (e0 <= max_reproj_px) & (e1 <= max_reproj_px)
+    return X, ok

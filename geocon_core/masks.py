@@ -655,7 +655,7 @@ class MotionSegmenter(_Coverage):
         Fm = None
         if not static and n - n_h >= self.f_gain * n:
             sub = slice(None, None, max(1, n // F_FIT_POINTS))  # every k-th vector: F fits are costly
-            ff = fit_fundamental(p1[sub], p2[sub], tau=0.1, min_inliers=30, seed=seed, iters=1000, proposal_px=tau)
+            ff = fit_fundamental(p1[sub], p2[sub], tau=0.1, min_inliers=30, iters=1000, proposal_px=tau)
             if ff.model is not None:
                 d = _epipolar_distance(ff.model, p1, p2)
                 n_f = int(np.count_nonzero(d <= tau))

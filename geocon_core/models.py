@@ -1,7 +1,8 @@
 """Background models per SPEC section 3: homography (H) with the symmetric transfer error and
 fundamental matrix (F) with the Sampson distance in Hartley-normalised coordinates.
 
-OpenCV's USAC (MAGSAC++ scoring, seeded) only *proposes* a model; the model is then refined on
+OpenCV's USAC (seeded MAGSAC++ for H, the fixed-state 8-point preset for F) only *proposes* a
+model; the model is then refined on
 its inliers, and the reported inlier set is exactly ``{i : r_i <= tau}`` under the paper's
 residual for the final model. Residuals are rounded to float32 before anything is computed
 from them, so re-gating the stored residuals reproduces IR and GE exactly.
@@ -183,7 +184,6 @@ def fit_fundamental(
     *,
     tau: float = 0.1,
     min_inliers: int = 30,
-    seed: int = 0,
     iters: int = 2000,
     confidence: float = 0.9999,
     refine_steps: int = 3,
@@ -192,7 +192,10 @@ def fit_fundamental(
     """Robust fundamental matrix ``F_21`` from (N, 2) pixel correspondences. Each image's points
     are Hartley-normalised; inliers have normalised Sampson distance <= ``tau``; GE is the
     median Sampson distance in pixels of the denormalised ``F = T2^T F_hat T1``. USAC proposes
-    the model in pixels with threshold ``proposal_px``."""
+    the model in pixels with threshold ``proposal_px``, using OpenCV's 8-point preset: its
+    random state is fixed inside OpenCV (so results are reproducible without a seed), and
+    unlike the 7-point configuration it does not stall for seconds on degenerate pairs (a
+    static background, where every match lies on one homography)."""
     n = x1.shape[0]
     if n < max(8, min_inliers):
         return _failed("F", "too_few_matches", n, tau)
@@ -202,7 +205,7 @@ def fit_fundamental(
     # USAC proposes in pixels (its scoring assumes pixel-scale coordinates); the paper's rule is
     # then applied to the proposal expressed in normalised coordinates.
     try:
-        F_px, _ = cv2.findFundamentalMat(x1, x2, usac_params(proposal_px, seed, iters, confidence))
+        F_px, _ = cv2.findFundamentalMat(x1, x2, cv2.USAC_FM_8PTS, proposal_px, confidence, iters)
     except cv2.error:  # USAC asserts on degenerate samples
         F_px = None
     if F_px is None or F_px.shape != (3, 3) or not np.isfinite(F_px).all():

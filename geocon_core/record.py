@@ -2,7 +2,8 @@
 
 - ``record.json``: everything but the per-match arrays, human-readable and byte-stable;
 - ``matches.npz``: per-match coordinates, residuals and inlier masks of every scored pair and
-  scale for both families (enough to re-gate at other thresholds without re-running),
+  scale for both families (enough to re-gate at other thresholds without re-running), the
+  per-cell AdaDFRC vectors and the first/last point cloud,
   concatenated with offsets, written with fixed zip timestamps so that the same scores give
   the same bytes.
 
@@ -39,6 +40,7 @@ __all__ = [
     "ObjectSummary",
     "CellArrays",
     "Category",
+    "PointCloud",
     "ClipRecord",
     "write_record",
     "read_record",
@@ -217,6 +219,26 @@ class ObjectSummary:
     per_scale: tuple[ObjectScaleSummary, ...]
 
 
+@dataclass(frozen=True, eq=False)
+class PointCloud:
+    """Two-view point cloud of the first/last pair: background matches triangulated with the
+    gate's pose (in front of both cameras, reprojection <= 2 px).
+
+    xyz: (N, 3) float32 in first-camera coordinates, on the pose's translation scale (unit mean
+    scene distance); rgb: (N, 3) uint8 colours sampled from the first frame; note: how it was
+    made, or why it is empty (no pose, rotation only: no parallax to triangulate).
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray
+    note: str
+
+    def __post_init__(self) -> None:
+        n = self.xyz.shape[0]
+        if self.xyz.shape != (n, 3) or self.rgb.shape != (n, 3):
+            raise ValueError(f"PointCloud needs xyz (N, 3) and rgb (N, 3), got {self.xyz.shape} and {self.rgb.shape}")
+
+
 @dataclass(frozen=True)
 class Category:
     """Post-hoc scene family (SPEC section 5) with the inputs of the decision and the rule that
@@ -330,6 +352,7 @@ class ClipRecord:
     objects: tuple[ObjectSummary, ...] = ()
     object_entries: tuple[ObjectEntry, ...] = ()
     cells: CellArrays | None = None
+    cloud: PointCloud | None = None
 
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
@@ -394,6 +417,7 @@ class ClipRecord:
             "masked_share": list(self.masked_share),
             "objects": [asdict(o) for o in self.objects],
             "object_entries": [asdict(e) for e in self.object_entries],
+            "cloud": None if self.cloud is None else {"points": int(self.cloud.xyz.shape[0]), "note": self.cloud.note},
         }
 
 
@@ -422,6 +446,8 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
     arrays = {name: getattr(record.matches, name) for name in MatchArrays.NAMES}
     if record.cells is not None:
         arrays.update({f"cells_{name}": getattr(record.cells, name) for name in CellArrays.NAMES})
+    if record.cloud is not None:
+        arrays.update({"cloud_xyz": record.cloud.xyz, "cloud_rgb": record.cloud.rgb})
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -446,6 +472,9 @@ def read_record(path: str | Path) -> ClipRecord:
     with np.load(folder / "matches.npz", allow_pickle=False) as z:
         matches = MatchArrays(**{name: z[name] for name in MatchArrays.NAMES})
         cells = CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES}) if "cells_offsets" in z.files else None
+        cloud = None
+        if d.get("cloud") is not None:
+            cloud = PointCloud(xyz=z["cloud_xyz"], rgb=z["cloud_rgb"], note=d["cloud"]["note"])
     g = d["gate"]
     gate = GateRecord(**{**g, "timeline": tuple(GateWindow(**w) for w in g["timeline"])})
     b = d["background"]
@@ -461,4 +490,5 @@ def read_record(path: str | Path) -> ClipRecord:
         ),
         object_entries=tuple(ObjectEntry(**e) for e in d["object_entries"]),
         cells=cells,
+        cloud=cloud,
     )

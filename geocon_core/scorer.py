@@ -28,7 +28,8 @@ from .config import ScoreConfig, config_hash
 from .features import FeatureSet, Matcher, make_matcher, scaled_inputs
 from .flow import FlowBackend, make_flow_backend
 from .gate import gate_decision
-from .geometry import scale_intrinsics
+from .diagnostics import FrameDiagnostics, ObjectFlow
+from .geometry import scale_intrinsics, triangulate_two_view
 from .masks import make_mask_source
 from .models import ModelFit, fit_fundamental, fit_homography
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
@@ -41,6 +42,7 @@ from .record import (
     ObjectScaleSummary,
     ObjectSummary,
     ClipRecord,
+    PointCloud,
     FamilySummary,
     FitSummary,
     GapSummary,
@@ -103,6 +105,7 @@ class _Pipeline:
     def __init__(self, info: ClipInfo, config: ScoreConfig, matcher: Matcher, flow: FlowBackend | None, timer: _Timer) -> None:
         self.info, self.config, self.matcher, self.flow, self.timer = info, config, matcher, flow, timer
         self.s_max = max(config.scales)
+        self.keep_flows = False
 
     def extract(self, frame: Frame, background: np.ndarray | None) -> dict[float, FeatureSet]:
         """Features of frame t inside ``B_t`` = content minus object masks, at every scale."""
@@ -124,19 +127,21 @@ class _Pipeline:
             x1, x2 = self.matcher.match(a[s], b[s])
             start = self.timer.add("matching", start)
             seed = _pair_seed(cfg.seed, t0, t1, si)
-            kw = dict(min_inliers=cfg.min_inliers, seed=seed, iters=cfg.ransac_iters, confidence=cfg.ransac_confidence)
-            h = fit_homography(x1, x2, tau=cfg.tau_h, **kw)
+            kw = dict(min_inliers=cfg.min_inliers, iters=cfg.ransac_iters, confidence=cfg.ransac_confidence)
+            h = fit_homography(x1, x2, tau=cfg.tau_h, seed=seed, **kw)
             f = fit_fundamental(x1, x2, tau=cfg.tau_f, **kw)
             self.timer.add("model_fitting", start)
             # kept as the record stores them (float32), so memory per match stays small
             results.append(_Scored(t0, t1, gap, s, None, x1.astype(np.float32), x2.astype(np.float32), h, f))
         return results
 
-    def score_objects(self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None) -> list[tuple]:
+    def score_objects(self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None) -> tuple[list[tuple], list[ObjectFlow]]:
         """AdaDFRC of every object of frame t0 on the pair (t0, t1), at every scale:
-        (object_id, t0, t1, scale, RigidityResult | reason)."""
+        (object_id, t0, t1, scale, RigidityResult | reason), and the flow slices at scale 1
+        (kept only when diagnostics are streamed)."""
         start = time.perf_counter()
         out: list[tuple] = []
+        flows: list[ObjectFlow] = []
         ids = [int(i) for i in np.unique(labels0) if i]
         for s in self.config.scales:
             if s == 1.0:
@@ -164,16 +169,41 @@ class _Pipeline:
                     grid=self.config.grid, min_cells=self.config.min_cells, origin=(float(x0), float(y0)),
                 )
                 out.append((oid, f0.index, f1.index, s, res))
+                if self.keep_flows and s == 1.0:
+                    flows.append(ObjectFlow(oid, f0.index, f1.index, field.box, field.flow, field.reliable, mask[y0:y1, x0:x1]))
         self.timer.add("objects", start)
-        return out
+        return out, flows
 
-    def pose(self, fa: Future, fb: Future, backend: PoseBackend, K: np.ndarray, t0: int, t1: int) -> PoseEstimate:
+    def pose(self, fa: Future, fb: Future, backend: PoseBackend, K: np.ndarray, t0: int, t1: int, rgb0: np.ndarray | None = None):
+        """The relative pose (t0 -> t1); with ``rgb0`` (frame t0), also the two-view point cloud."""
         a, b = fa.result()[self.s_max], fb.result()[self.s_max]
         start = time.perf_counter()
         x0, x1 = self.matcher.match(a, b)
         est = backend.estimate(x0, x1, K, seed=_pair_seed(self.config.seed, t0, t1, 99))
         self.timer.add("pose", start)
-        return est
+        if rgb0 is None:
+            return est
+        return est, _two_view_cloud(est, K, x0, x1, rgb0, self.s_max)
+
+
+def _two_view_cloud(est: PoseEstimate, K: np.ndarray, x0: np.ndarray, x1: np.ndarray, rgb0: np.ndarray, scale: float) -> PointCloud:
+    empty = PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), "")
+    if not est.pose_present:
+        return replace(empty, note=f"no point cloud: no first-last pose ({est.reason})")
+    T = np.asarray(est.T_cam0_camT, dtype=float)
+    if not np.linalg.norm(T[:3, 3]) > 0:
+        return replace(empty, note=f"no point cloud: {est.method} pose without translation (no parallax to triangulate)")
+    Ks = K.copy()
+    Ks[0, 0] *= est.focal_scale
+    Ks[1, 1] *= est.focal_scale
+    X, ok = triangulate_two_view(Ks, T, x0, x1)
+    X, px = X[ok], x0[ok]
+    # colours from the first frame (pixels of the pose scale -> working pixels)
+    h, w = rgb0.shape[:2]
+    u = np.clip(np.round((px[:, 0] + 0.5) / scale - 0.5).astype(int), 0, w - 1)
+    v = np.clip(np.round((px[:, 1] + 0.5) / scale - 0.5).astype(int), 0, h - 1)
+    note = f"{len(X)} of {len(x0)} first-last matches triangulated with the {est.method} pose (front of both cameras, reprojection <= 2 px)"
+    return PointCloud(X.astype(np.float32), rgb0[v, u].astype(np.uint8), note)
 
 
 def _windows(n: int, window: int, stride: int) -> list[tuple[int, int]]:
@@ -191,12 +221,15 @@ def score_clip(
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     timings: dict[str, float] | None = None,
+    on_frame: Callable[[FrameDiagnostics], None] | None = None,
 ) -> ClipRecord:
     """Score one clip. ``pose_log`` replaces the pose backend by an external pose (JSON, see
     :mod:`geocon_core.pose`); ``masks`` is a path to external object masks (see
     :mod:`geocon_core.masks`), otherwise ``config.masks`` chooses the built-in segmentation or
     none; ``progress(done, total)`` is called as frames are processed; ``timings``, if given,
-    receives seconds per stage (summed over worker threads). Raises
+    receives seconds per stage (summed over worker threads); ``on_frame``, if given, receives a
+    :class:`~geocon_core.diagnostics.FrameDiagnostics` per frame, in frame order, on the calling
+    thread. Raises
     :class:`~geocon_core.reader.ClipError` for unusable input."""
     cfg = config or ScoreConfig()
     if masks is not None:
@@ -243,11 +276,27 @@ def score_clip(
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pipe = _Pipeline(info, cfg, matcher, flow, timer)
+        pipe.keep_flows = on_frame is not None
+        rgb0: np.ndarray | None = None
+        # frames waiting for their object flows (pair t, t+1) before they go to on_frame, in
+        # order: [frame, labels, flows future or None, ready]
+        pending: deque[list] = deque()
+
+        def emit(final: bool) -> None:
+            while pending and (final or pending[0][3]):
+                frame, labels, fut, _ = pending[0]
+                if not final and fut is not None and not fut.done() and len(pending) <= 2 * workers + 2:
+                    break
+                pending.popleft()
+                flows = () if fut is None else tuple(fut.result()[1])
+                on_frame(FrameDiagnostics(frame.index, frame, info.fps, labels, float(masked_share[frame.index]), flows))
 
         def process(t: int) -> None:
             """Everything that needs frame t and its mask; runs once labels(t) are final."""
-            nonlocal first_last
+            nonlocal first_last, rgb0
             frame = frames_buf[t]
+            if t == 0:
+                rgb0 = frame.rgb
             labels = None
             if mask_source is not None:
                 labels = mask_source.labels(t)
@@ -277,11 +326,18 @@ def score_clip(
                 object_futures.append(
                     pool.submit(pipe.score_objects, frames_buf[t - 1], frame, labels_buf[t - 1], info.pair_skip_reason(t - 1, t))
                 )
+                if on_frame is not None and pending and pending[-1][0].index == t - 1:
+                    pending[-1][2] = object_futures[-1]  # frame t-1 is complete once its flows are
+            if on_frame is not None:
+                if pending:
+                    pending[-1][3] = True
+                pending.append([frame, labels, None, False])
+                emit(final=False)
             for w in window_ends.get(t, []):
                 if pose_log is None and w != (0, n - 1):
                     window_futures.append((w, pool.submit(pipe.pose, feats[w[0]], feats[t], backend, K_pose, w[0], t)))
             if t == n - 1:
-                first_last = pool.submit(pipe.pose, feats[0], feats[t], backend, K_pose, 0, t)
+                first_last = pool.submit(pipe.pose, feats[0], feats[t], backend, K_pose, 0, t, rgb0)
             for old in [k for k in feats if k < t - max_gap and k not in anchors]:
                 del feats[old]
             for a in [k for k in anchors if k in feats and all(e < t for s, e in windows if s == k) and k != 0]:
@@ -316,15 +372,17 @@ def score_clip(
         while next_t < n:
             process(next_t)
             next_t += 1
+        if on_frame is not None:
+            emit(final=True)
         assert first_last is not None
-        pose = first_last.result()
+        pose, cloud = first_last.result()
         scored = [r for f in pair_futures for r in f.result()] + skipped
         timeline_poses = [(w, f.result()) for w, f in window_futures]
-        object_results = [r for f in object_futures for r in f.result()]
+        object_results = [r for f in object_futures for r in f.result()[0]]
 
     scored.sort(key=lambda r: (r.gap, r.t0, r.scale))
     object_results.sort(key=lambda r: (r[0], r[1], r[3]))
-    record = _assemble(str(path), info, cfg, K, backend, pose, timeline_poses, windows, scored)
+    record = replace(_assemble(str(path), info, cfg, K, backend, pose, timeline_poses, windows, scored), cloud=cloud)
     return _with_objects(record, cfg, mask_source, masks, masked_share, object_share, object_results)
 
 

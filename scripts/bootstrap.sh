@@ -6,8 +6,8 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-# Debian packages the project needs at run time (none yet for the core).
-DEB_PACKAGES=()
+# Debian packages the project needs at run time (open3d loads libusb).
+DEB_PACKAGES=(libusb-1.0-0)
 missing=()
 for pkg in "${DEB_PACKAGES[@]}"; do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")

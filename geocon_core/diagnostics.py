@@ -1,0 +1,187 @@
+"""Per-frame diagnostics the scorer streams to the viewers, and their files beside a record.
+
+:func:`~geocon_core.scorer.score_clip` calls ``on_frame(FrameDiagnostics)`` once per frame, in
+frame order, as soon as everything about the frame is known: the decoded frame, the object
+labels the scorer used (built-in segmentation or external masks) and, per object, the optical
+flow to the next frame at the working resolution. These are the pictures behind the numbers;
+the numbers themselves live in the :class:`~geocon_core.record.ClipRecord`.
+
+:class:`OverlayWriter` keeps the parts a viewer cannot rebuild without re-scoring in a folder
+``overlays/`` next to ``record.json``:
+
+- ``labels-NNNNN.png``: (H, W) uint16 object ids of frame N (0 = background), only for frames
+  with at least one object;
+- ``flow-NNNNN-III.png``: the flow-direction hue slice of object III on the pair (N, N+1) inside
+  its box (RGBA: hue = direction, brightness = magnitude up to ``max_magnitude``, alpha = reliable
+  object pixels);
+- ``index.json``: format ``geocon-overlays/1``; per frame the masked share, the labels file and
+  the flow slices with their boxes (x0, y0, x1, y1, working pixels, half-open).
+
+Frames themselves are not copied: they are decoded again from the clip.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .reader import Frame
+
+__all__ = ["ObjectFlow", "FrameDiagnostics", "flow_hue", "OverlayWriter", "Overlays", "read_overlays", "OVERLAYS_FORMAT"]
+
+OVERLAYS_FORMAT = "geocon-overlays/1"
+OVERLAYS_DIR = "overlays"
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectFlow:
+    """Optical flow of one object from frame ``t0`` to ``t1`` at the working resolution.
+
+    box: (x0, y0, x1, y1) working pixels, half-open; flow: (h, w, 2) float32 pixels inside the
+    box; reliable: (h, w) bool forward-backward consistent pixels; mask: (h, w) bool object
+    pixels at ``t0``.
+    """
+
+    object_id: int
+    t0: int
+    t1: int
+    box: tuple[int, int, int, int]
+    flow: np.ndarray
+    reliable: np.ndarray
+    mask: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class FrameDiagnostics:
+    """What the scorer knows about frame ``index`` beyond the record.
+
+    frame: the decoded frame (working canvas); fps: the clip's frame rate; labels: (H, W) uint16 object ids used for
+    masking (None when masks are off); masked_share: share of content pixels inside objects;
+    flows: per object, the flow on the pair (index, index + 1) (empty on the last frame, across
+    cuts and without masks).
+    """
+
+    index: int
+    frame: Frame
+    fps: float
+    labels: np.ndarray | None
+    masked_share: float
+    flows: tuple[ObjectFlow, ...] = ()
+
+
+def flow_hue(flow: np.ndarray, valid: np.ndarray, max_magnitude: float | None = None) -> tuple[np.ndarray, float]:
+    """RGBA picture of a flow field (h, w, 2): hue = direction (0 deg = +x, red), brightness =
+    magnitude / ``max_magnitude`` (default: the 99th percentile over ``valid``), alpha = 255 on
+    ``valid`` pixels. Returns the (h, w, 4) uint8 image and the magnitude used for full
+    brightness."""
+    fx, fy = flow[..., 0].astype(np.float32), flow[..., 1].astype(np.float32)
+    mag, ang = cv2.cartToPolar(fx, fy, angleInDegrees=True)
+    if max_magnitude is None:
+        vals = mag[valid]
+        max_magnitude = float(np.percentile(vals, 99)) if vals.size else 0.0
+    max_magnitude = max(float(max_magnitude), 1e-6)
+    hsv = np.zeros(flow.shape[:2] + (3,), np.uint8)
+    hsv[..., 0] = np.round(ang / 2.0).astype(np.uint16) % 180
+    hsv[..., 1] = 255
+    hsv[..., 2] = np.clip(mag / max_magnitude * 255.0, 0, 255).astype(np.uint8)
+    rgba = np.empty(flow.shape[:2] + (4,), np.uint8)
+    rgba[..., :3] = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+    rgba[..., 3] = np.where(valid, 255, 0)
+    return rgba, max_magnitude
+
+
+class OverlayWriter:
+    """Writes the ``overlays/`` folder of a record as frames stream in (use as ``on_frame``)."""
+
+    def __init__(self, record_dir: str | Path) -> None:
+        self.dir = Path(record_dir) / OVERLAYS_DIR
+        self.dir.mkdir(parents=True, exist_ok=True)
+        for old in self.dir.glob("*.png"):
+            old.unlink()
+        self.frames: dict[str, dict[str, Any]] = {}
+
+    def __call__(self, fd: FrameDiagnostics) -> None:
+        entry: dict[str, Any] = {"masked_share": float(fd.masked_share), "labels": None, "flows": []}
+        if fd.labels is not None and fd.labels.any():
+            name = f"labels-{fd.index:05d}.png"
+            _imwrite(self.dir / name, fd.labels.astype(np.uint16))
+            entry["labels"] = name
+        for of in fd.flows:
+            rgba, vmax = flow_hue(of.flow, of.reliable & of.mask)
+            name = f"flow-{fd.index:05d}-{of.object_id:03d}.png"
+            _imwrite(self.dir / name, cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
+            entry["flows"].append({"object_id": of.object_id, "t0": of.t0, "t1": of.t1, "box": list(of.box), "file": name, "max_magnitude": vmax})
+        self.frames[str(fd.index)] = entry
+
+    def close(self) -> Path:
+        path = self.dir / "index.json"
+        tmp = self.dir / ".index.json.part"
+        tmp.write_text(json.dumps({"format": OVERLAYS_FORMAT, "frames": self.frames}, indent=1) + "\n")
+        tmp.replace(path)
+        return path
+
+
+def _imwrite(path: Path, image: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"could not write {path}")
+
+
+@dataclass(frozen=True)
+class FlowSlice:
+    """A stored flow-hue slice: (h, w, 4) RGBA ``image`` for ``box`` on the pair (t0, t1)."""
+
+    object_id: int
+    t0: int
+    t1: int
+    box: tuple[int, int, int, int]
+    max_magnitude: float
+    image: np.ndarray
+
+
+class Overlays:
+    """Read access to a record's ``overlays/`` folder (files are loaded on demand)."""
+
+    def __init__(self, folder: Path, index: dict[str, Any]) -> None:
+        self.folder = folder
+        self._frames = index["frames"]
+
+    @property
+    def frames(self) -> list[int]:
+        return sorted(int(k) for k in self._frames)
+
+    def masked_share(self, t: int) -> float | None:
+        e = self._frames.get(str(t))
+        return None if e is None else e["masked_share"]
+
+    def labels(self, t: int) -> np.ndarray | None:
+        """(H, W) uint16 object ids of frame t, or None when the frame has no object."""
+        e = self._frames.get(str(t))
+        if e is None or e["labels"] is None:
+            return None
+        return cv2.imread(str(self.folder / e["labels"]), cv2.IMREAD_UNCHANGED)
+
+    def flows(self, t: int) -> list[FlowSlice]:
+        e = self._frames.get(str(t))
+        out = []
+        for f in [] if e is None else e["flows"]:
+            img = cv2.cvtColor(cv2.imread(str(self.folder / f["file"]), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
+            out.append(FlowSlice(f["object_id"], f["t0"], f["t1"], tuple(f["box"]), f["max_magnitude"], img))
+        return out
+
+
+def read_overlays(record_dir: str | Path) -> Overlays | None:
+    """The overlays stored beside a record, or None when the record has none."""
+    folder = Path(record_dir)
+    folder = (folder if folder.is_dir() else folder.parent) / OVERLAYS_DIR
+    index = folder / "index.json"
+    if not index.exists():
+        return None
+    d = json.loads(index.read_text())
+    if d.get("format") != OVERLAYS_FORMAT:
+        raise ValueError(f"{index}: not GeoCon overlays (format {d.get('format')!r}, expected {OVERLAYS_FORMAT!r})")
+    return Overlays(folder, d)
