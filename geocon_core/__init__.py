@@ -4,7 +4,9 @@ The package imports nothing heavy at import time; import the stage modules you n
 
 - :mod:`geocon_core.geometry`: pure two-view geometry (homographies, Sampson distance, poses);
 - :mod:`geocon_core.gate`: the translation gate (H / F / U);
-- :mod:`geocon_core.synth`: synthetic scenes with exact ground truth (``geocon synth``).
+- :mod:`geocon_core.synth`: synthetic scenes with exact ground truth (``geocon synth``);
+- :mod:`geocon_core.bench`, :mod:`geocon_core.tables`, :mod:`geocon_core.stats`,
+  :mod:`geocon_core.report`: benchmarks of many clips (``geocon bench``, ``geocon report``).
 """
 
 from ._version import __version__

@@ -23,6 +23,10 @@ app = typer.Typer(
 err = Console(stderr=True)
 out = Console()
 
+RECORD_RENDERERS: dict[str, str] = {}
+"""Renderers of saved records other packages contribute, as ``"module:function"`` called with
+``(record_dir, output_path)`` (``geocon_viewer`` registers ``"rrd"``); ``geocon bench`` uses it in
+its worker processes to write recordings of flagged clips."""
 FRAME_SINKS: dict[str, Callable[..., Any]] = {}
 """Recorders other packages contribute (``geocon_viewer`` registers ``"rrd"``: a factory
 ``(path) -> sink`` where ``sink(FrameDiagnostics)`` is called per frame and
@@ -276,33 +280,17 @@ def _score_with_progress(
     the record (with its overlays) into ``out_dir`` and, with ``rrd``, a Rerun recording."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    from .diagnostics import OverlayWriter
-    from .record import write_record
-    from .scorer import score_clip
+    from .bench import score_to_folder
 
-    factory = None if rrd is None else _rrd_factory()
-    sinks: list = []  # made at the first frame, so that unusable input leaves no files behind
-
-    def on_frame(fd) -> None:
-        if not sinks:
-            sinks.append(OverlayWriter(out_dir))
-            if factory is not None:
-                sinks.append(factory(rrd))
-        for sink in sinks:
-            sink(fd)
-
+    factory = None if rrd is None else _rrd_factory()  # fails before scoring when the viewer extra is missing
+    sinks = [] if factory is None else [lambda _folder: factory(rrd)]
     columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn())
     with Progress(*columns, console=err, disable=quiet) as bar:
         task = bar.add_task("score", total=None, visible=False)
-        record = score_clip(
-            clip, cfg, pose_log=pose_log, masks=masks, on_frame=on_frame,
+        return score_to_folder(
+            clip, cfg, out_dir, pose_log=pose_log, masks=masks, sinks=sinks,
             progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
         )
-    sinks[0].close()
-    write_record(record, out_dir)
-    if len(sinks) > 1:
-        sinks[1].finish(record)
-    return record
 
 
 def _default_out(clip: Path) -> Path:
@@ -349,6 +337,110 @@ def score(
         sys.stdout.write(json.dumps(record.summary(), indent=1) + "\n")
     else:
         _print_record(record, target)
+
+
+@app.command("synth-bench")
+def synth_bench(
+    out_dir: Annotated[Path, typer.Option("--out", help="Dataset folder (created).")],
+    scenes: Annotated[int, typer.Option(min=1, help="Scenes (seeds) per family; every platform renders each.")] = 3,
+    families: Annotated[str, typer.Option(help="Comma-separated families.")] = "C1,C2,C3,C4,C5",
+    frames: Annotated[int, typer.Option(min=2, help="Frames per clip.")] = 24,
+    size: Annotated[str, typer.Option(help="Frame size WxH (even numbers).")] = "320x180",
+) -> None:
+    """Render a synthetic benchmark dataset for `geocon bench`: the same scenes from three
+    "platforms" (clean, breathing background, elastic objects), with sidecar metadata."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .synth.benchmark import plan_benchmark, write_benchmark
+
+    width, height = _parse_size(size)
+    try:
+        clips = plan_benchmark(families=[f.strip() for f in families.split(",") if f.strip()], scenes=scenes)
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
+    with Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), console=err) as bar:
+        task = bar.add_task("render", total=len(clips) * frames)
+        write_benchmark(out_dir, clips, width=width, height=height, num_frames=frames, on_frame=lambda _t: bar.advance(task))
+    out.print(f"{len(clips)} clips in {out_dir} (platforms clean, breathing, elastic). Next: geocon bench {out_dir} --out RESULTS", soft_wrap=True)
+
+
+@app.command()
+def bench(
+    dataset: Annotated[Path, typer.Argument(help="Dataset folder: clips with sidecar <name>.meta.json files (see the README).")],
+    out_dir: Annotated[Path, typer.Option("--out", help="Results folder (created; rerun the same command to resume).")],
+    preset_name: Annotated[str, typer.Option("--preset", help="Named settings; see `geocon presets`.")] = "paper",
+    workers: Annotated[int, typer.Option(min=1, help="Worker processes scoring clips in parallel.")] = 1,
+    retry_failed: Annotated[bool, typer.Option("--retry-failed", help="Score clips that failed in an earlier run again.")] = False,
+    rrd: Annotated[bool, typer.Option("--rrd/--no-rrd", help="Write a Rerun recording (audit.rrd) for each flagged clip (needs the viewer extra).")] = True,
+    working_size: Annotated[Optional[str], typer.Option("--working-size", help="Working resolution WxH clips are fitted into (default: the preset's, 1024x720).")] = None,
+) -> None:
+    """Score every clip of a dataset (in parallel, resumable) and write per-clip records plus flat
+    Parquet tables (clip, pair, object level) into the results folder."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from .bench import BenchError, run_bench
+    from .config import preset
+    from .dataset import DatasetError
+
+    try:
+        cfg = preset(preset_name)
+        if working_size is not None:
+            cfg = cfg.with_(working_size=_parse_size(working_size))
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
+    renderer = RECORD_RENDERERS.get("rrd") if rrd else None
+    if rrd and renderer is None:
+        err.print("note: Rerun recordings of flagged clips need the viewer extra (pip install 'geocon[viewer]'); scoring without them")
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("clips"),
+               TextColumn("[red]{task.fields[failed]} failed"), TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn())
+    with Progress(*columns, console=err, transient=False) as bar:
+        task = bar.add_task("benchmark", total=None, failed=0, visible=False)
+
+        def on_start(todo: int, skipped: int) -> None:
+            if skipped:
+                err.print(f"resuming: {skipped} clip(s) already finished in {out_dir}, {todo} to score")
+            bar.update(task, total=todo + skipped, completed=skipped, visible=True)
+
+        def on_clip(status: dict, done: int, total: int, failed: int) -> None:
+            if status["status"] == "failed":
+                bar.console.print(f"[red]failed[/] {status['clip_id']}: {status['error']}", soft_wrap=True, markup=True, highlight=False)
+            bar.update(task, completed=done, failed=failed)
+
+        try:
+            summary = run_bench(dataset, out_dir, cfg, workers=workers, rrd_renderer=renderer, retry_failed=retry_failed,
+                                on_start=on_start, on_clip=on_clip)
+        except DatasetError as exc:
+            raise _fail(str(exc)) from None
+        except (BenchError, ImportError) as exc:
+            raise _fail(str(exc)) from None
+        except KeyboardInterrupt:
+            err.print(f"interrupted: finished clips are kept in {out_dir}; run the same command again to resume")
+            raise typer.Exit(code=130) from None
+    ok = summary.total - summary.failed
+    out.print(f"{summary.total} clips: {ok} scored, {summary.failed} failed ({summary.scored} in this run, "
+              f"{summary.skipped} finished earlier) in {summary.seconds:.1f} s", soft_wrap=True)
+    out.print(f"records: {out_dir}/clips/<clip_id>/   tables: {out_dir}/tables/*.parquet   report: geocon report {out_dir}", soft_wrap=True)
+
+
+@app.command()
+def report(
+    results: Annotated[Path, typer.Argument(help="Results folder written by `geocon bench`.")],
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="Report folder (default: RESULTS/report).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the bootstrap resampling.")] = 0,
+) -> None:
+    """The paper's tables and figures from benchmark results: PNG/SVG figures and one
+    self-contained HTML report that opens offline."""
+    try:
+        from .report import build_report
+    except ImportError as exc:
+        raise _fail(f"the report needs the bench extra: pip install 'geocon[bench]' ({exc})") from None
+    try:
+        result = build_report(results, out_dir, seed=seed, progress=lambda what: err.print(f"report: {what}", highlight=False))
+    except (ValueError, FileNotFoundError) as exc:
+        raise _fail(str(exc)) from None
+    for warning in result.warnings:
+        err.print(f"note: {warning}", soft_wrap=True, highlight=False)
+    out.print(f"report: {result.html} ({len(result.figures)} figure files in {result.out})", soft_wrap=True)
 
 
 @app.command()

@@ -42,6 +42,7 @@ __all__ = [
     "Frame",
     "IMAGE_SUFFIXES",
     "SkipReason",
+    "check_clip",
     "iter_frames",
     "probe_clip",
 ]
@@ -262,6 +263,32 @@ def probe_clip(path: str | Path, config: ScoreConfig = ScoreConfig()) -> ClipInf
         duplicates=duplicates,
         cuts=cuts,
     )
+
+
+def check_clip(path: str | Path) -> None:
+    """A cheap readability check (no full decode): the clip exists and its first two frames
+    decode. Raises :class:`ClipError` with the same one-sentence messages as :func:`probe_clip`."""
+    name = str(path)
+    kind, files = _resolve(Path(path), name)
+    if kind == "images":
+        assert files is not None
+        frames = _image_frames(files[:2], name)
+    else:
+        _, frames = _open_video(name)
+    got = 0
+    try:
+        for _ in frames:
+            got += 1
+            if got == 2:
+                break
+    finally:
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()
+    if got == 0:
+        raise ClipError(f"{name}: unreadable bytes (the container opened but no frame could be decoded)")
+    if got == 1:
+        raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
 
 
 def iter_frames(info: ClipInfo) -> Iterator[Frame]:

@@ -32,6 +32,7 @@ from .diagnostics import FrameDiagnostics, ObjectFlow
 from .geometry import scale_intrinsics, triangulate_two_view
 from .masks import make_mask_source
 from .models import ModelFit, fit_fundamental, fit_homography
+from .regate import FitRow, aggregate_gaps
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .rigidity import adadfrc_pair, object_scores
@@ -45,7 +46,6 @@ from .record import (
     PointCloud,
     FamilySummary,
     FitSummary,
-    GapSummary,
     GateRecord,
     GateWindow,
     MatchArrays,
@@ -390,25 +390,12 @@ def _aggregate(family: str, scored: list[_Scored], cfg: ScoreConfig) -> FamilySu
     def fit_of(r: _Scored) -> ModelFit | None:
         return r.h if family == "H" else r.f
 
-    def valid_fits(rows: list[_Scored]) -> list[ModelFit]:
-        return [fit_of(r) for r in rows if r.skip is None and fit_of(r).valid]
-
-    def med(values: list[float]) -> float | None:
-        return float(np.median(values)) if values else None
-
+    rows = []
+    for r in scored:
+        fit = None if r.skip else fit_of(r)
+        rows.append(FitRow(r.gap, r.scale, False, None, None) if fit is None else FitRow(r.gap, r.scale, fit.valid, fit.ir, fit.ge))
+    per_gap, ir, ge = aggregate_gaps(rows, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation)
     reasons: dict[str, int] = {}
-    per_gap = []
-    for gap in cfg.gaps:
-        rows = [r for r in scored if r.gap == gap]
-        valid = valid_fits(rows)
-        if cfg.aggregation == "median":
-            ir, ge = med([f.ir for f in valid]), med([f.ge for f in valid])
-        else:  # worst scale of this gap, each scale a median over pairs
-            cells = [valid_fits([r for r in rows if r.scale == s]) for s in cfg.scales]
-            irs = [m for m in (med([f.ir for f in c]) for c in cells) if m is not None]
-            ges = [m for m in (med([f.ge for f in c]) for c in cells) if m is not None]
-            ir, ge = (min(irs) if irs else None), (max(ges) if ges else None)
-        per_gap.append(GapSummary(gap=gap, ir=ir, ge=ge, valid_pairs=len(valid), total_pairs=len(rows)))
     for r in scored:
         reason = r.skip or fit_of(r).reason
         if reason:
@@ -426,12 +413,10 @@ def _aggregate(family: str, scored: list[_Scored], cfg: ScoreConfig) -> FamilySu
                 tau_f_px=float(np.median([f.tau_px for f in f_valid])) if f_valid else None,
             )
         )
-    irs = [g.ir for g in per_gap if g.ir is not None]
-    ges = [g.ge for g in per_gap if g.ge is not None]
     return FamilySummary(
         family=family,  # type: ignore[arg-type]
-        ir=min(irs) if irs else None,
-        ge=max(ges) if ges else None,
+        ir=ir,
+        ge=ge,
         valid_pairs=sum(g.valid_pairs for g in per_gap),
         total_pairs=len(scored),
         per_gap=tuple(per_gap),

@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from geocon_core.cli import FRAME_SINKS, _default_out, _fail, _rerun_version, _score_with_progress, app, err, out
+from geocon_core.cli import FRAME_SINKS, RECORD_RENDERERS, _default_out, _fail, _rerun_version, _score_with_progress, app, err, out
 
 
 def _rrd_sink(path: Path):
@@ -21,6 +21,7 @@ def _rrd_sink(path: Path):
 
 if importlib.util.find_spec("rerun") is not None:  # the viewer extra is installed
     FRAME_SINKS["rrd"] = _rrd_sink
+    RECORD_RENDERERS["rrd"] = "geocon_viewer.rerun_log:write_rrd"
 
 
 def _has_display() -> bool:

@@ -1,0 +1,286 @@
+"""``geocon bench``: score every clip of a dataset in worker processes, resumably.
+
+Results layout (see ``docs/bench-tables.md``)::
+
+    RESULTS/bench.json                 dataset, full config, config hash, versions
+    RESULTS/clips/<clip_id>/           record.json, matches.npz, overlays/, audit.rrd (flagged clips),
+                                       status.json (written last: ok or failed, with the reason)
+    RESULTS/tables/*.parquet           flat tables, rebuilt from clips/ at the end of every run
+
+A clip is finished when its ``status.json`` exists; a restarted run skips finished clips, so a
+killed run loses at most the clips that were in flight and never scores a clip twice. A clip that
+fails (unreadable, a crash in scoring, a worker process that dies) is recorded as failed with its
+reason and counted, never dropped; ``retry_failed`` scores failed clips again.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import multiprocessing
+import os
+import shutil
+import time
+import traceback
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from .config import ScoreConfig, config_hash
+from .dataset import ClipEntry, load_dataset
+
+__all__ = [
+    "BENCH_FORMAT", "STATUS_FORMAT", "BenchError", "BenchSummary", "clip_dir", "is_flagged", "run_bench",
+    "read_status", "score_to_folder",
+]
+
+BENCH_FORMAT = "geocon-bench/1"
+STATUS_FORMAT = "geocon-bench-clip/1"
+CLIPS_DIR = "clips"
+RRD_NAME = "audit.rrd"
+MAX_CRASHES = 2
+"""A clip in flight when a worker process dies this many times is recorded as failed."""
+
+
+class BenchError(ValueError):
+    """A results folder that cannot be used for this run (one sentence)."""
+
+
+@dataclass(frozen=True)
+class BenchSummary:
+    """What a run did: clips in the dataset, scored now, skipped (finished earlier), failed (in
+    total, including earlier runs), and the seconds it took."""
+
+    results: Path
+    total: int
+    scored: int
+    skipped: int
+    failed: int
+    seconds: float
+    tables: tuple[Path, ...] = field(default_factory=tuple)
+
+
+def clip_dir(results: Path, clip_id: str) -> Path:
+    return results / CLIPS_DIR / clip_id
+
+
+def read_status(folder: Path) -> dict[str, Any] | None:
+    """The ``status.json`` of a clip folder, or None when the clip is not finished."""
+    path = folder / "status.json"
+    if not path.is_file():
+        return None
+    try:
+        status = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return status if status.get("format") == STATUS_FORMAT else None
+
+
+def _write_json(path: Path, payload: dict[str, Any]) -> None:
+    tmp = path.with_name(f".{path.name}.part")
+    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False) + "\n")
+    tmp.replace(path)
+
+
+def is_flagged(summary: dict[str, Any], expected_model: str | None) -> bool:
+    """A clip worth auditing: it fails the report gate (or cannot be judged), has no pose, or its
+    gate disagrees with the expected model of its category."""
+    bg, gate = summary["background"], summary["gate"]
+    return bg["consistent"] is not True or not gate["pose_present"] or (expected_model is not None and gate["model"] != expected_model)
+
+
+def score_to_folder(
+    clip: Path,
+    cfg: ScoreConfig,
+    out_dir: Path,
+    *,
+    masks: Path | None = None,
+    pose_log: Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    sinks: list[Callable[[Path], Any]] = (),  # type: ignore[assignment]
+):
+    """Score ``clip`` and write its record and overlays into ``out_dir``. ``sinks`` are factories
+    called with the first frame's arrival (so unusable input leaves no files behind); each made
+    sink receives every frame, and ``finish(record)`` once the record is written."""
+    from .diagnostics import OverlayWriter
+    from .record import write_record
+    from .scorer import score_clip
+
+    made: list = []
+
+    def on_frame(fd) -> None:
+        if not made:
+            made.append(OverlayWriter(out_dir))
+            made.extend(factory(out_dir) for factory in sinks)
+        for sink in made:
+            sink(fd)
+
+    record = score_clip(clip, cfg, pose_log=pose_log, masks=masks, on_frame=on_frame, progress=progress)
+    made[0].close()
+    write_record(record, out_dir)
+    for sink in made[1:]:
+        sink.finish(record)
+    return record
+
+
+def _load_renderer(spec: str | None) -> Callable[[Path, Path], Any] | None:
+    if spec is None:
+        return None
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _score_one(entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: str | None, threads: int) -> dict[str, Any]:
+    """Worker: score one clip into its folder and write its status (ok or failed)."""
+    import cv2
+
+    from .dataset import EXPECTED_MODEL
+
+    cv2.setNumThreads(threads)
+    cfg = ScoreConfig.from_dict(cfg_dict)
+    out = Path(folder)
+    shutil.rmtree(out, ignore_errors=True)  # leftovers of a run killed while this clip was in flight
+    out.mkdir(parents=True)
+    start = time.perf_counter()
+    status: dict[str, Any] = {
+        "format": STATUS_FORMAT, "clip_id": entry.clip_id, "status": "ok", "error": None, "traceback": None,
+        "config_hash": config_hash(cfg), "meta": entry.meta, "video": str(entry.video), "rrd": None,
+    }
+    try:
+        record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
+        render = _load_renderer(renderer)
+        if render is not None and is_flagged(record.summary(), EXPECTED_MODEL.get(entry.category)):
+            render(out, out / RRD_NAME)
+            status["rrd"] = RRD_NAME
+    except Exception as exc:  # every failure is recorded with its reason, never dropped
+        status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
+    status["seconds"] = round(time.perf_counter() - start, 3)
+    _write_json(out / "status.json", status)
+    return status
+
+
+def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
+    from .scorer import software_versions
+
+    manifest = results / "bench.json"
+    digest = config_hash(cfg)
+    if manifest.is_file():
+        try:
+            old = json.loads(manifest.read_text())
+        except json.JSONDecodeError:
+            raise BenchError(f"{manifest} is not valid JSON; remove it or choose another --out") from None
+        if old.get("format") != BENCH_FORMAT:
+            raise BenchError(f"{results} holds something other than GeoCon benchmark results; choose another --out")
+        if old.get("config_hash") != digest:
+            raise BenchError(
+                f"{results} was scored with another configuration (hash {old.get('config_hash')}, preset "
+                f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another --out"
+            )
+        return
+    results.mkdir(parents=True, exist_ok=True)
+    (results / CLIPS_DIR).mkdir(exist_ok=True)
+    _write_json(manifest, {
+        "format": BENCH_FORMAT, "dataset": str(dataset.resolve()), "config": cfg.to_dict(), "config_hash": digest,
+        "versions": software_versions(),
+    })
+
+
+def run_bench(
+    dataset: str | Path,
+    results: str | Path,
+    config: ScoreConfig | None = None,
+    *,
+    workers: int = 1,
+    rrd_renderer: str | None = None,
+    retry_failed: bool = False,
+    on_clip: Callable[[dict[str, Any], int, int, int], None] | None = None,
+    on_start: Callable[[int, int], None] | None = None,
+    tables: bool = True,
+) -> BenchSummary:
+    """Score every clip of ``dataset`` into ``results`` with ``workers`` processes.
+
+    ``rrd_renderer`` (``"module:function"``, called as ``f(record_dir, rrd_path)``) writes a Rerun
+    recording for flagged clips (:func:`is_flagged`). ``on_start(to_score, skipped)`` is called once;
+    ``on_clip(status, done, total, failed)`` after each clip. Raises
+    :class:`~geocon_core.dataset.DatasetError` or :class:`BenchError` before scoring anything."""
+    cfg = config or ScoreConfig()
+    if workers < 1:
+        raise BenchError(f"--workers must be at least 1, got {workers}")
+    data, out = Path(dataset), Path(results)
+    entries = load_dataset(data)
+    _prepare_results(out, data, cfg)
+    start = time.perf_counter()
+    todo, failed_before = [], 0
+    for entry in entries:
+        status = read_status(clip_dir(out, entry.clip_id))
+        if status is None or (retry_failed and status["status"] == "failed"):
+            todo.append(entry)
+        elif status["status"] == "failed":
+            failed_before += 1
+    skipped = len(entries) - len(todo)
+    if on_start is not None:
+        on_start(len(todo), skipped)
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    renderer = rrd_renderer
+    done, failed = skipped, failed_before
+    crashes: dict[str, int] = {}
+    queue = list(todo)
+    ctx = multiprocessing.get_context("spawn")
+    while queue:
+        limit = 1 if crashes else workers  # after a worker died, suspects run alone
+        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
+        inflight: dict[Future, ClipEntry] = {}
+        broken = False
+        try:
+            while queue or inflight:
+                while queue and len(inflight) < limit and not broken:
+                    entry = queue.pop(0)
+                    fut = pool.submit(_score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), renderer, threads)
+                    inflight[fut] = entry
+                if not inflight:
+                    break
+                finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    entry = inflight.pop(fut)
+                    try:
+                        status = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        crashes[entry.clip_id] = crashes.get(entry.clip_id, 0) + 1
+                        if crashes[entry.clip_id] < MAX_CRASHES:
+                            queue.insert(0, entry)
+                            continue
+                        status = _crashed(out, entry, cfg)
+                    done += 1
+                    failed += status["status"] == "failed"
+                    if on_clip is not None:
+                        on_clip(status, done, len(entries), failed)
+                if broken and not inflight:
+                    break
+        except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+    paths: tuple[Path, ...] = ()
+    if tables:
+        from .tables import write_tables
+
+        paths = write_tables(out)
+    return BenchSummary(results=out, total=len(entries), scored=len(todo), skipped=skipped, failed=failed,
+                        seconds=time.perf_counter() - start, tables=paths)
+
+
+def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any]:
+    folder = clip_dir(results, entry.clip_id)
+    folder.mkdir(parents=True, exist_ok=True)
+    status = {
+        "format": STATUS_FORMAT, "clip_id": entry.clip_id, "status": "failed", "traceback": None, "rrd": None,
+        "error": f"the worker process died {MAX_CRASHES} times while scoring this clip (out of memory or a crash in a native library)",
+        "config_hash": config_hash(cfg), "meta": entry.meta, "video": str(entry.video), "seconds": None,
+    }
+    _write_json(folder / "status.json", status)
+    return status

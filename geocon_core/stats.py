@@ -1,0 +1,332 @@
+"""Benchmark statistics (SPEC section 6): pure, seeded functions over the result tables.
+
+Definitions (what the report prints):
+
+- **Scene-balanced median**: each scene (``scene_id``: one seed/prompt rendered by every platform)
+  contributes the median of its clips' values, then the median over scenes; scenes with many
+  regenerations do not dominate.
+- **Bootstrap CI**: percentile interval of the scene-balanced median over ``B`` resamples of the
+  scenes with replacement (B = 10,000 by default), seeded.
+- **F-rate / anomaly rate** per (platform, category): the share of clips whose gate chose F, and
+  the share whose gate disagrees with the expected rule (C1/C2/C4 -> H, C3/C5/C6 -> F).
+  *Present-only* counts clips with a pose and a decided (non-U) gate label; *fail->F* counts every
+  scored clip, a clip without a pose as F (the paper's default protocol) and a gray-zone (U)
+  clip by the family it kept. Wilson 95% intervals.
+- **Consensus** per (scene, category): whether every platform with a decided gate (pose present,
+  not U) agrees; the rate is over tuples where at least two platforms decided.
+- **Calibration**: P(F | t_inf) in K equal-count bins with Wilson intervals; net benefit
+  ``(TP - c * FP) / N`` of "predict F iff t_inf >= tau"; bootstrap balanced accuracy over a tau grid.
+- **Percentile alignment**: per platform, the y value (GE) of the clips at matched percentiles of
+  x (IR): at percentile p, the median y over the clips whose x lies between percentiles p - w and
+  p + w (w = 10 points).
+- **Dynamic coherence**: AdaP90 per object; per (platform, category) its P80 threshold (linear
+  interpolation), the share of objects strictly above it, and the top-N objects by AdaP90 with
+  their per-frame ``D_t`` traces.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Hashable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .dataset import EXPECTED_MODEL
+
+__all__ = [
+    "EXPECTED_MODEL", "Interval", "TAU_GRID", "TauBootstrap", "wilson_interval", "scene_balanced_median", "bootstrap_median_ci",
+    "median_difference_ci", "scene_balanced_table", "gate_rates", "consensus", "margin_summary", "calibration_bins", "net_benefit",
+    "balanced_accuracy", "bootstrap_tau", "tinf_densities", "percentile_aligned", "adap90_summary", "top_hardest", "sensitivity_table",
+]
+
+TAU_GRID = (0.02, 0.03, 0.04, 0.06, 0.08)
+_NAN = float("nan")
+
+
+@dataclass(frozen=True)
+class Interval:
+    """An estimate with its (95%) interval and the number of units (clips or scenes) behind it."""
+
+    estimate: float
+    low: float
+    high: float
+    n: int
+
+
+def wilson_interval(successes: int, n: int, *, confidence: float = 0.95) -> Interval:
+    """Wilson score interval for ``successes`` out of ``n``; all NaN when ``n == 0``."""
+    if n == 0:
+        return Interval(_NAN, _NAN, _NAN, 0)
+    if not 0 <= successes <= n:
+        raise ValueError(f"successes must be in [0, n], got {successes} of {n}")
+    from scipy.stats import norm
+
+    z = float(norm.ppf(0.5 + confidence / 2))
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return Interval(p, max(0.0, centre - half), min(1.0, centre + half), n)
+
+
+def _scene_medians(values: Sequence[float], scenes: Sequence[Hashable]) -> np.ndarray:
+    v = np.asarray(values, dtype=float)
+    s = np.asarray(scenes, dtype=object)
+    if v.shape != s.shape:
+        raise ValueError(f"values and scenes must have the same length, got {v.shape} and {s.shape}")
+    keep = np.isfinite(v)
+    df = pd.DataFrame({"v": v[keep], "s": s[keep]})
+    return df.groupby("s", sort=True)["v"].median().to_numpy()
+
+
+def scene_balanced_median(values: Sequence[float], scenes: Sequence[Hashable]) -> float:
+    """Median over scenes of each scene's median (NaN values dropped; NaN if nothing is left)."""
+    m = _scene_medians(values, scenes)
+    return float(np.median(m)) if m.size else _NAN
+
+
+def _boot_medians(per_scene: np.ndarray, B: int, rng: np.random.Generator) -> np.ndarray:
+    idx = rng.integers(0, per_scene.size, size=(B, per_scene.size))
+    return np.median(per_scene[idx], axis=1)
+
+
+def bootstrap_median_ci(values: Sequence[float], scenes: Sequence[Hashable], *, B: int = 10_000, confidence: float = 0.95, seed: int = 0) -> Interval:
+    """Scene-balanced median with a percentile bootstrap interval resampling scenes."""
+    m = _scene_medians(values, scenes)
+    if m.size == 0:
+        return Interval(_NAN, _NAN, _NAN, 0)
+    boot = _boot_medians(m, B, np.random.default_rng(seed))
+    a = (1 - confidence) / 2
+    return Interval(float(np.median(m)), float(np.quantile(boot, a)), float(np.quantile(boot, 1 - a)), int(m.size))
+
+
+def median_difference_ci(values_a, scenes_a, values_b, scenes_b, *, B: int = 10_000, confidence: float = 0.95, seed: int = 0) -> Interval:
+    """Effect size: scene-balanced median(a) - median(b), each side's scenes resampled
+    independently; ``n`` is the smaller number of scenes."""
+    ma, mb = _scene_medians(values_a, scenes_a), _scene_medians(values_b, scenes_b)
+    if ma.size == 0 or mb.size == 0:
+        return Interval(_NAN, _NAN, _NAN, 0)
+    rng = np.random.default_rng(seed)
+    diff = _boot_medians(ma, B, rng) - _boot_medians(mb, B, rng)
+    a = (1 - confidence) / 2
+    return Interval(float(np.median(ma) - np.median(mb)), float(np.quantile(diff, a)), float(np.quantile(diff, 1 - a)), int(min(ma.size, mb.size)))
+
+
+def _ok(df: pd.DataFrame) -> pd.DataFrame:
+    return df[df["status"] == "ok"] if "status" in df else df
+
+
+def scene_balanced_table(df: pd.DataFrame, value: str, *, by: Sequence[str] = ("model", "category"), scene: str = "scene_id",
+                         B: int = 10_000, seed: int = 0) -> pd.DataFrame:
+    """Per group: the scene-balanced median of ``value`` with its bootstrap CI (columns
+    ``by..., median, low, high, n_scenes, n_clips``), over scored rows with a finite value."""
+    rows = []
+    data = _ok(df)
+    data = data[np.isfinite(data[value].astype(float))]
+    for key, g in data.groupby(list(by), sort=True):
+        ci = bootstrap_median_ci(g[value].to_numpy(float), g[scene].to_numpy(), B=B, seed=seed)
+        key = key if isinstance(key, tuple) else (key,)
+        rows.append({**dict(zip(by, key)), "median": ci.estimate, "low": ci.low, "high": ci.high, "n_scenes": ci.n, "n_clips": len(g)})
+    return pd.DataFrame(rows, columns=[*by, "median", "low", "high", "n_scenes", "n_clips"])
+
+
+def _rate_cols(prefix: str, k: int, n: int) -> dict[str, float]:
+    w = wilson_interval(k, n)
+    return {prefix: w.estimate, f"{prefix}_low": w.low, f"{prefix}_high": w.high}
+
+
+def gate_rates(clips: pd.DataFrame, *, by: Sequence[str] = ("model", "category")) -> pd.DataFrame:
+    """F-rates and anomaly rates per group, present-only and fail->F (see the module doc)."""
+    rows = []
+    for key, g in _ok(clips).groupby(list(by), sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        pose = g["pose_present"].fillna(False).astype(bool)
+        present = g[pose & (g["gate_label"] != "U")]
+        fam_fail_f = np.where(pose, g["gate_model"], "F")
+        expected = g["expected_model"].to_numpy()
+        rows.append({
+            **dict(zip(by, key)), "n_clips": len(g), "n_present": len(present),
+            **_rate_cols("f_rate_present", int((present["gate_label"] == "F").sum()), len(present)),
+            **_rate_cols("anomaly_rate_present", int((present["gate_label"] != present["expected_model"]).sum()), len(present)),
+            **_rate_cols("f_rate_fail_f", int((fam_fail_f == "F").sum()), len(g)),
+            **_rate_cols("anomaly_rate_fail_f", int((fam_fail_f != expected).sum()), len(g)),
+        })
+    return pd.DataFrame(rows)
+
+
+def consensus(clips: pd.DataFrame) -> pd.DataFrame:
+    """Per (scene, category): platforms, decided platforms (pose present, not U), and whether
+    the decided ones are unanimous (NA with fewer than two). ``attrs`` hold the overall
+    ``consensus_rate`` (unanimous / tuples with at least two decided), ``n_tuples`` and
+    ``n_unanimous``."""
+    rows = []
+    for (scene, cat), g in _ok(clips).groupby(["scene_id", "category"], sort=True):
+        decided = g[g["pose_present"].fillna(False).astype(bool) & g["gate_label"].isin(["H", "F"])]
+        labels = set(decided["gate_label"])
+        rows.append({"scene_id": scene, "category": cat, "platforms": int(g["model"].nunique()), "n_decided": len(decided),
+                     "labels": ",".join(sorted(labels)), "unanimous": (len(labels) == 1) if len(decided) >= 2 else pd.NA})
+    out = pd.DataFrame(rows, columns=["scene_id", "category", "platforms", "n_decided", "labels", "unanimous"])
+    judged = out[out["n_decided"] >= 2]
+    n_un = int((judged["unanimous"] == True).sum())  # noqa: E712  (NA-aware)
+    out.attrs.update(consensus_rate=(n_un / len(judged)) if len(judged) else _NAN, n_tuples=len(judged), n_unanimous=n_un)
+    return out
+
+
+def margin_summary(clips: pd.DataFrame, *, by: Sequence[str] = ("model",)) -> pd.DataFrame:
+    """Gate margins per group: count, P10, median, P90 and the share of thin margins (< 0.01)."""
+    rows = []
+    data = _ok(clips)
+    data = data[np.isfinite(data["margin"].astype(float))]
+    for key, g in data.groupby(list(by), sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        m = g["margin"].to_numpy(float)
+        rows.append({**dict(zip(by, key)), "n": m.size, "p10": float(np.percentile(m, 10)), "median": float(np.median(m)),
+                     "p90": float(np.percentile(m, 90)), "thin_share": float(np.mean(np.abs(m) < 0.01))})
+    return pd.DataFrame(rows)
+
+
+def _finite(t_inf, is_f) -> tuple[np.ndarray, np.ndarray]:
+    t, y = np.asarray(t_inf, float), np.asarray(is_f, bool)
+    keep = np.isfinite(t)
+    return t[keep], y[keep]
+
+
+def calibration_bins(t_inf, is_f, *, K: int = 12, confidence: float = 0.95) -> pd.DataFrame:
+    """P(F | t_inf) over ``K`` equal-count bins of the sorted finite t_inf (``np.array_split``)."""
+    t, y = _finite(t_inf, is_f)
+    order = np.argsort(t, kind="stable")
+    rows = []
+    for i, idx in enumerate(np.array_split(order, min(K, t.size)) if t.size else []):
+        k, n = int(y[idx].sum()), idx.size
+        w = wilson_interval(k, n, confidence=confidence)
+        rows.append({"bin": i, "t_low": float(t[idx].min()), "t_high": float(t[idx].max()), "t_mid": float(np.median(t[idx])),
+                     "n": n, "k": k, "p": w.estimate, "low": w.low, "high": w.high})
+    return pd.DataFrame(rows, columns=["bin", "t_low", "t_high", "t_mid", "n", "k", "p", "low", "high"])
+
+
+def net_benefit(t_inf, is_f, taus: Sequence[float], *, costs: Sequence[float] = (0.5, 1.0, 2.0)) -> pd.DataFrame:
+    """Net benefit ``(TP - c * FP) / N`` of predicting F iff ``t_inf >= tau``."""
+    t, y = _finite(t_inf, is_f)
+    rows = []
+    for tau in taus:
+        pred = t >= tau
+        tp, fp = int((pred & y).sum()), int((pred & ~y).sum())
+        for c in costs:
+            rows.append({"tau": float(tau), "c": float(c), "tp": tp, "fp": fp, "n": t.size,
+                         "net_benefit": (tp - c * fp) / t.size if t.size else _NAN})
+    return pd.DataFrame(rows, columns=["tau", "c", "tp", "fp", "n", "net_benefit"])
+
+
+def balanced_accuracy(t_inf, is_f, tau: float) -> float:
+    """(TPR + TNR) / 2 of predicting F iff ``t_inf >= tau``; NaN without both classes."""
+    t, y = _finite(t_inf, is_f)
+    if y.all() or not y.any():
+        return _NAN
+    pred = t >= tau
+    return float((pred[y].mean() + (~pred[~y]).mean()) / 2)
+
+
+@dataclass(frozen=True, eq=False)
+class TauBootstrap:
+    """Bootstrap balanced accuracy per tau of ``grid``: mean and 95% percentile interval over the
+    replicates, how often each tau was the argmax (ties go to the lowest tau), and the tau with
+    the most argmax wins (ties again to the lowest)."""
+
+    grid: tuple[float, ...]
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    argmax_counts: np.ndarray
+    best_tau: float
+    B: int
+
+
+def bootstrap_tau(t_inf, is_f, *, grid: Sequence[float] = TAU_GRID, B: int = 400, seed: int = 0) -> TauBootstrap:
+    """Resample clips with replacement within each expected class (so both classes stay present)
+    and score every tau of ``grid`` by balanced accuracy."""
+    t, y = _finite(t_inf, is_f)
+    if y.all() or not y.any():
+        raise ValueError("the calibration needs clips of both expected classes (H and F)")
+    rng = np.random.default_rng(seed)
+    pos, neg = t[y], t[~y]
+    g = np.asarray(grid, float)
+    ba = np.empty((B, g.size))
+    for b in range(B):
+        p = pos[rng.integers(0, pos.size, pos.size)]
+        n = neg[rng.integers(0, neg.size, neg.size)]
+        ba[b] = ((p[:, None] >= g).mean(axis=0) + (n[:, None] < g).mean(axis=0)) / 2
+    wins = np.bincount(np.argmax(ba, axis=1), minlength=g.size)
+    return TauBootstrap(tuple(float(v) for v in g), ba.mean(axis=0), np.quantile(ba, 0.025, axis=0), np.quantile(ba, 0.975, axis=0),
+                        wins, float(g[int(np.argmax(wins))]), B)
+
+
+def tinf_densities(t_inf, is_f, *, bins: int = 30, t_max: float | None = None) -> pd.DataFrame:
+    """Histogram densities of t_inf per expected class on shared bins (columns ``left, right,
+    density_h, density_f``)."""
+    t, y = _finite(t_inf, is_f)
+    top = t_max if t_max is not None else (float(t.max()) if t.size else 1.0)
+    edges = np.linspace(0.0, max(top, 1e-6), bins + 1)
+    dh = np.histogram(t[~y], edges, density=True)[0] if (~y).any() else np.zeros(bins)
+    df = np.histogram(t[y], edges, density=True)[0] if y.any() else np.zeros(bins)
+    return pd.DataFrame({"left": edges[:-1], "right": edges[1:], "density_h": dh, "density_f": df})
+
+
+def percentile_aligned(clips: pd.DataFrame, *, x: str = "ir", y: str = "ge", percentiles: Sequence[float] = (10, 25, 50, 75, 90),
+                       by: Sequence[str] = ("model",), band: float = 10.0) -> pd.DataFrame:
+    """Per group and percentile p: ``x_p`` (percentile p of x) and ``y_at`` (the median y over the
+    clips whose x lies between percentiles p - band and p + band of x)."""
+    rows = []
+    data = _ok(clips)
+    data = data[np.isfinite(data[x].astype(float)) & np.isfinite(data[y].astype(float))]
+    for key, g in data.groupby(list(by), sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        xv, yv = g[x].to_numpy(float), g[y].to_numpy(float)
+        for p in percentiles:
+            lo, hi = np.percentile(xv, max(0.0, p - band)), np.percentile(xv, min(100.0, p + band))
+            sel = (xv >= lo) & (xv <= hi)
+            rows.append({**dict(zip(by, key)), "percentile": float(p), f"{x}_p": float(np.percentile(xv, p)),
+                         f"{y}_at": float(np.median(yv[sel])), "n": int(sel.sum())})
+    return pd.DataFrame(rows)
+
+
+def adap90_summary(objects: pd.DataFrame, *, by: Sequence[str] = ("model", "category")) -> pd.DataFrame:
+    """Per group: objects, median (p50) and P80 of AdaP90, the share strictly above P80, max."""
+    rows = []
+    data = objects[np.isfinite(objects["adap90"].astype(float))]
+    for key, g in data.groupby(list(by), sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        v = g["adap90"].to_numpy(float)
+        p80 = float(np.percentile(v, 80))
+        rows.append({**dict(zip(by, key)), "n_objects": v.size, "p50": float(np.median(v)), "p80": p80,
+                     "rate_above_p80": float(np.mean(v > p80)), "max": float(v.max())})
+    return pd.DataFrame(rows, columns=[*by, "n_objects", "p50", "p80", "rate_above_p80", "max"])
+
+
+def top_hardest(objects: pd.DataFrame, object_frames: pd.DataFrame, *, n: int = 10, by: Sequence[str] = ("model",)) -> list[dict[str, Any]]:
+    """Per group, the ``n`` objects with the highest AdaP90 with their per-frame ``D_t`` trace
+    (valid frames, in order), P50/P90 of the trace and its length."""
+    out = []
+    data = objects[np.isfinite(objects["adap90"].astype(float))]
+    for key, g in data.groupby(list(by), sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        for row in g.sort_values(["adap90", "clip_id", "object_id"], ascending=[False, True, True]).head(n).itertuples():
+            fr = object_frames[(object_frames["clip_id"] == row.clip_id) & (object_frames["object_id"] == row.object_id) & object_frames["valid"]]
+            fr = fr.sort_values("t0")
+            d = fr["d_t"].to_numpy(float)
+            out.append({**dict(zip(by, key)), "clip_id": row.clip_id, "object_id": int(row.object_id), "category": row.category,
+                        "adap90": float(row.adap90), "trace": list(zip(fr["t0"].astype(int).tolist(), d.tolist())),
+                        "p50": float(np.median(d)) if d.size else _NAN, "p90": float(np.percentile(d, 90)) if d.size else _NAN, "frames": int(d.size)})
+    return out
+
+
+def sensitivity_table(sensitivity: pd.DataFrame, *, by: Sequence[str] = ("model",)) -> pd.DataFrame:
+    """Per group, family and tau: scene-balanced median IR and GE over the clips whose gate chose
+    that family."""
+    rows = []
+    data = sensitivity[sensitivity["chosen"]]
+    for key, g in data.groupby([*by, "family", "tau"], sort=True):
+        rows.append({**dict(zip([*by, "family", "tau"], key)), "ir": scene_balanced_median(g["ir"], g["scene_id"]),
+                     "ge": scene_balanced_median(g["ge"], g["scene_id"]), "n_clips": len(g)})
+    return pd.DataFrame(rows, columns=[*by, "family", "tau", "ir", "ge", "n_clips"])

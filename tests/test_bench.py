@@ -1,0 +1,218 @@
+"""`geocon bench` end to end on a synthetic benchmark with known truth: rankings, calibration,
+failures counted, and a killed run that resumes without losing or re-scoring a clip."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pd = pytest.importorskip("pandas")
+pytest.importorskip("pyarrow")
+
+from geocon_core.bench import is_flagged, read_status  # noqa: E402
+from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
+from geocon_core.tables import COLUMNS, read_tables  # noqa: E402
+
+GEOCON = [sys.executable, "-m", "geocon_viewer.cli"]
+BENCH_ARGS = ["--workers", "2", "--working-size", "640x360"]
+
+
+def _broken_clip(root: Path) -> None:
+    """A clip whose first frames decode (so it passes validation) but whose third frame is
+    corrupt: scoring fails, and the failure must be recorded, not dropped."""
+    import cv2
+
+    folder = root / "broken" / "frames-c1"
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    img = (rng.random((90, 160, 3)) * 255).astype(np.uint8)
+    for t in range(4):
+        cv2.imwrite(str(folder / f"{t:03d}.png"), np.roll(img, t, axis=1))
+    (folder / "002.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    meta = {"clip_id": "broken-c1", "prompt": "a corrupt upload", "model": "broken", "model_version": "1", "seed": 0,
+            "resolution": [160, 90], "fps": 24, "duration": 4 / 24, "masks_path": None, "category": "C1", "scene_id": "C1-seed0"}
+    (root / "broken" / "frames-c1.meta.json").write_text(json.dumps(meta))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("bench-data")
+    write_benchmark(root, plan_benchmark(families=("C1", "C3", "C4"), scenes=2), width=320, height=180, num_frames=16)
+    _broken_clip(root)
+    return root
+
+
+def _run(*args: str, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([*GEOCON, *args], capture_output=True, text=True, timeout=600, **kw)
+
+
+@pytest.fixture(scope="module")
+def results(dataset, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("bench-results") / "r"
+    proc = _run("bench", str(dataset), "--out", str(out), *BENCH_ARGS)
+    assert proc.returncode == 0, proc.stderr
+    assert "19 clips: 18 scored, 1 failed" in proc.stdout
+    return out
+
+
+def test_tables_hold_every_clip_and_count_the_failure(results):
+    t = read_tables(results)
+    clips = t["clips"]
+    assert list(clips.columns) == COLUMNS["clips"]
+    assert len(clips) == 19 and clips["clip_id"].is_unique
+    failed = clips[clips["status"] == "failed"]
+    assert list(failed["clip_id"]) == ["broken-c1"]
+    assert "002.png" in failed["error"].iloc[0]
+    ok = clips[clips["status"] == "ok"]
+    assert (ok["gate_model"] == ok["expected_model"]).all()  # the synthetic truth gates as expected
+    # pair and object tables agree with the records
+    rec = json.loads((results / "clips" / "clean-c4_objects-s0" / "record.json").read_text())
+    pairs = t["pairs"][t["pairs"]["clip_id"] == "clean-c4_objects-s0"]
+    assert len(pairs) == len(rec["pairs"]) and pairs["h_inliers"].tolist() == [p["h"]["n_inliers"] for p in rec["pairs"]]
+    objs = t["objects"][t["objects"]["clip_id"] == "clean-c4_objects-s0"]
+    assert objs["adap90"].tolist() == [o["adap90"] for o in rec["objects"]]
+    # the sensitivity scan at the recorded thresholds equals the clip's IR/GE exactly
+    s = t["sensitivity"]
+    chosen_default = s[s["is_default"] & s["chosen"]].set_index("clip_id")
+    merged = ok.set_index("clip_id")[["ir", "ge"]].join(chosen_default[["ir", "ge"]].add_suffix("_scan"))
+    assert (merged["ir"] == merged["ir_scan"]).all() and (merged["ge"] == merged["ge_scan"]).all()
+
+
+def test_platform_with_breathing_ranks_worse_on_background_and_elastic_on_objects(results):
+    from geocon_core.stats import scene_balanced_median
+
+    t = read_tables(results)
+    ok = t["clips"][t["clips"]["status"] == "ok"]
+    ge = {m: scene_balanced_median(g["ge"], g["scene_id"]) for m, g in ok.groupby("model")}
+    assert max(ge, key=ge.get) == "breathing"
+    assert ge["breathing"] > 2 * ge["clean"]
+    objs = t["objects"]
+    ada = {m: scene_balanced_median(g["adap90"], g["scene_id"]) for m, g in objs.groupby("model")}
+    assert max(ada, key=ada.get) == "elastic"
+
+
+def test_calibration_picks_a_threshold_where_the_truth_separates(results, dataset):
+    from geocon_core.stats import bootstrap_tau
+
+    truth = {}
+    for gt in dataset.rglob("*.gt.json"):
+        meta = json.loads(gt.with_name(gt.name.replace(".gt.json", ".meta.json")).read_text())
+        truth[meta["clip_id"]] = json.loads(gt.read_text())["t_inf"]
+    ok = read_tables(results)["clips"].query("status == 'ok'")
+    is_f = (ok["expected_model"] == "F").to_numpy()
+    true_t = ok["clip_id"].map(truth).to_numpy()
+    low, high = true_t[~is_f].max(), true_t[is_f].min()
+    assert low < high  # the synthetic truth separates the classes
+    boot = bootstrap_tau(ok["t_inf"].to_numpy(), is_f, B=400, seed=0)
+    assert low < boot.best_tau < high
+    assert int(np.sum(boot.argmax_counts)) == 400
+
+
+def test_flagged_clips_get_a_recording_linked_from_the_table(results):
+    clips = read_tables(results)["clips"].query("status == 'ok'")
+    for row in clips.itertuples():
+        status = read_status(results / row.record)
+        summary = json.loads((results / row.record / "record.json").read_text())["summary"]
+        flagged = is_flagged(summary, row.expected_model)
+        if importlib_has_rerun():
+            assert (row.rrd is not None) == flagged, row.clip_id
+            if flagged:
+                assert (results / row.rrd).stat().st_size > 0 and status["rrd"] == "audit.rrd"
+
+
+def importlib_has_rerun() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("rerun") is not None
+
+
+def test_killed_run_resumes_without_losing_or_rescoring_a_clip(dataset, results, tmp_path):
+    out = tmp_path / "r"
+    proc = subprocess.Popen([*GEOCON, "bench", str(dataset), "--out", str(out), *BENCH_ARGS],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 300
+    try:
+        while time.monotonic() < deadline:
+            done = list(out.glob("clips/*/status.json"))
+            if len(done) >= 5 or proc.poll() is not None:
+                break
+            time.sleep(0.2)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # a hard kill: workers die mid-clip
+        proc.wait()
+    before = {p.parent.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in out.glob("clips/*/status.json")}
+    assert 5 <= len(before) < 19
+    assert not (out / "tables").exists()
+    again = _run("bench", str(dataset), "--out", str(out), *BENCH_ARGS)
+    assert again.returncode == 0, again.stderr
+    assert f"resuming: {len(before)} clip(s) already finished" in again.stderr
+    assert f"({19 - len(before)} in this run, {len(before)} finished earlier)" in again.stdout
+    for name, (mtime, data) in before.items():  # finished clips were not scored again
+        status = out / "clips" / name / "status.json"
+        assert status.stat().st_mtime_ns == mtime and status.read_bytes() == data
+    a, b = read_tables(results), read_tables(out)
+    for name in a:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True)
+
+
+def test_resuming_with_other_settings_is_refused(dataset, results, tmp_path):
+    out = tmp_path / "r"
+    shutil.copytree(results, out)
+    proc = _run("bench", str(dataset), "--out", str(out), "--preset", "strict", "--working-size", "640x360")
+    assert proc.returncode == 2
+    assert "scored with another configuration" in proc.stderr
+
+
+def test_invalid_dataset_exits_2_listing_problems(tmp_path):
+    (tmp_path / "a.meta.json").write_text(json.dumps({"clip_id": "a"}))
+    proc = _run("bench", str(tmp_path), "--out", str(tmp_path / "out"))
+    assert proc.returncode == 2
+    assert "a.meta.json: missing fields" in proc.stderr and "no clip file" in proc.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_report_is_self_contained_and_names_its_config(results, tmp_path):
+    import re
+
+    from geocon_core.report import build_report
+    from geocon_core.stats import scene_balanced_median
+
+    out = tmp_path / "report"
+    proc = _run("report", str(results), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    page = (out / "report.html").read_text()
+    bench = json.loads((results / "bench.json").read_text())
+    assert bench["config_hash"] in page
+    refs = re.findall(r'(?:src|href)="([^"]+)"', page)
+    assert refs and not [r for r in refs if r.startswith(("http:", "https:", "//"))]  # opens offline
+    assert page.count('src="data:image/png;base64,') >= 8
+    for name in ("tinf", "margins", "calibration", "net_benefit_bootstrap", "ridgelines", "effect_sizes", "adap90", "top_objects", "sensitivity"):
+        assert (out / "figures" / f"{name}.png").is_file() and (out / "figures" / f"{name}.svg").is_file()
+        assert bench["config_hash"] in (out / "figures" / f"{name}.svg").read_text()  # every figure names its config
+    assert "broken-c1" in page and "002.png" in page  # the failed clip is listed with its reason
+    # flagged clips link to their record folders, relative to the report
+    for href in [r for r in refs if r.endswith("record.json")]:
+        assert (out / href).resolve().is_file()
+    # the scene-balanced table holds the statistics module's numbers
+    ok = read_tables(results)["clips"].query("status == 'ok'")
+    ge_breathing = scene_balanced_median(ok[ok["model"] == "breathing"]["ge"], ok[ok["model"] == "breathing"]["scene_id"])
+    assert f"{ge_breathing:.4g}" in page
+    # degenerate input: one platform without objects still gives a report, naming what it skipped
+    one = tmp_path / "one"
+    shutil.copytree(results, one)
+    tables = read_tables(one)
+    for name, df in tables.items():
+        keep = df[df["model"] == "clean"] if name != "objects" and name != "object_frames" else df.iloc[0:0]
+        keep.to_parquet(one / "tables" / f"{name}.parquet", index=False)
+    res = build_report(one, bootstrap=200)
+    assert res.html.is_file()
+    assert any("Effect sizes" in w for w in res.warnings) and any("AdaP90" in w for w in res.warnings)
