@@ -32,7 +32,7 @@ from .diagnostics import FrameDiagnostics, ObjectFlow
 from .geometry import scale_intrinsics, triangulate_two_view
 from .masks import make_mask_source
 from .models import ModelFit, fit_fundamental, fit_homography
-from .regate import FitRow, aggregate_gaps
+from .regate import FitRow, aggregate_gaps, choose_model, report_verdict
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .rigidity import adadfrc_pair, object_scores
@@ -431,20 +431,16 @@ def _assemble(clip, info, cfg, K, backend, pose, timeline_poses, windows, scored
     )
     fam = {f: _aggregate(f, scored, cfg) for f in ("H", "F")}
     warnings: list[str] = []
-    if label == "U":
-        ir_h = -1.0 if fam["H"].ir is None else fam["H"].ir
-        ir_f = -1.0 if fam["F"].ir is None else fam["F"].ir
-        model = "H" if ir_h >= ir_f else "F"
-        note = f"gray zone: both families fitted, kept {model} (IR H {fam['H'].ir}, IR F {fam['F'].ir})"
-    elif not pose.pose_present:
-        model = "F"
+    model = choose_model(label, pose.pose_present, fam["H"].ir, fam["F"].ir)
+    if not pose.pose_present:
         note = f"no pose ({pose.reason}): gated F by the fail->F policy"
         warnings.append(f"the first-last pose could not be recovered ({pose.reason}); the clip is gated F")
+    elif label == "U":
+        note = f"gray zone: both families fitted, kept {model} (IR H {fam['H'].ir}, IR F {fam['F'].ir})"
     else:
-        model = label
         note = f"t_inf {pose.t_inf:.4f} -> {label}"
     chosen, other = fam[model], fam["F" if model == "H" else "H"]
-    consistent = None if chosen.ir is None else bool(chosen.ir >= cfg.ir_gate and chosen.ge <= cfg.ge_gate)
+    consistent = report_verdict(chosen.ir, chosen.ge, cfg.ir_gate, cfg.ge_gate)
     if chosen.valid_pairs == 0:
         warnings.append("no valid pair: the background could not be judged")
     tau_f_px = fam["F"].per_scale[list(cfg.scales).index(max(cfg.scales))].tau_f_px

@@ -105,6 +105,59 @@ def view(
         raise _fail(str(exc)) from None
 
 
+@app.command()
+def serve(
+    results: Annotated[Path, typer.Argument(help="A results folder from `geocon bench`, or a record folder from `geocon score --out`.")],
+    port: Annotated[int, typer.Option("--port", help="Port to serve on (a busy port moves to the next free one; 0 picks any free port).")] = 8080,
+    host: Annotated[str, typer.Option("--host", help="Address to bind. The default serves this machine only; 0.0.0.0 exposes the app to your network.")] = "127.0.0.1",
+    screenshot: Annotated[Optional[Path], typer.Option("--screenshot", help="Save a PNG of the page as headless Chromium shows it, then stop.")] = None,
+    clip: Annotated[Optional[str], typer.Option("--clip", help="Clip id to select first (default: the most severe).")] = None,
+) -> None:
+    """Browse a benchmark's clips in the Viser audit app: the triage list (most severe first), live
+    re-gating at other thresholds, the 3D scene, frames with overlays and the IR/GE/AdaDFRC plots."""
+    if importlib.util.find_spec("viser") is None:
+        raise _fail("geocon serve needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)")
+    import time
+
+    from geocon_core.results import ResultsError
+
+    from .audit_app import AuditApp
+
+    start = time.perf_counter()
+    try:
+        audit = AuditApp(results, host=host, port=port)
+    except (ResultsError, ValueError) as exc:
+        raise _fail(str(exc)) from None
+    except OSError as exc:
+        raise _fail(f"could not serve on {host}:{port}: {exc}") from None
+    try:
+        if clip is not None:
+            if clip not in audit.index.by_id:
+                raise _fail(f"no clip {clip!r} in {results}")
+            audit.clip.value = clip
+        n = len(audit.index.clips)
+        out.print(f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {time.perf_counter() - start:.1f} s; "
+                  f"{'this machine only' if audit.host in ('127.0.0.1', 'localhost', '::1') else 'reachable from the network'}; Ctrl-C to stop)",
+                  soft_wrap=True)
+        if screenshot is not None:
+            from .screenshot import ScreenshotError, screenshot_url
+
+            if audit.view is not None:
+                audit.view.frames_ready.wait(60)
+            try:
+                screenshot_url(audit.url, screenshot)
+            except ScreenshotError as exc:
+                raise _fail(str(exc)) from None
+            out.print(f"screenshot: {screenshot}")
+            return
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        err.print("stopping")
+    finally:
+        audit.stop()
+
+
 def main() -> None:
     app()
 

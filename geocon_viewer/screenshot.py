@@ -34,7 +34,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ScreenshotError", "find_chromium", "find_rerun_binary", "screenshot_native", "screenshot_rrd", "screenshot_web"]
+__all__ = ["ScreenshotError", "find_chromium", "find_rerun_binary", "screenshot_native", "screenshot_rrd", "screenshot_web", "screenshot_url"]
 
 _CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
 _CHROMIUM_FLAGS = (
@@ -443,23 +443,67 @@ def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, w
     clear sentence) when Chromium or the rerun executable is missing or the capture fails. Always cleans up both
     processes (including the real rerun binary behind any wrapper) and temp profile dirs."""
     rrd_path = Path(rrd).resolve()
-    png_path = Path(png)
     if not rrd_path.is_file():
         raise ScreenshotError(f"Recording {rrd_path} does not exist.")
+    _check_capture(width, height, settle_s, timeout_s)
+    rerun_bin = find_rerun_binary()
+    if rerun_bin is None:
+        raise ScreenshotError("The rerun executable (rerun_cli/rerun from the rerun-sdk wheel) was not found.")
+    deadline = time.monotonic() + timeout_s
+    workdir = Path(tempfile.mkdtemp(prefix="geocon-rrdshot-"))
+    rerun_proc: subprocess.Popen[bytes] | None = None
+    try:
+        rerun_proc, viewer_url, rerun_log = _start_rerun(rerun_bin, rrd_path, workdir, deadline)
+        # The web viewer has no way to take a time cursor from its page URL: ``at`` is not applied here.
+        _raise_on_import_error(rrd_path, rerun_log)
+
+        def alive() -> None:
+            if rerun_proc is not None and rerun_proc.poll() is not None:
+                raise ScreenshotError(f"The rerun server exited early with code {rerun_proc.returncode}.")
+
+        _capture(viewer_url, Path(png), workdir, width=width, height=height, settle_s=settle_s, deadline=deadline,
+                 what=rrd_path.name, alive=alive)
+        _raise_on_import_error(rrd_path, rerun_log)
+        return Path(png)
+    finally:
+        _kill_group(rerun_proc)
+        if Path("/proc/self").exists():
+            _kill_by_marker(str(workdir))
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def screenshot_url(url: str, png: str | Path, *, width: int = 1600, height: int = 1000, settle_s: float = 8.0,
+                   timeout_s: float = 90.0) -> Path:
+    """Open ``url`` (a page served on this machine, e.g. ``geocon serve``) in headless Chromium, wait
+    ``settle_s`` after it loads, and save a PNG of width x height to ``png``. Raises ScreenshotError
+    with one clear sentence when Chromium is missing or the capture fails; cleans up after itself."""
+    _check_capture(width, height, settle_s, timeout_s)
+    deadline = time.monotonic() + timeout_s
+    workdir = Path(tempfile.mkdtemp(prefix="geocon-pageshot-"))
+    try:
+        _capture(url, Path(png), workdir, width=width, height=height, settle_s=settle_s, deadline=deadline, what=url)
+        return Path(png)
+    finally:
+        if Path("/proc/self").exists():
+            _kill_by_marker(str(workdir))
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _check_capture(width: int, height: int, settle_s: float, timeout_s: float) -> None:
     if width <= 0 or height <= 0:
         raise ScreenshotError(f"Screenshot size must be positive, got {width}x{height}.")
     if settle_s < 0 or settle_s >= timeout_s:
         raise ScreenshotError(f"settle_s={settle_s:g} must be non-negative and below timeout_s={timeout_s:g}.")
-    chromium = find_chromium()
-    if chromium is None:
+    if find_chromium() is None:
         raise ScreenshotError("Chromium is not installed (apt-get install chromium, or set $CHROMIUM).")
-    rerun_bin = find_rerun_binary()
-    if rerun_bin is None:
-        raise ScreenshotError("The rerun executable (rerun_cli/rerun from the rerun-sdk wheel) was not found.")
 
-    deadline = time.monotonic() + timeout_s
-    workdir = Path(tempfile.mkdtemp(prefix="geocon-rrdshot-"))
-    rerun_proc: subprocess.Popen[bytes] | None = None
+
+def _capture(url: str, png_path: Path, workdir: Path, *, width: int, height: int, settle_s: float, deadline: float, what: str,
+             alive: Any = None) -> None:
+    """Headless Chromium (profile inside ``workdir``) opens ``url``, waits ``settle_s`` after the
+    load event (calling ``alive()`` to check a server it depends on), and writes ``png_path``."""
+    chromium = find_chromium()
+    assert chromium is not None
     chrome_proc: subprocess.Popen[bytes] | None = None
     pipe: _DevToolsPipe | None = None
     chrome_log = workdir / "chromium.log"
@@ -467,13 +511,10 @@ def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, w
     def left() -> float:
         remaining = deadline - time.monotonic()
         if remaining <= 0:
-            raise ScreenshotError(f"Screenshot of {rrd_path.name} timed out after {timeout_s:g} s.")
+            raise ScreenshotError(f"Screenshot of {what} timed out.")
         return remaining
 
     try:
-        rerun_proc, viewer_url, rerun_log = _start_rerun(rerun_bin, rrd_path, workdir, deadline)
-        # The web viewer has no way to take a time cursor from its page URL: ``at`` is not applied here.
-        _raise_on_import_error(rrd_path, rerun_log)
         profile = workdir / "chromium-profile"
         profile.mkdir()
         chrome_proc, pipe = _start_chromium(chromium, profile, width, height, chrome_log)
@@ -489,22 +530,21 @@ def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, w
         pipe.call("Emulation.setDeviceMetricsOverride",
                   {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
                   session=session, timeout=min(30.0, left()))
-        nav = pipe.call("Page.navigate", {"url": viewer_url}, session=session, timeout=min(30.0, left()))
+        nav = pipe.call("Page.navigate", {"url": url}, session=session, timeout=min(30.0, left()))
         if nav.get("errorText"):
-            raise ScreenshotError(f"Chromium could not open the web viewer at {viewer_url}: {nav['errorText']}.")
+            raise ScreenshotError(f"Chromium could not open {url}: {nav['errorText']}.")
         if not pipe.wait_event("Page.loadEventFired", session=session, timeout=min(60.0, left())):
             left()  # raises on overall timeout
-            raise ScreenshotError(f"The web viewer page at {viewer_url} did not finish loading.")
+            raise ScreenshotError(f"The page at {url} did not finish loading.")
         if settle_s > left():
-            raise ScreenshotError(f"settle_s={settle_s:g} does not fit in timeout_s={timeout_s:g}.")
+            raise ScreenshotError(f"settle_s={settle_s:g} does not fit in the time left.")
         end_settle = time.monotonic() + settle_s
         while time.monotonic() < end_settle:
-            if rerun_proc.poll() is not None:
-                raise ScreenshotError(f"The rerun server exited early with code {rerun_proc.returncode}.")
+            if alive is not None:
+                alive()
             if chrome_proc.poll() is not None:
                 raise ScreenshotError(f"Chromium exited early with code {chrome_proc.returncode}.")
             time.sleep(min(0.5, max(0.0, end_settle - time.monotonic())))
-        _raise_on_import_error(rrd_path, rerun_log)
         shot = pipe.call("Page.captureScreenshot",
                          {"format": "png", "fromSurface": True,
                           "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}},
@@ -514,11 +554,10 @@ def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, w
             raise ScreenshotError("Chromium returned something that is not a PNG.")
         png_path.parent.mkdir(parents=True, exist_ok=True)
         png_path.write_bytes(data)
-        return png_path
     except ScreenshotError:
         raise
     except (OSError, KeyError, ValueError) as exc:
-        raise ScreenshotError(f"Screenshot of {rrd_path.name} failed: {exc}.") from exc
+        raise ScreenshotError(f"Screenshot of {what} failed: {exc}.") from exc
     finally:
         if pipe is not None:
             with contextlib.suppress(ScreenshotError, OSError):
@@ -527,7 +566,3 @@ def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, w
         _kill_group(chrome_proc)
         if pipe is not None:
             pipe.close()
-        _kill_group(rerun_proc)
-        if Path("/proc/self").exists():
-            _kill_by_marker(str(workdir))
-        shutil.rmtree(workdir, ignore_errors=True)

@@ -58,3 +58,54 @@ def test_bad_family_is_rejected(record):
     with pytest.raises(ValueError, match="family must be 'H' or 'F'"):
         regate_family(record, "E", 1.0)  # type: ignore[arg-type]
 
+
+
+def test_whole_clip_regating_at_recorded_thresholds_is_the_record(record, tmp_path):
+    """:func:`regate_clip` (from the record, and from the slim residuals read off disk) gives the
+    recorded gate label, model, IR, GE and verdict exactly."""
+    from geocon_core.regate import Thresholds, load_residuals, regate_clip
+
+    write_record(record, tmp_path)
+    th = Thresholds.of(record.config)
+    for source in (record, load_residuals(tmp_path)):
+        v = regate_clip(source, th)
+        bg, g = record.background, record.gate
+        assert (v.label, v.model, v.margin) == (g.label, g.model, g.margin)
+        assert (v.ir, v.ge, v.consistent) == (bg.ir, bg.ge, bg.consistent)
+    assert th.changed(th) == {}
+
+
+def test_moving_thresholds_changes_the_verdict_as_the_rules_say(record):
+    """C3 (translation): t_inf is above 0.05, so raising the gate's thresholds past it turns the
+    clip into an H clip scored by the homography, whose residuals are larger (parallax); the
+    report gates flip the verdict exactly at the clip's own IR and GE."""
+    from geocon_core.regate import Thresholds, regate_clip
+
+    th = Thresholds.of(record.config)
+    base = regate_clip(record, th)
+    t = record.gate.t_inf
+    assert base.label == "F" and t > 0.05
+    as_h = regate_clip(record, Thresholds(**{**th.__dict__, "tau_t_low": t + 0.01, "tau_t_high": t + 0.02}))
+    assert as_h.label == "H" and as_h.model == "H" and as_h.margin == pytest.approx(0.01)
+    assert as_h.ir == regate_family(record, "H", th.tau_h).ir
+    assert (as_h.ge, as_h.ge_f) == (regate_family(record, "H", th.tau_h).ge, base.ge) and as_h.ge > base.ge
+    between = Thresholds(**{**th.__dict__, "tau_t_low": t + 0.01, "tau_t_high": t + 0.02, "ge_gate": (base.ge + as_h.ge) / 2})
+    assert regate_clip(record, between).consistent is False and regate_clip(record, between).report_margin < 0
+    assert regate_clip(record, Thresholds(**{**th.__dict__, "ge_gate": (base.ge + as_h.ge) / 2})).consistent is True
+    at = Thresholds(**{**th.__dict__, "ir_gate": base.ir})
+    above = Thresholds(**{**th.__dict__, "ir_gate": float(np.nextafter(base.ir, 2.0))})
+    assert regate_clip(record, at).consistent is (base.ge <= th.ge_gate)
+    assert regate_clip(record, above).consistent is False
+    assert Thresholds(**{**th.__dict__, "tau_h": 3.0}).changed(th) == {"tau_h": (th.tau_h, 3.0)}
+    with pytest.raises(ValueError, match="low threshold"):
+        Thresholds(**{**th.__dict__, "tau_t_low": 0.1, "tau_t_high": 0.05})
+
+
+def test_choose_model_and_report_rules():
+    from geocon_core.regate import choose_model, report_margin, report_verdict
+
+    assert choose_model("U", True, 0.9, 0.95) == "F" and choose_model("U", True, 0.95, 0.95) == "H"
+    assert choose_model("U", True, None, 0.5) == "F" and choose_model("H", False, 1.0, 0.0) == "F"
+    assert report_verdict(0.97, 3.5, 0.97, 3.5) is True and report_verdict(None, None, 0.97, 3.5) is None
+    assert report_margin(0.985, 1.75, 0.97, 3.5) == pytest.approx(0.5)
+    assert report_margin(0.99, 7.0, 0.97, 3.5) == pytest.approx(-1.0)

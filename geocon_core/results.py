@@ -1,0 +1,315 @@
+"""A results folder as a triage list: every clip with the numbers an inspector sorts and filters
+by, re-gated live at other thresholds, and ordered by severity.
+
+Reads what ``geocon bench`` writes (``RESULTS/bench.json``, ``clips/*/status.json``, and
+``tables/clips.parquet`` when it is up to date, for speed) or a single ``geocon score --out`` folder
+(one ``record.json``). Nothing is re-scored: at other thresholds the clips are re-gated from their
+stored residuals (:func:`geocon_core.regate.regate_clip`), which are loaded on first need and kept.
+
+>>> index = ResultsIndex.open("results")                    # doctest: +SKIP
+>>> th = index.recorded.__class__(**{**index.recorded.__dict__, "tau_h": 3.0})  # doctest: +SKIP
+>>> [c.clip_id for c in index.triage(th)[:5]]                # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from .bench import BENCH_FORMAT, CLIPS_DIR, read_status
+from .config import ScoreConfig
+from .dataset import EXPECTED_MODEL
+from .regate import ClipVerdict, Residuals, Thresholds, clip_verdict, load_residuals, regate_family
+
+__all__ = ["ResultClip", "TriageRow", "ResultsIndex", "ResultsError", "VERDICTS", "severity_key"]
+
+VERDICTS = ("fails", "not judged", "error", "passes")
+"""Verdict names of the triage list, most severe first."""
+
+
+class ResultsError(ValueError):
+    """A folder that is neither benchmark results nor a record (one sentence)."""
+
+
+@dataclass(frozen=True)
+class ResultClip:
+    """One clip of a results folder as recorded: its sidecar metadata, where its files are, and the
+    numbers needed to re-gate it (both families' IR/GE and the gate statistic)."""
+
+    clip_id: str
+    platform: str
+    category: str | None
+    expected_model: str | None
+    status: str
+    error: str | None
+    folder: Path | None
+    rrd: Path | None
+    prompt: str | None
+    t_inf: float | None
+    pose_present: bool
+    ir_h: float | None
+    ge_h: float | None
+    ir_f: float | None
+    ge_f: float | None
+    adap90_max: float | None
+    n_objects: int
+
+
+@dataclass(frozen=True)
+class TriageRow:
+    """A clip with its verdict under the thresholds of the moment (None for a clip that failed to
+    score) and its severity verdict name (see :data:`VERDICTS`)."""
+
+    clip: ResultClip
+    verdict: ClipVerdict | None
+
+    @property
+    def clip_id(self) -> str:
+        return self.clip.clip_id
+
+    @property
+    def state(self) -> str:
+        if self.verdict is None:
+            return "error"
+        return {True: "passes", False: "fails", None: "not judged"}[self.verdict.consistent]
+
+    @property
+    def gate_mismatch(self) -> bool:
+        """The gate chose another family than the clip's expected one (sidecar category)."""
+        return self.verdict is not None and self.clip.expected_model is not None and self.verdict.model != self.clip.expected_model
+
+
+def _none_last(v: float | None, *, descending: bool = False) -> float:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return math.inf
+    return -v if descending else v
+
+
+def severity_key(row: TriageRow) -> tuple:
+    """Most severe first: clips failing the report gate (deepest below it first), then unjudged and
+    unscorable clips, then passing clips (least headroom first); ties by the translation gate's
+    margin (no pose first, then closest to its threshold), then by the worst object's AdaP90
+    (largest first), then by clip id."""
+    v = row.verdict
+    rank = VERDICTS.index(row.state)
+    if v is None:
+        return (rank, 0.0, 0.0, 0.0, row.clip_id)
+    margin = -math.inf if v.margin is None else v.margin
+    return (rank, _none_last(v.report_margin), margin, _none_last(row.clip.adap90_max, descending=True), row.clip_id)
+
+
+def _num(v: Any) -> float | None:
+    if v is None:
+        return None
+    f = float(v)
+    return None if math.isnan(f) else f
+
+
+def _from_record_json(clip_id: str, status: dict[str, Any], folder: Path) -> ResultClip:
+    """A clip's triage numbers from its ``record.json`` (no arrays read)."""
+    d = json.loads((folder / "record.json").read_text())
+    bg, gate = d["background"], d["gate"]
+    fam = {bg["chosen"]["family"]: bg["chosen"], bg["other"]["family"]: bg["other"]}
+    adap90 = [o["adap90"] for o in d.get("objects", []) if o.get("adap90") is not None]
+    meta = status.get("meta") or {}
+    rrd = folder / status["rrd"] if status.get("rrd") else (folder / "audit.rrd" if (folder / "audit.rrd").is_file() else None)
+    return ResultClip(
+        clip_id=clip_id, platform=str(meta.get("model", "-")), category=meta.get("category"),
+        expected_model=EXPECTED_MODEL.get(meta.get("category")), status="ok", error=None, folder=folder, rrd=rrd,
+        prompt=meta.get("prompt"), t_inf=gate["t_inf"], pose_present=bool(gate["pose_present"]),
+        ir_h=fam["H"]["ir"], ge_h=fam["H"]["ge"], ir_f=fam["F"]["ir"], ge_f=fam["F"]["ge"],
+        adap90_max=max(adap90) if adap90 else None, n_objects=len(d.get("objects", [])),
+    )
+
+
+def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultClip:
+    meta = status.get("meta") or {}
+    return ResultClip(
+        clip_id=clip_id, platform=str(meta.get("model", "-")), category=meta.get("category"),
+        expected_model=EXPECTED_MODEL.get(meta.get("category")), status="failed", error=status.get("error") or "unknown error",
+        folder=folder, rrd=None, prompt=meta.get("prompt"), t_inf=None, pose_present=False,
+        ir_h=None, ge_h=None, ir_f=None, ge_f=None, adap90_max=None, n_objects=0,
+    )
+
+
+def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]]:
+    """Rows of ``tables/clips.parquet`` by clip id when the table is newer than every clip status
+    (else empty: the records are read instead)."""
+    path = results / "tables" / "clips.parquet"
+    try:
+        if not path.is_file() or path.stat().st_mtime < newest_status:
+            return {}
+        import pyarrow.parquet as pq
+    except (ImportError, OSError):
+        return {}
+    cols = ["clip_id", "status", "t_inf", "pose_present", "ir_h", "ge_h", "ir_f", "ge_f", "adap90_max", "n_objects"]
+    table = pq.read_table(path, columns=cols).to_pydict()
+    return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
+
+
+class ResultsIndex:
+    """Every clip of a results folder, the thresholds it was scored with (``recorded``), and lazily
+    loaded residuals for live re-gating (:meth:`triage`, :meth:`verdict`)."""
+
+    def __init__(self, root: Path, clips: list[ResultClip], config: ScoreConfig, config_hash: str | None, kind: str) -> None:
+        self.root = root
+        self.clips = clips
+        self.by_id = {c.clip_id: c for c in clips}
+        self.config = config
+        self.config_hash = config_hash
+        self.kind = kind
+        self.recorded = Thresholds.of(config)
+        self._residuals: dict[str, Residuals] = {}
+        self._families: dict[tuple[str, str, float], tuple[float | None, float | None]] = {}
+        self._lock = threading.Lock()
+
+    # --- opening -------------------------------------------------------------------------------
+    @classmethod
+    def open(cls, path: str | Path) -> "ResultsIndex":
+        """A ``geocon bench`` results folder, or one record folder (``geocon score --out``)."""
+        root = Path(path)
+        if not root.exists():
+            raise ResultsError(f"{root} does not exist: give a results folder from `geocon bench` or a record folder from `geocon score`")
+        if root.is_file() and root.name == "record.json":
+            root = root.parent
+        if (root / "bench.json").is_file():
+            return cls._open_bench(root)
+        if (root / "record.json").is_file():
+            status = {"meta": {"model": "-", "category": None}, "rrd": None}
+            clip = _from_record_json(root.name, status, root)
+            d = json.loads((root / "record.json").read_text())
+            return cls(root, [clip], ScoreConfig.from_dict(d["config"]), d.get("config_hash"), "record")
+        raise ResultsError(f"{root} holds neither bench.json (from `geocon bench`) nor record.json (from `geocon score --out`)")
+
+    @classmethod
+    def _open_bench(cls, root: Path) -> "ResultsIndex":
+        try:
+            manifest = json.loads((root / "bench.json").read_text())
+        except json.JSONDecodeError:
+            raise ResultsError(f"{root / 'bench.json'} is not valid JSON") from None
+        if manifest.get("format") != BENCH_FORMAT:
+            raise ResultsError(f"{root / 'bench.json'} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})")
+        folders = sorted((p for p in (root / CLIPS_DIR).iterdir() if p.is_dir()), key=lambda p: p.name) if (root / CLIPS_DIR).is_dir() else []
+        statuses = []
+        newest = 0.0
+        for folder in folders:
+            status = read_status(folder)
+            if status is None:
+                continue  # in flight or never started
+            newest = max(newest, (folder / "status.json").stat().st_mtime)
+            statuses.append((folder, status))
+        table = _table_rows(root, newest)
+        clips = []
+        for folder, status in statuses:
+            cid = status["clip_id"]
+            if status["status"] != "ok":
+                clips.append(_failed_clip(cid, status, folder))
+                continue
+            row = table.get(cid)
+            if row is None or row["status"] != "ok":
+                clips.append(_from_record_json(cid, status, folder))
+                continue
+            meta = status.get("meta") or {}
+            clips.append(ResultClip(
+                clip_id=cid, platform=str(meta.get("model", "-")), category=meta.get("category"),
+                expected_model=EXPECTED_MODEL.get(meta.get("category")), status="ok", error=None, folder=folder,
+                rrd=folder / status["rrd"] if status.get("rrd") else None, prompt=meta.get("prompt"),
+                t_inf=_num(row["t_inf"]), pose_present=bool(row["pose_present"]), ir_h=_num(row["ir_h"]), ge_h=_num(row["ge_h"]),
+                ir_f=_num(row["ir_f"]), ge_f=_num(row["ge_f"]), adap90_max=_num(row["adap90_max"]), n_objects=int(row["n_objects"]),
+            ))
+        return cls(root, clips, ScoreConfig.from_dict(manifest["config"]), manifest.get("config_hash"), "bench")
+
+    # --- facets --------------------------------------------------------------------------------
+    def facets(self) -> dict[str, list[str]]:
+        """The values each filter can take, sorted."""
+        return {
+            "platform": sorted({c.platform for c in self.clips}),
+            "category": sorted({c.category for c in self.clips if c.category}),
+        }
+
+    # --- re-gating -----------------------------------------------------------------------------
+    def residuals(self, clip_id: str) -> Residuals:
+        """The clip's stored residuals (read once, then kept)."""
+        with self._lock:
+            res = self._residuals.get(clip_id)
+        if res is None:
+            clip = self.by_id[clip_id]
+            if clip.folder is None or clip.status != "ok":
+                raise ResultsError(f"{clip_id} has no record: {clip.error}")
+            res = load_residuals(clip.folder)
+            with self._lock:
+                self._residuals[clip_id] = res
+        return res
+
+    def loaded(self) -> int:
+        """How many clips' residuals are in memory."""
+        with self._lock:
+            return len(self._residuals)
+
+    def preload(self, progress: Callable[[int, int], None] | None = None, stop: threading.Event | None = None) -> None:
+        """Read every clip's residuals (for a background thread, so later re-gating is fast)."""
+        ok = [c for c in self.clips if c.status == "ok"]
+        for i, c in enumerate(ok):
+            if stop is not None and stop.is_set():
+                return
+            self.residuals(c.clip_id)
+            if progress is not None:
+                progress(i + 1, len(ok))
+
+    def _family(self, clip: ResultClip, family: str, tau: float) -> tuple[float | None, float | None]:
+        recorded = self.recorded.tau_h if family == "H" else self.recorded.tau_f
+        if tau == recorded:
+            return (clip.ir_h, clip.ge_h) if family == "H" else (clip.ir_f, clip.ge_f)
+        key = (clip.clip_id, family, float(tau))
+        with self._lock:
+            hit = self._families.get(key)
+        if hit is None:
+            r = regate_family(self.residuals(clip.clip_id), family, tau)  # type: ignore[arg-type]
+            hit = (r.ir, r.ge)
+            with self._lock:
+                self._families[key] = hit
+        return hit
+
+    def verdict(self, clip_id: str, thresholds: Thresholds) -> ClipVerdict | None:
+        """The clip's verdict at ``thresholds`` (None for a clip that failed to score). At the
+        recorded residual thresholds the recorded values are used; otherwise the clip is re-gated
+        from its residuals, exactly as :func:`~geocon_core.regate.regate_clip` does."""
+        clip = self.by_id[clip_id]
+        if clip.status != "ok":
+            return None
+        ir_h, ge_h = self._family(clip, "H", thresholds.tau_h)
+        ir_f, ge_f = self._family(clip, "F", thresholds.tau_f)
+        return clip_verdict(t_inf=clip.t_inf, pose_present=clip.pose_present, ir_h=ir_h, ge_h=ge_h, ir_f=ir_f, ge_f=ge_f, thresholds=thresholds)
+
+    def triage(self, thresholds: Thresholds | None = None, *, platform: str | None = None, category: str | None = None,
+               gate_label: str | None = None, state: str | None = None, flagged_only: bool = False) -> list[TriageRow]:
+        """The clips passing the filters (None = any), most severe first (:func:`severity_key`).
+        ``gate_label`` filters on the hysteresis label (H/F/U) at ``thresholds``; ``state`` on the
+        verdict name (:data:`VERDICTS`); ``flagged_only`` keeps clips that are not passing or whose
+        gate disagrees with their category."""
+        th = thresholds or self.recorded
+        rows = []
+        for c in self.clips:
+            if (platform is not None and c.platform != platform) or (category is not None and c.category != category):
+                continue
+            row = TriageRow(c, self.verdict(c.clip_id, th))
+            if gate_label is not None and (row.verdict is None or row.verdict.label != gate_label):
+                continue
+            if state is not None and row.state != state:
+                continue
+            if flagged_only and row.state == "passes" and not row.gate_mismatch:
+                continue
+            rows.append(row)
+        rows.sort(key=severity_key)
+        return rows
+
+    def counts(self, rows: Iterable[TriageRow]) -> dict[str, int]:
+        """How many of ``rows`` are in each verdict."""
+        out = {name: 0 for name in VERDICTS}
+        for r in rows:
+            out[r.state] += 1
+        return out

@@ -1,0 +1,649 @@
+"""``geocon serve``: the Viser audit app over a results folder.
+
+One page for triaging a whole benchmark (or one scored clip):
+
+- **control panel** (right): the triage list, most severe first (:func:`geocon_core.results.severity_key`),
+  filterable by platform, category, gate label and verdict; the clip picker; and the thresholds
+  (tau_H, tau_F, the IR/GE report gates, the hysteresis gate) with what differs from the recorded
+  configuration;
+- **3D scene**: the selected clip's first/last point cloud and both cameras as frustums showing
+  the first and last frames;
+- **Frame panel** (left): the current frame with its background inliers/outliers under the
+  thresholds of the moment and the object masks, a frame slider with play, the audit card and a
+  button that writes the clip's Rerun recording (and offers it as a download);
+- **Plots panel** (left, below): per-pair IR and GE of the family in use, AdaDFRC ``D_t`` per
+  object, and the gate's per-window ``t_inf`` against its thresholds.
+
+Every number comes from :mod:`geocon_core` (records, :class:`~geocon_core.results.ResultsIndex`,
+:mod:`geocon_core.regate`); this module only draws. The GUI state is shared by every browser
+tab connected to the server. The server binds to 127.0.0.1 unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import viser
+import viser.transforms as vtf
+import viser.uplot as uplot
+
+from geocon_core.diagnostics import Overlays, read_overlays
+from geocon_core.record import ClipRecord, read_record
+from geocon_core.regate import ClipVerdict, Thresholds, pair_inliers, regate_pairs
+from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
+
+__all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
+
+LIST_ROWS = 12
+"""Rows of the triage table shown at once (the clip picker holds all of them)."""
+DISPLAY_WIDTH = 640
+"""Width (px) the frames are shown at."""
+ANY = "any"
+FLAGGED = "flagged"
+INLIER = (60, 200, 90)
+OUTLIER = (235, 60, 50)
+_STATE_MARK = {"fails": "FAIL", "not judged": "n/j", "error": "ERROR", "passes": "ok"}
+_THRESHOLD_LABELS = {
+    "tau_h": ("tau_H (px)", 0.05, "Symmetric transfer error threshold of the homography."),
+    "tau_f": ("tau_F", 0.005, "Normalised Sampson threshold of the fundamental matrix."),
+    "ir_gate": ("IR gate", 0.005, "Report gate: a clip passes when IR >= this ..."),
+    "ge_gate": ("GE gate (px)", 0.1, "... and GE <= this (px)."),
+    "tau_t_low": ("gate low", 0.005, "Hysteresis gate: H when t_inf <= this."),
+    "tau_t_high": ("gate high", 0.005, "Hysteresis gate: F when t_inf >= this; U in between."),
+}
+
+
+def _fmt(v: float | None, spec: str = ".3f") -> str:
+    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:{spec}}"
+
+
+def _object_color(object_id: int) -> tuple[int, int, int]:
+    import colorsys
+
+    r, g, b = colorsys.hsv_to_rgb((object_id * 0.618034) % 1.0, 0.75, 1.0)
+    return int(r * 255), int(g * 255), int(b * 255)
+
+
+@dataclass(eq=False)
+class ClipView:
+    """What the app holds for the selected clip: its record, overlays, and the frames decoded at
+    display size (filled by a background thread; ``frames_ready`` is set when done)."""
+
+    clip_id: str
+    folder: Path
+    record: ClipRecord
+    overlays: Overlays | None
+    display_scale: float
+    frames: dict[int, np.ndarray] = field(default_factory=dict)
+    frames_ready: threading.Event = field(default_factory=threading.Event)
+    frames_error: str | None = None
+    cancel: threading.Event = field(default_factory=threading.Event)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.record.video.get("num_frames") or 0)
+
+    @property
+    def working_size(self) -> tuple[int, int]:
+        w, h = self.record.video["working_size"]
+        return int(w), int(h)
+
+
+class AuditApp:
+    """The audit app over ``results`` (a ``geocon bench`` folder or a ``geocon score`` record
+    folder). Drive it from Python through its GUI handles (setting ``.value`` runs the callbacks),
+    or open :attr:`url` in a browser. :meth:`stop` shuts the server down and frees its port."""
+
+    def __init__(self, results: str | Path | ResultsIndex, *, host: str = "127.0.0.1", port: int = 8080, preload: bool = True) -> None:
+        self.index = results if isinstance(results, ResultsIndex) else ResultsIndex.open(results)
+        self.thresholds: Thresholds = self.index.recorded
+        self.rows: list[TriageRow] = []
+        self.view: ClipView | None = None
+        self.verdict: ClipVerdict | None = None
+        self.frame = 0
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._decoder: threading.Thread | None = None
+        self.cloud_handle: Any = None
+        """The selected clip's point cloud in the scene (None when it has none)."""
+        self.server = viser.ViserServer(host=host, port=port, label="GeoCon audit", verbose=False)
+        self.server.gui.configure_theme(control_layout="fixed", control_width="large", show_logo=False, show_share_button=False,
+                                        brand_color=(40, 110, 180))
+        self.server.scene.set_up_direction("-y")
+        self._build_gui()
+        self.refresh()
+        self._preload: threading.Thread | None = None
+        if preload and self.index.kind == "bench":
+            self._preload = threading.Thread(target=self._preload_residuals, name="geocon-preload", daemon=True)
+            self._preload.start()
+        self._player = threading.Thread(target=self._play_loop, name="geocon-play", daemon=True)
+        self._player.start()
+
+    # --- server ------------------------------------------------------------------------------
+    @property
+    def host(self) -> str:
+        return self.server.get_host()
+
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}"
+
+    def stop(self) -> None:
+        """Stop the background threads and the server (its port is free when this returns)."""
+        self._stop.set()
+        if self.view is not None:
+            self.view.cancel.set()
+        for thread in (self._decoder, self._preload, self._player):
+            if thread is not None:
+                thread.join(timeout=5.0)
+        self.server.stop()
+
+    # --- GUI ---------------------------------------------------------------------------------
+    def _build_gui(self) -> None:
+        gui = self.server.gui
+        facets = self.index.facets()
+        n = len(self.index.clips)
+        title = f"{self.index.root.name}: {n} clip{'s' if n != 1 else ''}" + (f" · config {self.index.config_hash}" if self.index.config_hash else "")
+        gui.add_markdown(f"**GeoCon audit** · {title}")
+        with gui.add_folder("Triage"):
+            self.platform = gui.add_dropdown("platform", [ANY, *facets["platform"]], initial_value=ANY)
+            self.category = gui.add_dropdown("category", [ANY, *facets["category"]], initial_value=ANY)
+            self.gate_label = gui.add_dropdown("gate label", [ANY, "H", "F", "U"], initial_value=ANY)
+            self.state = gui.add_dropdown("verdict", [ANY, FLAGGED, *VERDICTS], initial_value=ANY,
+                                          hint="flagged: not passing, or the gate disagrees with the clip's category")
+            self.summary_md = gui.add_markdown("")
+            self.table_md = gui.add_markdown("")
+            self.page = gui.add_number("page", 1, min=1, step=1, hint=f"{LIST_ROWS} clips a page, most severe first")
+            self.clip = gui.add_dropdown("clip", ["(none)"], initial_value="(none)", hint="The clip shown in the scene, the frame panel and the plots")
+            buttons = gui.add_button_group("", ["◀ more severe", "less severe ▶"])
+        with gui.add_folder("Thresholds"):
+            self.number: dict[str, Any] = {}
+            for name, (label, step, hint) in _THRESHOLD_LABELS.items():
+                self.number[name] = gui.add_number(label, getattr(self.thresholds, name), min=0.0, step=step, hint=hint)
+            self.reset = gui.add_button("Reset to the recorded thresholds")
+            self.thresholds_md = gui.add_markdown("")
+            self.preload_bar = gui.add_progress_bar(0.0, visible=False)
+        for handle in (self.platform, self.category, self.gate_label, self.state):
+            handle.on_update(lambda _: self._on_filters())
+        self.page.on_update(lambda _: self._render_table())
+        self.clip.on_update(lambda e: self._on_clip(e.target.value))
+        buttons.on_click(lambda e: self._step(-1 if e.target.value.startswith("◀") else 1))
+        for name, handle in self.number.items():
+            handle.on_update(lambda e, name=name: self._on_threshold(name, e.target.value))
+        self.reset.on_click(lambda _: self._reset_thresholds())
+
+        self.frame_panel = gui.add_panel()
+        with self.frame_panel.add_tab("Frame", icon=None):
+            self.image = gui.add_image(np.zeros((36, 64, 3), np.uint8), format="jpeg", jpeg_quality=85)
+            self.slider = gui.add_slider("frame", 0, 1, 1, 0)
+            self.play = gui.add_checkbox("play", False)
+            self.show_matches = gui.add_checkbox("inliers / outliers", True, hint="Background matches of the pair (t, t+1): green inliers, red outliers")
+            self.show_masks = gui.add_checkbox("object masks", True)
+            self.frame_md = gui.add_markdown("")
+        with self.frame_panel.add_tab("Audit card"):
+            self.card_md = gui.add_markdown("")
+            self.rrd_button = gui.add_button("Write the Rerun recording (.rrd)", hint="For a bug report: writes audit.rrd beside the record and offers it as a download")
+            self.rrd_md = gui.add_markdown("")
+        self.frame_panel.dock_left()
+        self.frame_panel.set_width(470)
+        self.slider.on_update(lambda e: self._on_frame(int(e.target.value)))
+        for handle in (self.show_matches, self.show_masks):
+            handle.on_update(lambda _: self._render_frame())
+        self.rrd_button.on_click(lambda _: self.write_rrd(background=True))
+
+        self.plot_panel = gui.add_panel()
+        with self.plot_panel.add_tab("Background"):
+            self.ir_plot = self._empty_plot("IR per pair")
+            self.ge_plot = self._empty_plot("GE per pair (px)")
+        with self.plot_panel.add_tab("Objects"):
+            self.obj_plot = self._empty_plot("AdaDFRC D_t per object (px²)")
+        with self.plot_panel.add_tab("Gate"):
+            self.gate_plot = self._empty_plot("t_inf per window")
+        self.plot_panel.dock_below(self.frame_panel)
+
+    def _empty_plot(self, title: str):
+        x = np.zeros(1)
+        return self.server.gui.add_uplot((x, x), (uplot.Series(label="frame"), uplot.Series(label="-")), title=title, aspect=2.2,
+                                         scales={"x": uplot.Scale(time=False)})
+
+    # --- triage list ---------------------------------------------------------------------------
+    def _filters(self) -> dict[str, Any]:
+        def pick(handle) -> str | None:
+            return None if handle.value == ANY else handle.value
+
+        state = self.state.value
+        return {
+            "platform": pick(self.platform), "category": pick(self.category), "gate_label": pick(self.gate_label),
+            "state": None if state in (ANY, FLAGGED) else state, "flagged_only": state == FLAGGED,
+        }
+
+    def refresh(self, *, keep_selection: bool = True) -> None:
+        """Re-gate and re-sort the list under the current thresholds and filters, then redraw."""
+        with self._lock:
+            self.rows = self.index.triage(self.thresholds, **self._filters())
+            ids = [r.clip_id for r in self.rows]
+            current = self.clip.value if keep_selection else None
+            options = ids or ["(none)"]
+            target = current if current in ids else options[0]
+            self.clip.options = options
+            self._render_summary()
+            self._render_table()
+            if self.clip.value != target:
+                self.clip.value = target  # runs _on_clip
+            elif self.view is None or self.view.clip_id != target:
+                self._on_clip(target)
+            else:
+                self._refresh_selected()
+
+    def _render_summary(self) -> None:
+        counts = self.index.counts(self.rows)
+        total = len(self.index.clips)
+        parts = ", ".join(f"{k} {v}" for k, v in counts.items() if v)
+        shown = f"{len(self.rows)} of {total} clips" if len(self.rows) != total else f"{total} clips"
+        self.summary_md.content = f"{shown} — {parts or 'none'}"
+
+    def _render_table(self) -> None:
+        pages = max(1, math.ceil(len(self.rows) / LIST_ROWS))
+        page = min(max(1, int(self.page.value)), pages)
+        start = (page - 1) * LIST_ROWS
+        lines = ["| # | clip | plat. | cat | gate | IR | GE | |", "|---|---|---|---|---|---|---|---|"]
+        for i, r in enumerate(self.rows[start:start + LIST_ROWS], start=start + 1):
+            v = r.verdict
+            gate = "–" if v is None else f"{v.label}→{v.model}" + ("≠" if r.gate_mismatch else "")
+            mark = _STATE_MARK[r.state]
+            name = r.clip_id if len(r.clip_id) <= 28 else r.clip_id[:12] + "…" + r.clip_id[-14:]
+            if self.view is not None and r.clip_id == self.view.clip_id:
+                name = f"**{name}**"
+            ir = "–" if v is None else _fmt(v.ir)
+            ge = "–" if v is None else _fmt(v.ge, ".2f")
+            lines.append(f"| {i} | {name} | {r.clip.platform} | {r.clip.category or '–'} | {gate} | {ir} | {ge} | {mark} |")
+        if not self.rows:
+            lines.append("| | no clip matches the filters | | | | | | |")
+        self.table_md.content = "\n".join(lines) + f"\n\npage {page} of {pages} · ≠: gate differs from the category's expected model"
+
+    def _on_filters(self) -> None:
+        self.page.value = 1
+        self.refresh()
+
+    def _step(self, delta: int) -> None:
+        ids = [r.clip_id for r in self.rows]
+        if not ids:
+            return
+        i = ids.index(self.clip.value) if self.clip.value in ids else 0
+        self.clip.value = ids[min(max(i + delta, 0), len(ids) - 1)]
+
+    # --- thresholds ----------------------------------------------------------------------------
+    def _on_threshold(self, name: str, value: float) -> None:
+        try:
+            new = replace(self.thresholds, **{name: float(value)})
+        except ValueError as exc:
+            self.thresholds_md.content = f"⚠ {exc}; keeping {getattr(self.thresholds, name):g}"
+            return
+        if new == self.thresholds:
+            return
+        self.thresholds = new
+        self.refresh()
+
+    def _reset_thresholds(self) -> None:
+        self.thresholds = self.index.recorded
+        for name, handle in self.number.items():
+            handle.value = getattr(self.thresholds, name)  # each a no-op re-gate once equal
+        self.refresh()
+
+    def _render_thresholds(self) -> None:
+        changed = self.thresholds.changed(self.index.recorded)
+        if not changed:
+            text = "All thresholds as recorded" + (f" (config `{self.index.config_hash}`)." if self.index.config_hash else ".")
+        else:
+            text = "**Differs from the recorded config:** " + ", ".join(
+                f"{_THRESHOLD_LABELS[k][0]} {now:g} (recorded {old:g})" for k, (old, now) in changed.items())
+            text += ". Scores are re-gated from the stored residuals (models not re-fitted)."
+        self.thresholds_md.content = text
+
+    def _preload_residuals(self) -> None:
+        bar = self.preload_bar
+        bar.visible = True
+
+        def progress(done: int, total: int) -> None:
+            bar.value = 100.0 * done / max(total, 1)
+
+        try:
+            self.index.preload(progress=progress, stop=self._stop)
+        except (OSError, ValueError, ResultsError):
+            pass  # a broken record is reported when it is selected or re-gated
+        bar.visible = False
+
+    # --- the selected clip ---------------------------------------------------------------------
+    def _on_clip(self, clip_id: str) -> None:
+        if clip_id not in self.index.by_id:
+            return
+        with self._lock:
+            clip = self.index.by_id[clip_id]
+            if self.view is not None:
+                self.view.cancel.set()
+            self.view = None
+            self.verdict = self.index.verdict(clip_id, self.thresholds)
+            if clip.status != "ok" or clip.folder is None:
+                self._show_failed(clip_id)
+                return
+            record = read_record(clip.folder)
+            w, _ = record.video["working_size"]
+            view = ClipView(clip_id, clip.folder, record, read_overlays(clip.folder), display_scale=min(1.0, DISPLAY_WIDTH / w))
+            self.view = view
+            n = view.num_frames
+            self.slider.max = max(1, n - 1)
+            self.frame = min(self.frame, n - 1)
+            self._render_scene()
+            self._refresh_selected()
+            self.rrd_md.content = self._rrd_text()
+        self._decoder = threading.Thread(target=self._decode_frames, args=(view,), name="geocon-frames", daemon=True)
+        self._decoder.start()
+
+    def _show_failed(self, clip_id: str) -> None:
+        clip = self.index.by_id[clip_id]
+        self.server.scene.reset()
+        self.cloud_handle = None
+        self.card_md.content = f"### {clip_id}\n\n**This clip could not be scored.**\n\n```\n{clip.error}\n```"
+        self.frame_md.content = "no frames: the clip has no record"
+        self.image.image = np.full((36, 64, 3), 40, np.uint8)
+        self._render_thresholds()
+        self._render_table()
+
+    def _refresh_selected(self) -> None:
+        """Everything that depends on the thresholds: verdict, card, plots, overlay."""
+        view = self.view
+        self._render_thresholds()
+        if view is None:
+            return
+        self.verdict = self.index.verdict(view.clip_id, self.thresholds)
+        self.card_md.content = self._card()
+        self._render_plots()
+        self._render_frame()
+        self._render_table()
+
+    def _decode_frames(self, view: ClipView) -> None:
+        from geocon_core.reader import ClipError, ClipInfo, iter_frames
+
+        try:
+            info = ClipInfo.from_dict(view.record.video)
+            for f in iter_frames(info):
+                if view.cancel.is_set() or self._stop.is_set():
+                    return
+                img = f.rgb
+                if view.display_scale < 1.0:
+                    img = cv2.resize(img, None, fx=view.display_scale, fy=view.display_scale, interpolation=cv2.INTER_AREA)
+                view.frames[f.index] = img
+                if f.index == self.frame and view is self.view:
+                    self._render_frame()
+        except (ClipError, OSError, ValueError) as exc:
+            view.frames_error = f"frames not shown: {exc}"
+            if view is self.view:
+                self._render_frame()
+        finally:
+            view.frames_ready.set()
+
+    def _on_frame(self, t: int) -> None:
+        self.frame = t
+        self._render_frame()
+
+    def _play_loop(self) -> None:
+        while not self._stop.wait(0.0):
+            view = self.view
+            fps = float(view.record.video.get("fps") or 12.0) if view is not None else 12.0
+            time.sleep(1.0 / min(max(fps, 1.0), 12.0))
+            if self.play.value and view is not None and view.num_frames > 1:
+                self.slider.value = (int(self.slider.value) + 1) % view.num_frames
+
+    # --- drawing -------------------------------------------------------------------------------
+    def frame_matches(self, t: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(x_t at working pixels, inlier mask) of the background matches of the gap-1 pair
+        starting at ``t`` at the largest scale, under the family and threshold in use."""
+        view, v = self.view, self.verdict
+        if view is None or v is None:
+            return None
+        rec = view.record
+        s = max(rec.config.scales)
+        for p in rec.pairs:
+            if p.t0 == t and p.gap == min(rec.config.gaps) and p.scale == s and p.skip is None:
+                fit = p.fit(v.model)
+                if fit is None or fit.model is None:
+                    return None
+                tau = self.thresholds.tau_h if v.model == "H" else self.thresholds.tau_f
+                return rec.matches.x1[rec.matches.rows(p.index)] / s, pair_inliers(rec, p.index, v.model, tau)
+        return None
+
+    def frame_image(self, t: int) -> np.ndarray | None:
+        """The frame shown for ``t`` with the chosen overlays (None before it is decoded)."""
+        view = self.view
+        if view is None or t not in view.frames:
+            return None
+        img = view.frames[t].copy()
+        k = view.display_scale
+        if self.show_masks.value and view.overlays is not None:
+            labels = view.overlays.labels(t)
+            if labels is not None:
+                small = cv2.resize(labels, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_NEAREST)
+                for oid in np.unique(small[small > 0]):
+                    m = small == oid
+                    img[m] = (0.5 * img[m] + 0.5 * np.array(_object_color(int(oid)))).astype(np.uint8)
+        matches = self.frame_matches(t) if self.show_matches.value else None
+        if matches is not None:
+            xy, inl = matches
+            r = max(2, round(3 * k * 1.5))
+            for (x, y), ok in zip(xy * k, inl):
+                cv2.circle(img, (int(round(x)), int(round(y))), r, INLIER if ok else OUTLIER, -1 if ok else 1, lineType=cv2.LINE_AA)
+        return img
+
+    def _render_frame(self) -> None:
+        view, t = self.view, self.frame
+        if view is None:
+            return
+        img = self.frame_image(t)
+        if img is not None:
+            self.image.image = img
+        matches = self.frame_matches(t)
+        share = view.overlays.masked_share(t) if view.overlays is not None else None
+        text = f"frame {t} of {view.num_frames - 1}"
+        if matches is not None:
+            k = int(matches[1].sum())
+            text += f" · pair ({t}, {t + min(view.record.config.gaps)}): {k} of {len(matches[1])} matches inliers under {self.verdict.model}"
+        if share is not None:
+            text += f" · masked {share:.1%}"
+        if view.frames_error:
+            text += f"\n\n⚠ {view.frames_error}"
+        elif img is None:
+            text += " · decoding…"
+        self.frame_md.content = text
+
+    def _render_scene(self) -> None:
+        """Point cloud and both cameras of the selected clip."""
+        scene = self.server.scene
+        scene.reset()
+        view = self.view
+        if view is None:
+            return
+        rec = view.record
+        w, h = view.working_size
+        fy = float(np.asarray(rec.intrinsics)[1, 1]) * float(rec.gate.pose.get("focal_scale") or 1.0)
+        fov = 2.0 * math.atan(h / 2.0 / fy)
+        cloud = rec.cloud
+        depth = 1.0
+        self.cloud_handle = None
+        if cloud is not None and len(cloud.xyz):
+            depth = float(np.median(cloud.xyz[:, 2])) or 1.0
+            self.cloud_handle = scene.add_point_cloud("/cloud", points=cloud.xyz.astype(np.float32), colors=cloud.rgb, point_size=0.012 * depth,
+                                  precision="float32", point_shape="circle")
+        first = self._thumb(view, 0)
+        scene.add_camera_frustum("/cam_first", fov=fov, aspect=w / h, scale=0.08 * depth, thickness=0.004 * depth, color=(90, 200, 255), image=first,
+                                 format="jpeg", jpeg_quality=80)
+        T = rec.gate.pose.get("T_cam0_camT")
+        if T is not None:
+            T = np.asarray(T, dtype=float)
+            last = self._thumb(view, view.num_frames - 1)
+            scene.add_camera_frustum("/cam_last", fov=fov, aspect=w / h, scale=0.08 * depth, thickness=0.004 * depth, color=(255, 180, 60), image=last,
+                                     format="jpeg", jpeg_quality=80, wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz, position=T[:3, 3])
+            if np.linalg.norm(T[:3, 3]) > 0:
+                scene.add_line_segments("/baseline", np.array([[[0, 0, 0], T[:3, 3]]], np.float32), colors=(255, 255, 255), line_width=2.0)
+        note = "no point cloud" if cloud is None else cloud.note
+        scene.add_label("/note", note, position=(0.0, -0.12 * depth, 0.0))
+        cam = self.server.initial_camera
+        cam.look_at = (0.0, 0.0, depth)
+        cam.position = (0.3 * depth, -0.45 * depth, -0.7 * depth)
+        cam.up = (0.0, -1.0, 0.0)
+        for client in self.server.get_clients().values():
+            client.camera.look_at = cam.look_at
+            client.camera.position = cam.position
+            client.camera.up_direction = cam.up
+
+    def _thumb(self, view: ClipView, t: int) -> np.ndarray | None:
+        """Frame t decoded now at thumbnail size for the frustums (first and last only)."""
+        from geocon_core.reader import ClipError, ClipInfo, iter_frames
+
+        if t in view.frames:
+            img = view.frames[t]
+        else:
+            try:
+                info = ClipInfo.from_dict(view.record.video)
+                img = None
+                for f in iter_frames(info):
+                    if f.index == t:
+                        img = f.rgb
+                        break
+            except (ClipError, OSError, ValueError):
+                return None
+        if img is None:
+            return None
+        return cv2.resize(img, (256, max(1, round(256 * img.shape[0] / img.shape[1]))), interpolation=cv2.INTER_AREA)
+
+    def _render_plots(self) -> None:
+        view, v = self.view, self.verdict
+        if view is None or v is None:
+            return
+        rec = view.record
+        s = max(rec.config.scales)
+        tau = self.thresholds.tau_h if v.model == "H" else self.thresholds.tau_f
+        n = max(view.num_frames, 1)
+        x = np.arange(n, dtype=np.float64)
+        ir = np.full(n, np.nan)
+        ge = np.full(n, np.nan)
+        g0 = min(rec.config.gaps)
+        for p, row in regate_pairs(rec, v.model, tau):
+            if p.gap == g0 and p.scale == s and row.valid:
+                ir[p.t0], ge[p.t0] = row.ir, row.ge
+        th = self.thresholds
+        line = {"width": 2}
+        self.ir_plot.data = (x, ir, np.full(n, th.ir_gate))
+        self.ir_plot.series = (uplot.Series(label="frame"), uplot.Series(label=f"IR {v.model} (scale {s:g})", stroke="#1f77b4", **line),
+                               uplot.Series(label=f"gate {th.ir_gate:g}", stroke="#d62728", dash=(6, 4)))
+        self.ir_plot.title = f"IR per pair ({v.model}, tau {tau:g})"
+        self.ge_plot.data = (x, ge, np.full(n, th.ge_gate))
+        self.ge_plot.series = (uplot.Series(label="frame"), uplot.Series(label=f"GE {v.model} px", stroke="#ff7f0e", **line),
+                               uplot.Series(label=f"gate {th.ge_gate:g} px", stroke="#d62728", dash=(6, 4)))
+        objects = sorted(rec.objects, key=lambda o: -(o.adap90 or 0.0))[:6]
+        s_obj = max((e.scale for e in rec.object_entries), default=s)
+        ys = []
+        for o in objects:
+            y = np.full(n, np.nan)
+            for e in rec.object_entries:
+                if e.object_id == o.object_id and e.scale == s_obj and e.valid and e.d_t is not None:
+                    y[e.t0] = e.d_t
+            ys.append(y)
+        if objects:
+            self.obj_plot.data = (x, *ys)
+            self.obj_plot.series = (uplot.Series(label="frame"), *[
+                uplot.Series(label=f"object {o.object_id}", stroke="#%02x%02x%02x" % _object_color(o.object_id), width=2) for o in objects])
+            self.obj_plot.title = f"AdaDFRC D_t (px²), {len(objects)} of {len(rec.objects)} objects by AdaP90"
+        else:
+            self.obj_plot.data = (x, np.full(n, np.nan))
+            self.obj_plot.series = (uplot.Series(label="frame"), uplot.Series(label="no objects"))
+            self.obj_plot.title = "AdaDFRC: no moving objects in this clip"
+        wins = [w for w in rec.gate.timeline if w.t_inf is not None and (w.start, w.end) != (0, n - 1)]
+        if wins:
+            gx = np.array([w.end for w in wins], np.float64)
+            gy = np.array([w.t_inf for w in wins], np.float64)
+        else:
+            gx, gy = np.array([0.0, n - 1.0]), np.full(2, np.nan)
+        clip_t = np.full(len(gx), np.nan if rec.gate.t_inf is None else rec.gate.t_inf)
+        self.gate_plot.data = (gx, gy, np.full(len(gx), th.tau_t_low), np.full(len(gx), th.tau_t_high), clip_t)
+        self.gate_plot.series = (uplot.Series(label="window end"), uplot.Series(label="t_inf per window", stroke="#9467bd", width=2),
+                                 uplot.Series(label=f"low {th.tau_t_low:g}", stroke="#2ca02c", dash=(6, 4)),
+                                 uplot.Series(label=f"high {th.tau_t_high:g}", stroke="#d62728", dash=(6, 4)),
+                                 uplot.Series(label="first→last", stroke="#555555", dash=(2, 3)))
+        self.gate_plot.title = f"Gate t_inf: {v.label} (margin {_fmt(v.margin, '+.4f')})"
+
+    def _card(self) -> str:
+        view, v = self.view, self.verdict
+        assert view is not None and v is not None
+        rec, clip = view.record, self.index.by_id[view.clip_id]
+        bg, g = rec.background, rec.gate
+        state = {True: "passes", False: "FAILS", None: "cannot be judged"}[v.consistent]
+        lines = [
+            f"### {view.clip_id}",
+            f"platform **{clip.platform}** · category **{clip.category or '–'}** (expects {clip.expected_model or '–'})"
+            + (f" · {clip.prompt}" if clip.prompt else ""),
+            "",
+            f"**Background {state}** the report gate: model **{v.model}**, IR **{_fmt(v.ir)}** (gate ≥ {self.thresholds.ir_gate:g}), "
+            f"GE **{_fmt(v.ge, '.2f')} px** (gate ≤ {self.thresholds.ge_gate:g}).",
+            f"- gate: t_inf {_fmt(g.t_inf, '.4f')} → **{v.label}**, margin {_fmt(v.margin, '+.4f')}"
+            + ("" if g.pose_present else f" (no pose: {g.pose.get('reason')}; fail → F)"),
+            f"- H: IR {_fmt(v.ir_h)}, GE {_fmt(v.ge_h, '.2f')} · F: IR {_fmt(v.ir_f)}, GE {_fmt(v.ge_f, '.2f')}",
+        ]
+        if self.thresholds != self.index.recorded:
+            rec_state = {True: "passed", False: "failed", None: "was not judged"}[bg.consistent]
+            lines.append(f"- as recorded: model {bg.model}, IR {_fmt(bg.ir)}, GE {_fmt(bg.ge, '.2f')}, {rec_state}")
+        lines.append(f"- valid pairs {bg.valid_pairs} of {bg.total_pairs}; masks: {rec.masks_source}")
+        if rec.objects:
+            worst = max(rec.objects, key=lambda o: o.adap90 or 0.0)
+            lines.append(f"- {len(rec.objects)} objects; worst AdaP90 {_fmt(worst.adap90, '.3g')} px² (object {worst.object_id})")
+        if rec.warnings:
+            lines += ["", *[f"⚠ {w}" for w in rec.warnings]]
+        lines += ["", f"`{rec.clip}`", f"record `{view.folder}`"]
+        return "\n".join(lines)
+
+    # --- recordings ----------------------------------------------------------------------------
+    def _rrd_text(self) -> str:
+        view = self.view
+        if view is None:
+            return ""
+        rrd = view.folder / "audit.rrd"
+        if rrd.is_file():
+            return f"recording: `{rrd}` ({rrd.stat().st_size / 1e6:.1f} MB); open it with `rerun {rrd.name}`"
+        return "no recording yet"
+
+    def write_rrd(self, *, background: bool = False) -> Path | None:
+        """Write the selected clip's Rerun recording to ``audit.rrd`` in its record folder and
+        offer it to connected browsers as a download. Returns the path (None in the background)."""
+        view = self.view
+        if view is None:
+            return None
+        if background:
+            threading.Thread(target=self.write_rrd, name="geocon-rrd", daemon=True).start()
+            return None
+        from .rerun_log import write_rrd
+
+        self.rrd_button.disabled = True
+        self.rrd_md.content = "writing the recording…"
+        try:
+            path = write_rrd(view.folder, view.folder / "audit.rrd")
+        except (OSError, ValueError, RuntimeError) as exc:
+            self.rrd_md.content = f"⚠ could not write the recording: {exc}"
+            return None
+        finally:
+            self.rrd_button.disabled = False
+        assert path is not None
+        if view is self.view:
+            self.rrd_md.content = self._rrd_text()
+        if self.server.get_clients():
+            self.server.send_file_download(f"{view.clip_id}.rrd", path.read_bytes())
+        return path
