@@ -75,6 +75,8 @@ class ScoreConfig:
             raise ValueError(f"masks must be 'motion', 'none' or 'external', got {self.masks!r}")
         if self.grid < 1 or self.min_cells < 1:
             raise ValueError("grid and min_cells must be positive")
+        if self.min_inliers < 1:
+            raise ValueError(f"min_inliers must be at least 1, got {self.min_inliers}")
         if self.aggregation not in ("median", "worst"):
             raise ValueError(f"aggregation must be 'median' or 'worst', got {self.aggregation!r}")
         if not self.tau_t_low <= self.tau_t_high:

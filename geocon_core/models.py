@@ -18,7 +18,7 @@ import numpy as np
 
 from .geometry import sampson_distance, symmetric_transfer_error, to_homogeneous
 
-__all__ = ["usac_params", "ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_stats"]
+__all__ = ["usac_params", "ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_stats", "segment_order", "segment_inlier_stats"]
 
 Family = Literal["H", "F"]
 
@@ -66,6 +66,43 @@ def inlier_stats(residuals: np.ndarray, residuals_px: np.ndarray, tau: float) ->
     k = int(np.count_nonzero(inl))
     ge = float(np.median(residuals_px[inl])) if k else None
     return inl, k / n, ge
+
+
+def segment_order(residuals_px: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """The permutation that sorts each pair's rows (``offsets[i]:offsets[i + 1]``) by
+    ``residuals_px``, pairs kept in place (NaN last within a pair). Compute it once per clip and
+    pass it to :func:`segment_inlier_stats` to re-gate at many thresholds."""
+    n = np.diff(np.asarray(offsets, dtype=np.int64))
+    return np.lexsort((residuals_px, np.repeat(np.arange(len(n)), n)))
+
+
+def segment_inlier_stats(
+    residuals: np.ndarray, residuals_px: np.ndarray, offsets: np.ndarray, tau: float, *, order: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`inlier_stats` of many pairs at once: the matches of pair ``i`` are rows
+    ``offsets[i]:offsets[i + 1]``. Returns the inlier counts, the match counts and GE per pair
+    (NaN where a pair has no inlier), equal to the per-pair results bit for bit (same float32
+    inlier rule, same float32 median) without a Python loop over pairs. ``order`` is
+    :func:`segment_order` of the same arrays (computed here when not given)."""
+    offsets = np.asarray(offsets, dtype=np.int64)
+    n = np.diff(offsets)
+    if order is None:
+        order = segment_order(residuals_px, offsets)
+    vals = residuals_px[order]
+    inl = residuals[order] <= np.float32(tau)  # a permutation within pairs: counts per pair unchanged
+    cum = np.concatenate(([0], np.cumsum(inl, dtype=np.int64)))
+    k = cum[offsets[1:]] - cum[offsets[:-1]]
+    ge = np.full(len(n), np.nan)
+    has = k > 0
+    if not has.any():
+        return k, n, ge
+    rank = np.flatnonzero(inl)  # the inliers, each pair's sorted by residual
+    start, kh = cum[offsets[:-1]][has], k[has]
+    lo, hi = vals[rank[start + (kh - 1) // 2]], vals[rank[start + kh // 2]]
+    mid = np.where(lo == hi, lo, (lo + hi) / vals.dtype.type(2))  # the two middle values' mean, as np.median takes it
+    last = vals[rank[start + kh - 1]]  # NaN sorts last: a pair with a NaN inlier has a NaN median, as np.median gives
+    ge[has] = np.where(np.isnan(last), np.nan, mid.astype(np.float64))
+    return k, n, ge
 
 
 def _failed(family: Family, reason: str, n: int, tau: float) -> ModelFit:

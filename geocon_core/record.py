@@ -462,13 +462,25 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
     return out / "record.json"
 
 
-def read_record(path: str | Path) -> ClipRecord:
-    """Read a record from its folder or its ``record.json``."""
+def read_record_json(path: str | Path) -> tuple[Path, dict[str, Any]]:
+    """The folder of a record (given it or its ``record.json``) and its parsed JSON, checked to be
+    a GeoCon record."""
     p = Path(path)
     folder = p if p.is_dir() else p.parent
     d = json.loads((folder / "record.json").read_text())
     if d.get("format") != RECORD_FORMAT:
         raise ValueError(f"{folder / 'record.json'}: not a GeoCon record (format {d.get('format')!r}, expected {RECORD_FORMAT!r})")
+    return folder, d
+
+
+def pairs_from_json(d: dict[str, Any]) -> tuple[PairRecord, ...]:
+    """The pair records of a parsed ``record.json``."""
+    return tuple(PairRecord(**{**p, "h": _fit_from(p["h"]), "f": _fit_from(p["f"])}) for p in d["pairs"])
+
+
+def read_record(path: str | Path) -> ClipRecord:
+    """Read a record from its folder or its ``record.json``."""
+    folder, d = read_record_json(path)
     with np.load(folder / "matches.npz", allow_pickle=False) as z:
         matches = MatchArrays(**{name: z[name] for name in MatchArrays.NAMES})
         cells = CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES}) if "cells_offsets" in z.files else None
@@ -479,7 +491,7 @@ def read_record(path: str | Path) -> ClipRecord:
     gate = GateRecord(**{**g, "timeline": tuple(GateWindow(**w) for w in g["timeline"])})
     b = d["background"]
     background = BackgroundSummary(**{**b, "chosen": _family_from(b["chosen"]), "other": _family_from(b["other"])})
-    pairs = tuple(PairRecord(**{**p, "h": _fit_from(p["h"]), "f": _fit_from(p["f"])}) for p in d["pairs"])
+    pairs = pairs_from_json(d)
     return ClipRecord(
         clip=d["clip"], video=d["video"], config=ScoreConfig.from_dict(d["config"]), config_hash=d["config_hash"],
         versions=d["versions"], gate=gate, background=background, pairs=pairs, matches=matches,

@@ -12,7 +12,7 @@ thresholds :func:`regate_family` reproduces the record's IR and GE exactly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Sequence
 
@@ -20,8 +20,8 @@ import numpy as np
 
 from .config import ScoreConfig
 from .gate import gate_decision
-from .models import inlier_stats
-from .record import ClipRecord, GapSummary, MatchArrays, PairRecord
+from .models import segment_inlier_stats, segment_order
+from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_record_json
 
 __all__ = [
     "FitRow", "Regated", "aggregate_gaps", "regate_family", "regate_pairs", "pair_inliers", "DEFAULT_TAU_H_GRID", "DEFAULT_TAU_F_GRID", "sensitivity_scan",
@@ -48,8 +48,32 @@ class FitRow:
     ge: float | None
 
 
-def _median(values: list[float]) -> float | None:
-    return float(np.median(values)) if values else None
+def _median(values: np.ndarray) -> float | None:
+    return float(np.median(values)) if len(values) else None
+
+
+def _aggregate(
+    gap: np.ndarray, scale: np.ndarray, valid: np.ndarray, ir: np.ndarray, ge: np.ndarray, *,
+    gaps: Sequence[int], scales: Sequence[float], aggregation: str,
+) -> tuple[tuple[GapSummary, ...], float | None, float | None]:
+    """:func:`aggregate_gaps` on per-row arrays (float64 IR/GE, NaN where not valid)."""
+    per_gap = []
+    for g in gaps:
+        mine = gap == g
+        ok = mine & valid
+        if aggregation == "median":
+            ir_g, ge_g = _median(ir[ok]), _median(ge[ok])
+        elif aggregation == "worst":
+            cells = [ok & (scale == s) for s in scales]
+            irs = [m for m in (_median(ir[c]) for c in cells) if m is not None]
+            ges = [m for m in (_median(ge[c]) for c in cells) if m is not None]
+            ir_g, ge_g = (min(irs) if irs else None), (max(ges) if ges else None)
+        else:
+            raise ValueError(f"aggregation must be 'median' or 'worst', got {aggregation!r}")
+        per_gap.append(GapSummary(gap=g, ir=ir_g, ge=ge_g, valid_pairs=int(ok.sum()), total_pairs=int(mine.sum())))
+    irs = [x.ir for x in per_gap if x.ir is not None]
+    ges = [x.ge for x in per_gap if x.ge is not None]
+    return tuple(per_gap), (min(irs) if irs else None), (max(ges) if ges else None)
 
 
 def aggregate_gaps(
@@ -60,23 +84,13 @@ def aggregate_gaps(
     ``median`` (the paper): per gap, the median IR and GE over its valid (pair, scale) rows;
     ``worst``: per gap and scale the median over pairs, and the gap takes its lowest IR and
     highest GE. The headline is the lowest per-gap IR and the highest per-gap GE."""
-    per_gap = []
-    for gap in gaps:
-        mine = [r for r in rows if r.gap == gap]
-        valid = [r for r in mine if r.valid]
-        if aggregation == "median":
-            ir, ge = _median([r.ir for r in valid]), _median([r.ge for r in valid])
-        elif aggregation == "worst":
-            cells = [[r for r in valid if r.scale == s] for s in scales]
-            irs = [m for m in (_median([r.ir for r in c]) for c in cells) if m is not None]
-            ges = [m for m in (_median([r.ge for r in c]) for c in cells) if m is not None]
-            ir, ge = (min(irs) if irs else None), (max(ges) if ges else None)
-        else:
-            raise ValueError(f"aggregation must be 'median' or 'worst', got {aggregation!r}")
-        per_gap.append(GapSummary(gap=gap, ir=ir, ge=ge, valid_pairs=len(valid), total_pairs=len(mine)))
-    irs = [g.ir for g in per_gap if g.ir is not None]
-    ges = [g.ge for g in per_gap if g.ge is not None]
-    return tuple(per_gap), (min(irs) if irs else None), (max(ges) if ges else None)
+    def column(name: str) -> np.ndarray:
+        return np.array([np.nan if getattr(r, name) is None else getattr(r, name) for r in rows], dtype=np.float64)
+
+    gap = np.array([r.gap for r in rows], dtype=np.int64)
+    scale = np.array([r.scale for r in rows], dtype=np.float64)
+    valid = np.array([r.valid for r in rows], dtype=bool)
+    return _aggregate(gap, scale, valid, column("ir"), column("ge"), gaps=gaps, scales=scales, aggregation=aggregation)
 
 
 @dataclass(frozen=True)
@@ -91,26 +105,63 @@ class Regated:
     per_gap: tuple[GapSummary, ...]
 
 
+@dataclass(frozen=True, eq=False)
+class _PairTable:
+    """A record's pairs as arrays, per family: where the family can be re-gated at all (pair
+    scored, model fitted) and each pair's matches sorted by residual."""
+
+    gap: np.ndarray
+    scale: np.ndarray
+    index: np.ndarray
+    usable: dict[str, np.ndarray]
+    order: dict[str, np.ndarray]
+
+
+def _pair_table(record: "ClipRecord | Residuals") -> _PairTable:
+    cached = record.cache.get("pairs") if isinstance(record, Residuals) else None
+    if cached is not None:
+        return cached
+    pairs = record.pairs
+    usable = {}
+    for fam in ("H", "F"):
+        fits = [p.fit(fam) for p in pairs]
+        usable[fam] = np.array([p.skip is None and f is not None and f.model is not None for p, f in zip(pairs, fits)], dtype=bool)
+    m = record.matches
+    table = _PairTable(
+        gap=np.array([p.gap for p in pairs], dtype=np.int64), scale=np.array([p.scale for p in pairs], dtype=np.float64),
+        index=np.array([p.index for p in pairs], dtype=np.int64), usable=usable,
+        order={"H": segment_order(m.h_res, m.offsets), "F": segment_order(m.f_res_px, m.offsets)},
+    )
+    if isinstance(record, Residuals):  # kept: a viewer re-gates the same clip many times
+        record.cache["pairs"] = table
+    return table
+
+
+def _regate_arrays(record: "ClipRecord | Residuals", family: Family, tau: float, min_inliers: int | None) -> tuple[_PairTable, np.ndarray, np.ndarray, np.ndarray]:
+    """(pair table, valid, IR, GE) per pair of ``record.pairs`` at ``tau``; IR and GE are NaN
+    where not valid."""
+    if family not in ("H", "F"):
+        raise ValueError(f"family must be 'H' or 'F', got {family!r}")
+    need = record.config.min_inliers if min_inliers is None else min_inliers
+    m = record.matches
+    res, px = (m.h_res, m.h_res) if family == "H" else (m.f_res, m.f_res_px)
+    table = _pair_table(record)
+    k, n, ge = segment_inlier_stats(res, px, m.offsets, tau, order=table.order[family])
+    k, n, ge = k[table.index], n[table.index], ge[table.index]
+    valid = table.usable[family] & (n > 0) & (k >= need) & (k > 0)
+    ir = np.where(valid, k / np.maximum(n, 1), np.nan)
+    return table, valid, ir, np.where(valid, ge, np.nan)
+
+
 def regate_pairs(record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None) -> list[tuple[PairRecord, FitRow]]:
     """Every pair of a record with its IR and GE re-gated at ``tau`` (the rows behind
     :func:`regate_family`). A pair is valid when it was scored, its model exists and it keeps at
     least ``min_inliers`` (default: the record's) inliers."""
-    if family not in ("H", "F"):
-        raise ValueError(f"family must be 'H' or 'F', got {family!r}")
-    need = record.config.min_inliers if min_inliers is None else min_inliers
-    res_name, px_name = ("h_res", "h_res") if family == "H" else ("f_res", "f_res_px")
-    res_all, px_all = getattr(record.matches, res_name), getattr(record.matches, px_name)
-    rows = []
-    for p in record.pairs:
-        fit = p.fit(family)
-        if p.skip is not None or fit is None or fit.model is None:
-            rows.append((p, FitRow(p.gap, p.scale, False, None, None)))
-            continue
-        sl = record.matches.rows(p.index)
-        inl, ir, ge = inlier_stats(res_all[sl], px_all[sl], tau)
-        valid = int(np.count_nonzero(inl)) >= need
-        rows.append((p, FitRow(p.gap, p.scale, valid, ir if valid else None, ge if valid else None)))
-    return rows
+    _, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
+    return [
+        (p, FitRow(p.gap, p.scale, bool(v), float(i) if v else None, float(g) if v else None))
+        for p, v, i, g in zip(record.pairs, valid, ir, ge)
+    ]
 
 
 def pair_inliers(record: "ClipRecord | Residuals", index: int, family: Family, tau: float) -> np.ndarray:
@@ -125,10 +176,10 @@ def pair_inliers(record: "ClipRecord | Residuals", index: int, family: Family, t
 def regate_family(record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None) -> Regated:
     """Re-gate one family of a record at threshold ``tau`` from its stored residuals (no
     re-fitting: the models stay those of the scoring run); pairs as in :func:`regate_pairs`."""
-    rows = [row for _, row in regate_pairs(record, family, tau, min_inliers=min_inliers)]
+    table, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
     cfg = record.config
-    per_gap, ir, ge = aggregate_gaps(rows, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation)
-    return Regated(family=family, tau=float(tau), ir=ir, ge=ge, valid_pairs=sum(g.valid_pairs for g in per_gap), per_gap=per_gap)
+    per_gap, ir_c, ge_c = _aggregate(table.gap, table.scale, valid, ir, ge, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation)
+    return Regated(family=family, tau=float(tau), ir=ir_c, ge=ge_c, valid_pairs=sum(g.valid_pairs for g in per_gap), per_gap=per_gap)
 
 
 def sensitivity_scan(
@@ -267,10 +318,17 @@ class Residuals:
     matches: ResidualArrays | MatchArrays
     t_inf: float | None
     pose_present: bool
+    cache: dict[str, object] = field(default_factory=dict, repr=False)
+    """Arrays derived on the first re-gate and kept for the next ones."""
 
     @classmethod
     def of(cls, record: ClipRecord) -> "Residuals":
         return cls(record.config, record.pairs, record.matches, record.gate.t_inf, record.gate.pose_present)
+
+    def prepare(self) -> "Residuals":
+        """Derive now what the first re-gate would (pair arrays, residual orders); returns self."""
+        _pair_table(self)
+        return self
 
     @classmethod
     def load(cls, folder: str | Path) -> "Residuals":
@@ -280,18 +338,10 @@ class Residuals:
 
 def load_residuals(folder: str | Path) -> Residuals:
     """:class:`Residuals` of the record in ``folder``, reading no coordinates, cells or cloud."""
-    import json
-
-    from .record import RECORD_FORMAT, _fit_from
-
-    path = Path(folder)
-    path = path if path.is_dir() else path.parent
-    d = json.loads((path / "record.json").read_text())
-    if d.get("format") != RECORD_FORMAT:
-        raise ValueError(f"{path / 'record.json'}: not a GeoCon record (format {d.get('format')!r})")
+    path, d = read_record_json(folder)
     with np.load(path / "matches.npz", allow_pickle=False) as z:
         arrays = ResidualArrays(**{name: z[name] for name in ResidualArrays.NAMES})
-    pairs = tuple(PairRecord(**{**p, "h": _fit_from(p["h"]), "f": _fit_from(p["f"])}) for p in d["pairs"])
+    pairs = pairs_from_json(d)
     gate = d["gate"]
     return Residuals(ScoreConfig.from_dict(d["config"]), pairs, arrays, gate["t_inf"], bool(gate["pose_present"]))
 

@@ -240,7 +240,7 @@ class ResultsIndex:
             clip = self.by_id[clip_id]
             if clip.folder is None or clip.status != "ok":
                 raise ResultsError(f"{clip_id} has no record: {clip.error}")
-            res = load_residuals(clip.folder)
+            res = load_residuals(clip.folder).prepare()
             with self._lock:
                 self._residuals[clip_id] = res
         return res

@@ -114,8 +114,8 @@ class AuditApp:
         self.cloud_handle: Any = None
         """The selected clip's point cloud in the scene (None when it has none)."""
         self.server = viser.ViserServer(host=host, port=port, label="GeoCon audit", verbose=False)
-        self.server.gui.configure_theme(control_layout="fixed", control_width="large", show_logo=False, show_share_button=False,
-                                        brand_color=(40, 110, 180))
+        self.server.gui.configure_theme(control_width="large", show_logo=False, show_share_button=False, brand_color=(40, 110, 180))
+        self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("-y")
         self._build_gui()
         self.refresh()
@@ -293,6 +293,9 @@ class AuditApp:
         if new == self.thresholds:
             return
         self.thresholds = new
+        pending = sum(c.status == "ok" for c in self.index.clips) - self.index.loaded()
+        if pending > 0 and (new.tau_h != self.index.recorded.tau_h or new.tau_f != self.index.recorded.tau_f):
+            self.thresholds_md.content = f"re-gating… (reading the stored residuals of {pending} more clips first)"
         self.refresh()
 
     def _reset_thresholds(self) -> None:
@@ -494,7 +497,7 @@ class AuditApp:
             scene.add_camera_frustum("/cam_last", fov=fov, aspect=w / h, scale=0.08 * depth, thickness=0.004 * depth, color=(255, 180, 60), image=last,
                                      format="jpeg", jpeg_quality=80, wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz, position=T[:3, 3])
             if np.linalg.norm(T[:3, 3]) > 0:
-                scene.add_line_segments("/baseline", np.array([[[0, 0, 0], T[:3, 3]]], np.float32), colors=(255, 255, 255), line_width=2.0)
+                scene.add_line_segments("/baseline", np.array([[[0, 0, 0], T[:3, 3]]], np.float32), colors=(255, 255, 255), thickness=2.0, thickness_units="screen")
         note = "no point cloud" if cloud is None else cloud.note
         scene.add_label("/note", note, position=(0.0, -0.12 * depth, 0.0))
         cam = self.server.initial_camera

@@ -150,6 +150,12 @@ def serve(
                 raise _fail(str(exc)) from None
             out.print(f"screenshot: {screenshot}")
             return
+        import signal
+
+        def on_term(*_: object) -> None:
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, on_term)  # `kill` stops as cleanly as Ctrl-C
         while True:
             time.sleep(0.5)
     except KeyboardInterrupt:

@@ -6,8 +6,12 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-# Debian packages the project needs at run time (open3d loads libusb).
+# Debian packages the project needs at run time (open3d loads libusb); the test extra also
+# needs headless Chromium for the browser tests of the web viewers.
 DEB_PACKAGES=(libusb-1.0-0)
+for extra in "$@"; do
+    [ "$extra" != test ] || DEB_PACKAGES+=(chromium fonts-dejavu-core)
+done
 missing=()
 for pkg in "${DEB_PACKAGES[@]}"; do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")

@@ -7,7 +7,7 @@ import pytest
 
 from geocon_core import geometry
 from geocon_core.geometry import fundamental_from_pose, homography_from_plane, intrinsics_from_fov, make_pose, rotation_xyz, sampson_distance
-from geocon_core.models import fit_fundamental, fit_homography, hartley_normalisation, inlier_stats
+from geocon_core.models import fit_fundamental, fit_homography, hartley_normalisation, inlier_stats, segment_inlier_stats, segment_order
 
 K = intrinsics_from_fov(1024, 576, 60.0)
 
@@ -94,3 +94,32 @@ def test_degenerate_correspondences_fail_explicitly():
         if not fit.valid:
             assert fit.reason in ("model_failed", "too_few_inliers")
         assert np.all(np.isfinite(fit.residuals) | ~fit.inliers)
+
+
+def test_segment_inlier_stats_equals_the_per_pair_rule_bit_for_bit():
+    # Many pairs at once must give exactly what inlier_stats gives pair by pair: empty pairs,
+    # pairs without inliers, odd and even inlier counts, ties, infinities and a NaN residual.
+    rng = np.random.default_rng(7)
+    counts = np.array([0, 1, 2, 3, 8, 9, 0, 40, 5, 120])
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    res = rng.gamma(1.5, 1.2, offsets[-1]).astype(np.float32)
+    res[offsets[4]:offsets[5]] = np.float32(0.5)  # all tied
+    res[offsets[8]:offsets[9]] = np.inf  # a pair without inliers
+    px = (res * rng.uniform(0.5, 3.0, res.shape)).astype(np.float32)
+    px[offsets[7] + 3] = np.nan  # a NaN among inliers poisons that pair's median, as np.median does
+    res[offsets[7] + 3] = 0.0
+    for tau in (0.1, 0.5, 1.0, 2.0, 3.7, 50.0):
+        k, n, ge = segment_inlier_stats(res, px, offsets, tau)
+        k2, _, ge2 = segment_inlier_stats(res, px, offsets, tau, order=segment_order(px, offsets))
+        np.testing.assert_array_equal(k2, k)
+        np.testing.assert_array_equal(ge2, ge)
+        for i in range(len(counts)):
+            sl = slice(offsets[i], offsets[i + 1])
+            inl, ir, ge_i = inlier_stats(res[sl], px[sl], tau)
+            assert (k[i], n[i]) == (inl.sum(), counts[i])
+            if ge_i is None:
+                assert np.isnan(ge[i])
+            elif np.isnan(ge_i):
+                assert np.isnan(ge[i])
+            else:
+                assert ge[i] == ge_i, (tau, i)

@@ -1,0 +1,324 @@
+"""`geocon serve`, the Viser audit app, driven from Python against a real (synthetic) benchmark:
+live re-gating reproduces the stored sensitivity scan exactly, the triage list is ordered and
+filtered by verdict, a selected clip shows its own point cloud and inliers, the server binds to
+127.0.0.1 only and frees its port, and headless Chromium renders the page."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser")
+pd = pytest.importorskip("pandas")
+pytest.importorskip("pyarrow")
+
+from geocon_core.bench import run_bench  # noqa: E402
+from geocon_core.config import ScoreConfig  # noqa: E402
+from geocon_core.record import read_record  # noqa: E402
+from geocon_core.regate import regate_family  # noqa: E402
+from geocon_core.results import VERDICTS, ResultsError, ResultsIndex  # noqa: E402
+from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
+from geocon_core.tables import read_tables  # noqa: E402
+from geocon_viewer.audit_app import LIST_ROWS, AuditApp  # noqa: E402
+
+from .test_bench import _broken_clip  # noqa: E402
+
+GEOCON = [sys.executable, "-m", "geocon_viewer.cli"]
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory) -> Path:
+    """Six synthetic clips (C1 and C3: clean, breathing, elastic) and one that fails to score."""
+    data = tmp_path_factory.mktemp("serve-data")
+    write_benchmark(data, plan_benchmark(families=("C1", "C3"), scenes=1), width=320, height=180, num_frames=16)
+    _broken_clip(data)
+    out = tmp_path_factory.mktemp("serve-results") / "r"
+    summary = run_bench(data, out, ScoreConfig(working_size=(320, 180)), workers=2)
+    assert (summary.total, summary.failed) == (7, 1)
+    return out
+
+
+@pytest.fixture()
+def app(results):
+    audit = AuditApp(results, port=0, preload=False)
+    yield audit
+    audit.stop()
+
+
+def _local_listeners(port: int) -> list[str]:
+    """Local addresses (hex, as /proc/net/tcp{,6} write them) of sockets listening on ``port``."""
+    found = []
+    for name in ("tcp", "tcp6"):
+        path = Path("/proc/net") / name
+        if not path.is_file():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            fields = line.split()
+            addr, port_hex = fields[1].rsplit(":", 1)
+            if int(port_hex, 16) == port and fields[3] == "0A":  # 0A: LISTEN
+                found.append(addr)
+    return found
+
+
+# --- live re-gating ------------------------------------------------------------------------------
+
+def test_tau_h_from_the_scan_gives_exactly_the_scans_ir(app, results):
+    sens = read_tables(results)["sensitivity"]
+    h = sens[(sens["family"] == "H") & ~sens["is_default"]]
+    tau = 3.0
+    assert tau in set(h["tau"]) and tau != app.index.recorded.tau_h
+    app.clip.value = "breathing-c3_translation-s0"
+    app.number["tau_h"].value = tau  # as if typed into the panel: the callback re-gates
+    assert app.thresholds.tau_h == tau
+    scan = h[h["tau"] == tau].set_index("clip_id")
+    ok = [r for r in app.rows if r.verdict is not None]
+    assert len(ok) == 6
+    for row in ok:
+        assert row.verdict.ir_h == scan.loc[row.clip_id, "ir"]  # exactly, not approximately
+        assert row.verdict.ge_h == scan.loc[row.clip_id, "ge"]
+    # the selected clip's verdict, card and thresholds note follow
+    v = app.verdict
+    assert v is not None and v.ir_h == scan.loc[app.view.clip_id, "ir"]
+    assert "tau_H (px) 3 (recorded" in app.thresholds_md.content
+
+
+def test_tau_f_from_the_scan_gives_exactly_the_scans_ir_and_reset_restores_the_record(app, results):
+    sens = read_tables(results)["sensitivity"]
+    tau = 0.2
+    scan = sens[(sens["family"] == "F") & (sens["tau"] == tau)].set_index("clip_id")
+    assert len(scan) == 6
+    app.number["tau_f"].value = tau
+    for row in (r for r in app.rows if r.verdict is not None):
+        assert row.verdict.ir_f == scan.loc[row.clip_id, "ir"]
+        if row.verdict.model == "F":
+            assert row.verdict.ir == scan.loc[row.clip_id, "ir"]
+    app.reset.value = True  # a button press
+    app._reset_thresholds()
+    assert app.thresholds == app.index.recorded
+    assert app.thresholds_md.content.startswith("All thresholds as recorded")
+    clips = read_tables(results)["clips"].set_index("clip_id")
+    for row in (r for r in app.rows if r.verdict is not None):
+        assert row.verdict.ir == clips.loc[row.clip_id, "ir"] and row.verdict.ge == clips.loc[row.clip_id, "ge"]
+        assert row.verdict.consistent == bool(clips.loc[row.clip_id, "consistent"])
+
+
+def test_report_gate_reorders_the_list_by_verdict(app):
+    # At the recorded gates every synthetic clip passes and the unscorable one comes first;
+    # a GE gate below every clip's GE fails them all, deepest failure (largest GE) first.
+    assert [r.state for r in app.rows] == ["error"] + ["passes"] * 6
+    ge_gate = 0.5 * min(r.verdict.ge for r in app.rows if r.verdict is not None)
+    app.number["ge_gate"].value = ge_gate
+    states = [r.state for r in app.rows]
+    assert states == ["fails"] * 6 + ["error"]
+    ges = [r.verdict.ge for r in app.rows if r.state == "fails"]
+    assert ges == sorted(ges, reverse=True), "deepest beyond the GE gate first"
+    assert f"GE gate (px) {ge_gate:g} (recorded" in app.thresholds_md.content
+    app.state.value = "passes"
+    assert app.rows == [] and "no clip matches" in app.table_md.content
+    # an impossible gate (low above high) is refused with a note, not applied
+    app.number["tau_t_low"].value = app.thresholds.tau_t_high + 1.0
+    assert app.thresholds.tau_t_low == app.index.recorded.tau_t_low
+    assert app.thresholds_md.content.startswith("⚠")
+
+
+def test_triage_filters_and_severity_order(app, results):
+    index = app.index
+    rows = index.triage()
+    assert [VERDICTS.index(r.state) for r in rows] == sorted(VERDICTS.index(r.state) for r in rows)
+    assert {r.clip.category for r in rows} == {"C1", "C3"}
+    # the elastic clips break the background: they are the most severe passing/failing clips
+    app.category.value = "C3"
+    assert app.rows and all(r.clip.category == "C3" for r in app.rows)
+    assert app.clip.options == tuple(r.clip_id for r in app.rows) or list(app.clip.options) == [r.clip_id for r in app.rows]
+    assert app.view is not None and app.view.clip_id == app.rows[0].clip_id
+    app.category.value = "any"
+    app.state.value = "error"
+    assert [r.clip_id for r in app.rows] == ["broken-c1"]
+    assert "could not be scored" in app.card_md.content and app.cloud_handle is None
+    app.state.value = "any"
+    app.gate_label.value = "H"
+    assert app.rows and all(r.verdict.label == "H" for r in app.rows)
+    assert {r.clip.category for r in app.rows} == {"C1"}  # static-camera scenes gate to H
+    assert len(app.table_md.content.splitlines()) <= LIST_ROWS + 4
+
+
+# --- the selected clip ------------------------------------------------------------------------------
+
+def test_selecting_a_clip_loads_its_point_cloud_and_frames(app, results):
+    for clip_id in ("clean-c3_translation-s0", "elastic-c3_translation-s0"):
+        app.clip.value = clip_id
+        record = read_record(results / "clips" / clip_id)
+        assert app.view.clip_id == clip_id
+        assert record.cloud is not None and len(record.cloud.xyz) > 50
+        assert app.cloud_handle is not None
+        assert app.cloud_handle.points.shape == record.cloud.xyz.shape
+        np.testing.assert_allclose(app.cloud_handle.points, record.cloud.xyz.astype(np.float32))
+        assert clip_id in app.card_md.content
+    assert app.view.frames_ready.wait(60) and app.view.frames_error is None
+    assert len(app.view.frames) == app.view.num_frames == 16
+
+
+def test_frame_slider_shows_the_pairs_inliers_under_the_thresholds(app, results):
+    app.clip.value = "clean-c3_translation-s0"
+    record = app.view.record
+    model = app.verdict.model
+    top, gap = max(record.config.scales), min(record.config.gaps)
+    for t in (0, 7):
+        app.slider.value = t
+        assert app.frame == t
+        xy, inliers = app.frame_matches(t)
+        pair = next(p for p in record.pairs if p.t0 == t and p.gap == gap and p.scale == top)
+        assert inliers.sum() == pair.fit(model).n_inliers
+        assert len(xy) == len(inliers) == pair.n_matches
+        assert f"{int(inliers.sum())} of {len(inliers)} matches inliers" in app.frame_md.content
+    # a tighter threshold marks fewer inliers, with the same count the re-gate uses
+    tau = 0.5 if model == "H" else 0.025
+    app.number["tau_h" if model == "H" else "tau_f"].value = tau
+    _, tight = app.frame_matches(7)
+    assert tight.sum() < inliers.sum()
+    assert app.view.frames_ready.wait(60)
+    img = app.frame_image(7)
+    assert img.shape[:2] == app.view.frames[7].shape[:2]
+    assert not np.array_equal(img, app.view.frames[7])  # the overlay is drawn
+
+
+def test_plots_follow_the_regated_pairs(app):
+    app.clip.value = "elastic-c1_static-s0"
+    x, ir, gate = app.ir_plot.data
+    assert len(x) == app.view.num_frames
+    rec = app.view.record
+    top, gap = max(rec.config.scales), min(rec.config.gaps)
+    for p in rec.pairs:
+        if p.gap == gap and p.scale == top and p.skip is None:
+            assert ir[p.t0] == pytest.approx(p.fit(app.verdict.model).ir)
+    assert np.all(gate == app.thresholds.ir_gate)
+    assert len(app.obj_plot.data) >= 2 and len(app.gate_plot.data) == 5
+
+
+def test_rrd_button_writes_the_recording(app, results):
+    pytest.importorskip("rerun")
+    app.clip.value = "elastic-c3_translation-s0"
+    rrd = results / "clips" / "elastic-c3_translation-s0" / "audit.rrd"
+    rrd.unlink(missing_ok=True)
+    path = app.write_rrd()
+    assert path == rrd and rrd.is_file() and rrd.stat().st_size > 10_000
+    assert "audit.rrd" in app.rrd_md.content
+
+
+# --- the server ---------------------------------------------------------------------------------
+
+def test_binds_to_localhost_only_and_frees_its_port(results):
+    audit = AuditApp(results, port=0, preload=True)
+    port = audit.port
+    try:
+        assert audit.host == "127.0.0.1" and audit.url == f"http://127.0.0.1:{port}"
+        listeners = _local_listeners(port)
+        assert listeners, "nothing listens on the port"
+        assert all(a in ("0100007F", "00000000000000000000000001000000") for a in listeners), listeners
+        with urllib.request.urlopen(audit.url, timeout=10) as resp:
+            assert resp.status == 200 and b"<html" in resp.read(2000).lower()
+        # not reachable on another address of this machine
+        with socket.socket() as s:
+            s.settimeout(2)
+            assert s.connect_ex(("127.0.0.2", port)) != 0 or not listeners
+    finally:
+        audit.stop()
+    assert not _local_listeners(port)
+    with socket.socket() as s:  # the port is free again
+        s.bind(("127.0.0.1", port))
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_cli_serves_until_ctrl_c_then_frees_its_port(results, sig):
+    import signal
+
+    proc = subprocess.Popen([*GEOCON, "serve", str(results), "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        while "GeoCon audit app:" not in line:
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, proc.stderr.read()
+        assert "this machine only" in line and "7 clips" in line
+        url = line.split("GeoCon audit app:", 1)[1].split()[0]
+        port = int(url.rsplit(":", 1)[1])
+        with urllib.request.urlopen(url, timeout=10) as resp:
+            assert resp.status == 200
+        proc.send_signal(getattr(signal, sig))
+        assert proc.wait(timeout=30) == 0
+        assert "stopping" in proc.stderr.read()
+    finally:
+        proc.kill()
+        proc.wait()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", port))
+
+
+def test_preload_reads_every_residual(results):
+    index = ResultsIndex.open(results)
+    seen = []
+    index.preload(progress=lambda done, total: seen.append((done, total)))
+    assert seen[-1] == (6, 6) and index.loaded() == 6
+    th = index.recorded.__class__(**{**index.recorded.__dict__, "tau_h": 1.0})
+    for c in index.clips:
+        if c.status == "ok":
+            assert index.verdict(c.clip_id, th).ir_h == regate_family(read_record(c.folder), "H", 1.0).ir
+
+
+def test_a_single_record_folder_opens(results, tmp_path):
+    folder = tmp_path / "one"
+    shutil.copytree(results / "clips" / "clean-c1_static-s0", folder)
+    audit = AuditApp(folder, port=0)
+    try:
+        assert audit.index.kind == "record" and [r.clip_id for r in audit.rows] == ["one"]
+        assert audit.view is not None and audit.verdict.model == "H"
+    finally:
+        audit.stop()
+
+
+def test_bad_results_folders_are_refused(tmp_path):
+    with pytest.raises(ResultsError, match="does not exist"):
+        ResultsIndex.open(tmp_path / "nowhere")
+    with pytest.raises(ResultsError, match="neither bench.json"):
+        ResultsIndex.open(tmp_path)
+    (tmp_path / "bench.json").write_text(json.dumps({"format": "something-else"}))
+    with pytest.raises(ResultsError, match="not a GeoCon benchmark manifest"):
+        ResultsIndex.open(tmp_path)
+    proc = subprocess.run([*GEOCON, "serve", str(tmp_path / "nowhere"), "--port", "0"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0 and "does not exist" in proc.stderr
+
+
+# --- in a browser ---------------------------------------------------------------------------------
+
+def test_headless_chromium_shows_the_list_scene_and_plots(results, tmp_path):
+    from geocon_viewer.screenshot import find_chromium
+
+    if find_chromium() is None:
+        pytest.skip("no Chromium on this machine (bash scripts/bootstrap.sh test installs it)")
+    import cv2
+
+    png = tmp_path / "serve.png"
+    proc = subprocess.run([*GEOCON, "serve", str(results), "--port", "0", "--clip", "elastic-c3_translation-s0", "--screenshot", str(png)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "GeoCon audit app: http://127.0.0.1:" in proc.stdout
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[:2] == (1000, 1600)
+
+    def busy(region: np.ndarray) -> float:
+        """Share of pixels that differ from the region's most common colour (0: blank)."""
+        flat = region.reshape(-1, 3)
+        values, counts = np.unique(flat, axis=0, return_counts=True)
+        return 1.0 - counts.max() / len(flat)
+
+    left, centre, right = img[:, :470], img[150:850, 520:1150], img[:, 1180:]
+    assert busy(left[60:400]) > 0.2, "the frame panel shows a frame"
+    assert busy(centre) > 0.05, "the 3D scene shows a point cloud and frustums"
+    assert busy(right) > 0.05, "the triage list is drawn"
