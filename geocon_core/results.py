@@ -109,9 +109,10 @@ def _num(v: Any) -> float | None:
     return None if math.isnan(f) else f
 
 
-def _from_record_json(clip_id: str, status: dict[str, Any], folder: Path) -> ResultClip:
-    """A clip's triage numbers from its ``record.json`` (no arrays read)."""
-    d = json.loads((folder / "record.json").read_text())
+def _from_record_json(clip_id: str, status: dict[str, Any], folder: Path, d: dict[str, Any] | None = None) -> ResultClip:
+    """A clip's triage numbers from its ``record.json`` (no arrays read; ``d`` when already parsed)."""
+    if d is None:
+        d = json.loads((folder / "record.json").read_text())
     bg, gate = d["background"], d["gate"]
     fam = {bg["chosen"]["family"]: bg["chosen"], bg["other"]["family"]: bg["other"]}
     adap90 = [o["adap90"] for o in d.get("objects", []) if o.get("adap90") is not None]
@@ -180,9 +181,13 @@ class ResultsIndex:
             return cls._open_bench(root)
         if (root / "record.json").is_file():
             status = {"meta": {"model": "-", "category": None}, "rrd": None}
-            clip = _from_record_json(root.name, status, root)
-            d = json.loads((root / "record.json").read_text())
-            return cls(root, [clip], ScoreConfig.from_dict(d["config"]), d.get("config_hash"), "record")
+            try:
+                d = json.loads((root / "record.json").read_text())
+                clip = _from_record_json(root.name, status, root, d)
+                config = ScoreConfig.from_dict(d["config"])
+            except (json.JSONDecodeError, KeyError, TypeError) as exc:
+                raise ResultsError(f"{root / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc})") from None
+            return cls(root, [clip], config, d.get("config_hash"), "record")
         raise ResultsError(f"{root} holds neither bench.json (from `geocon bench`) nor record.json (from `geocon score --out`)")
 
     @classmethod

@@ -291,6 +291,11 @@ def test_bad_results_folders_are_refused(tmp_path):
     (tmp_path / "bench.json").write_text(json.dumps({"format": "something-else"}))
     with pytest.raises(ResultsError, match="not a GeoCon benchmark manifest"):
         ResultsIndex.open(tmp_path)
+    record = tmp_path / "record"
+    record.mkdir()
+    (record / "record.json").write_text("{not json")
+    with pytest.raises(ResultsError, match="not a readable GeoCon record"):
+        ResultsIndex.open(record)
     proc = subprocess.run([*GEOCON, "serve", str(tmp_path / "nowhere"), "--port", "0"], capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0 and "does not exist" in proc.stderr
 
