@@ -18,7 +18,7 @@ import numpy as np
 
 from .geometry import sampson_distance, symmetric_transfer_error, to_homogeneous
 
-__all__ = ["usac_params", "ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_stats", "segment_order", "segment_inlier_stats"]
+__all__ = ["usac_params", "ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_mask", "inlier_stats", "segment_order", "segment_inlier_stats"]
 
 Family = Literal["H", "F"]
 
@@ -56,10 +56,14 @@ class ModelFit:
         return int(np.count_nonzero(self.inliers))
 
 
+def inlier_mask(residuals: np.ndarray, tau: float) -> np.ndarray:
+    """The inlier rule of the fits and of every re-gating: stored float32 residual <= ``tau``."""
+    return residuals <= np.float32(tau)
+
+
 def inlier_stats(residuals: np.ndarray, residuals_px: np.ndarray, tau: float) -> tuple[np.ndarray, float | None, float | None]:
-    """Inlier mask, IR and GE from stored float32 residuals at threshold ``tau`` (the rule every
-    re-gating uses)."""
-    inl = residuals <= np.float32(tau)
+    """Inlier mask (:func:`inlier_mask`), IR and GE from stored float32 residuals at threshold ``tau``."""
+    inl = inlier_mask(residuals, tau)
     n = residuals.shape[0]
     if n == 0:
         return inl, None, None
@@ -89,7 +93,7 @@ def segment_inlier_stats(
     if order is None:
         order = segment_order(residuals_px, offsets)
     vals = residuals_px[order]
-    inl = residuals[order] <= np.float32(tau)  # a permutation within pairs: counts per pair unchanged
+    inl = inlier_mask(residuals[order], tau)  # a permutation within pairs: counts per pair unchanged
     cum = np.concatenate(([0], np.cumsum(inl, dtype=np.int64)))
     k = cum[offsets[1:]] - cum[offsets[:-1]]
     ge = np.full(len(n), np.nan)
@@ -167,9 +171,9 @@ def fit_homography(
     if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-12:
         return _failed("H", "model_failed", n, tau)
     best = _h_residuals(H, x1, x2)
-    best_k = int(np.count_nonzero(best <= np.float32(tau)))
+    best_k = int(np.count_nonzero(inlier_mask(best, tau)))
     for _ in range(refine_steps):  # least-squares refit on the inliers, kept while it helps
-        inl = best <= np.float32(tau)
+        inl = inlier_mask(best, tau)
         if np.count_nonzero(inl) < 8:
             break
         try:
@@ -179,7 +183,7 @@ def fit_homography(
         if H_ref is None or abs(np.linalg.det(H_ref)) < 1e-12:
             break
         res = _h_residuals(H_ref, x1, x2)
-        k = int(np.count_nonzero(res <= np.float32(tau)))
+        k = int(np.count_nonzero(inlier_mask(res, tau)))
         if k < best_k or (k == best_k and np.median(res[res <= tau]) >= np.median(best[best <= tau])):
             break
         H, best, best_k = H_ref, res, k
@@ -249,14 +253,14 @@ def fit_fundamental(
         return _failed("F", "model_failed", n, tau)
     F_hat = _rank2(np.linalg.inv(T2).T @ F_px @ np.linalg.inv(T1))
     best = sampson_distance(F_hat, n1, n2).astype(np.float32)
-    best_k = int(np.count_nonzero(best <= np.float32(tau)))
+    best_k = int(np.count_nonzero(inlier_mask(best, tau)))
     for _ in range(refine_steps):  # 8-point refit on the inliers, kept only if it gains inliers
-        inl = best <= np.float32(tau)
+        inl = inlier_mask(best, tau)
         if np.count_nonzero(inl) < 8:
             break
         F_ref = _eight_point(n1[inl], n2[inl])
         res = sampson_distance(F_ref, n1, n2).astype(np.float32)
-        k = int(np.count_nonzero(res <= np.float32(tau)))
+        k = int(np.count_nonzero(inlier_mask(res, tau)))
         if k <= best_k:
             break
         F_hat, best, best_k = F_ref, res, k

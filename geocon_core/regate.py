@@ -20,7 +20,7 @@ import numpy as np
 
 from .config import ScoreConfig
 from .gate import gate_decision
-from .models import segment_inlier_stats, segment_order
+from .models import inlier_mask, segment_inlier_stats, segment_order
 from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_record_json
 
 __all__ = [
@@ -165,12 +165,12 @@ def regate_pairs(record: "ClipRecord | Residuals", family: Family, tau: float, *
 
 
 def pair_inliers(record: "ClipRecord | Residuals", index: int, family: Family, tau: float) -> np.ndarray:
-    """The inlier mask of pair ``index``'s matches under ``family`` at threshold ``tau`` (the rule
-    of every re-gating: stored residual <= tau)."""
+    """The inlier mask of pair ``index``'s matches under ``family`` at threshold ``tau``
+    (:func:`~geocon_core.models.inlier_mask`)."""
     if family not in ("H", "F"):
         raise ValueError(f"family must be 'H' or 'F', got {family!r}")
     res = record.matches.h_res if family == "H" else record.matches.f_res
-    return res[record.matches.rows(index)] <= np.float32(tau)
+    return inlier_mask(res[record.matches.rows(index)], tau)
 
 
 def regate_family(record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None) -> Regated:
@@ -304,8 +304,7 @@ class ResidualArrays:
 
     NAMES = ("offsets", "h_res", "f_res", "f_res_px")
 
-    def rows(self, index: int) -> slice:
-        return slice(int(self.offsets[index]), int(self.offsets[index + 1]))
+    rows = MatchArrays.rows
 
 
 @dataclass(frozen=True, eq=False)
@@ -329,11 +328,6 @@ class Residuals:
         """Derive now what the first re-gate would (pair arrays, residual orders); returns self."""
         _pair_table(self)
         return self
-
-    @classmethod
-    def load(cls, folder: str | Path) -> "Residuals":
-        """Read only the residuals of the record in ``folder`` (``record.json`` + ``matches.npz``)."""
-        return load_residuals(folder)
 
 
 def load_residuals(folder: str | Path) -> Residuals:

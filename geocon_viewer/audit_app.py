@@ -64,6 +64,11 @@ def _fmt(v: float | None, spec: str = ".3f") -> str:
     return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:{spec}}"
 
 
+def _thumb(img: np.ndarray) -> np.ndarray:
+    """A frame at the frustums' thumbnail width (256 px)."""
+    return cv2.resize(img, (256, max(1, round(256 * img.shape[0] / img.shape[1]))), interpolation=cv2.INTER_AREA)
+
+
 def _object_color(object_id: int) -> tuple[int, int, int]:
     import colorsys
 
@@ -85,6 +90,8 @@ class ClipView:
     frames_ready: threading.Event = field(default_factory=threading.Event)
     frames_error: str | None = None
     cancel: threading.Event = field(default_factory=threading.Event)
+    frustums: dict[int, Any] = field(default_factory=dict)
+    """Scene handles of the first/last camera by frame index (their images arrive with the frames)."""
 
     @property
     def num_frames(self) -> int:
@@ -387,7 +394,11 @@ class AuditApp:
                 if view.display_scale < 1.0:
                     img = cv2.resize(img, None, fx=view.display_scale, fy=view.display_scale, interpolation=cv2.INTER_AREA)
                 view.frames[f.index] = img
-                if f.index == self.frame and view is self.view:
+                if view is not self.view:
+                    continue
+                if f.index in view.frustums:
+                    view.frustums[f.index].image = _thumb(img)
+                if f.index == self.frame:
                     self._render_frame()
         except (ClipError, OSError, ValueError) as exc:
             view.frames_error = f"frames not shown: {exc}"
@@ -426,8 +437,9 @@ class AuditApp:
                 return rec.matches.x1[rec.matches.rows(p.index)] / s, pair_inliers(rec, p.index, v.model, tau)
         return None
 
-    def frame_image(self, t: int) -> np.ndarray | None:
-        """The frame shown for ``t`` with the chosen overlays (None before it is decoded)."""
+    def frame_image(self, t: int, matches: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
+        """The frame shown for ``t`` with the chosen overlays (None before it is decoded);
+        ``matches`` is :meth:`frame_matches` of ``t`` when the caller has it already."""
         view = self.view
         if view is None or t not in view.frames:
             return None
@@ -440,8 +452,9 @@ class AuditApp:
                 for oid in np.unique(small[small > 0]):
                     m = small == oid
                     img[m] = (0.5 * img[m] + 0.5 * np.array(_object_color(int(oid)))).astype(np.uint8)
-        matches = self.frame_matches(t) if self.show_matches.value else None
-        if matches is not None:
+        if self.show_matches.value and matches is None:
+            matches = self.frame_matches(t)
+        if self.show_matches.value and matches is not None:
             xy, inl = matches
             r = max(2, round(3 * k * 1.5))
             for (x, y), ok in zip(xy * k, inl):
@@ -452,10 +465,10 @@ class AuditApp:
         view, t = self.view, self.frame
         if view is None:
             return
-        img = self.frame_image(t)
+        matches = self.frame_matches(t)
+        img = self.frame_image(t, matches)
         if img is not None:
             self.image.image = img
-        matches = self.frame_matches(t)
         share = view.overlays.masked_share(t) if view.overlays is not None else None
         text = f"frame {t} of {view.num_frames - 1}"
         if matches is not None:
@@ -487,15 +500,16 @@ class AuditApp:
             depth = float(np.median(cloud.xyz[:, 2])) or 1.0
             self.cloud_handle = scene.add_point_cloud("/cloud", points=cloud.xyz.astype(np.float32), colors=cloud.rgb, point_size=0.012 * depth,
                                   precision="float32", point_shape="circle")
-        first = self._thumb(view, 0)
-        scene.add_camera_frustum("/cam_first", fov=fov, aspect=w / h, scale=0.08 * depth, thickness=0.004 * depth, color=(90, 200, 255), image=first,
-                                 format="jpeg", jpeg_quality=80)
+        def frustum(name: str, t: int, color: tuple[int, int, int], **pose: Any) -> None:
+            img = view.frames.get(t)
+            view.frustums[t] = scene.add_camera_frustum(name, fov=fov, aspect=w / h, scale=0.08 * depth, thickness=0.004 * depth, color=color,
+                                                        image=None if img is None else _thumb(img), format="jpeg", jpeg_quality=80, **pose)
+
+        frustum("/cam_first", 0, (90, 200, 255))
         T = rec.gate.pose.get("T_cam0_camT")
         if T is not None:
             T = np.asarray(T, dtype=float)
-            last = self._thumb(view, view.num_frames - 1)
-            scene.add_camera_frustum("/cam_last", fov=fov, aspect=w / h, scale=0.08 * depth, thickness=0.004 * depth, color=(255, 180, 60), image=last,
-                                     format="jpeg", jpeg_quality=80, wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz, position=T[:3, 3])
+            frustum("/cam_last", view.num_frames - 1, (255, 180, 60), wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz, position=T[:3, 3])
             if np.linalg.norm(T[:3, 3]) > 0:
                 scene.add_line_segments("/baseline", np.array([[[0, 0, 0], T[:3, 3]]], np.float32), colors=(255, 255, 255), thickness=2.0, thickness_units="screen")
         note = "no point cloud" if cloud is None else cloud.note
@@ -508,26 +522,6 @@ class AuditApp:
             client.camera.look_at = cam.look_at
             client.camera.position = cam.position
             client.camera.up_direction = cam.up
-
-    def _thumb(self, view: ClipView, t: int) -> np.ndarray | None:
-        """Frame t decoded now at thumbnail size for the frustums (first and last only)."""
-        from geocon_core.reader import ClipError, ClipInfo, iter_frames
-
-        if t in view.frames:
-            img = view.frames[t]
-        else:
-            try:
-                info = ClipInfo.from_dict(view.record.video)
-                img = None
-                for f in iter_frames(info):
-                    if f.index == t:
-                        img = f.rgb
-                        break
-            except (ClipError, OSError, ValueError):
-                return None
-        if img is None:
-            return None
-        return cv2.resize(img, (256, max(1, round(256 * img.shape[0] / img.shape[1]))), interpolation=cv2.INTER_AREA)
 
     def _render_plots(self) -> None:
         view, v = self.view, self.verdict

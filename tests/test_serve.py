@@ -164,6 +164,12 @@ def test_selecting_a_clip_loads_its_point_cloud_and_frames(app, results):
         assert clip_id in app.card_md.content
     assert app.view.frames_ready.wait(60) and app.view.frames_error is None
     assert len(app.view.frames) == app.view.num_frames == 16
+    # both cameras show their frame once it is decoded: first and last, at thumbnail width
+    assert sorted(app.view.frustums) == [0, 15]
+    for t, handle in app.view.frustums.items():
+        frame = app.view.frames[t]
+        assert handle.image is not None and handle.image.shape == (round(256 * frame.shape[0] / frame.shape[1]), 256, 3)
+        assert abs(float(handle.image.mean()) - float(frame.mean())) < 2.0, "the camera shows its own frame"
 
 
 def test_frame_slider_shows_the_pairs_inliers_under_the_thresholds(app, results):
