@@ -97,7 +97,9 @@ def main() -> None:
     ap.add_argument("--preset", default=None, help="paper or strict (default: both)")
     ap.add_argument("--memory", action="store_true", help="compare peak memory at 120 and 480 frames")
     ap.add_argument("--matcher", default="sift")
-    ap.add_argument("--rrd", action="store_true", help="time and size of the Rerun recording (paper preset, motion masks)")
+    ap.add_argument(
+        "--rrd", action="store_true", help="time and size of the Rerun recording (paper preset, motion masks)"
+    )
     ap.add_argument("--child", nargs=5, metavar=("CLIP", "PRESET", "MASKS", "MATCHER", "RRD"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -113,9 +115,11 @@ def main() -> None:
         for name in presets:
             for masks in ("none", "motion"):
                 r = _child(path, name, masks, args.matcher, "-")
-                print(f"{args.size} x {r['frames']} frames, {r['preset']:6} {args.matcher} masks={masks:6} ({r['objects']} objects): "
-                      f"{r['fps']:6.2f} frames/s  wall {r['wall_s']:6.1f} s  peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
-                      flush=True)
+                print(
+                    f"{args.size} x {r['frames']} frames, {r['preset']:6} {args.matcher} masks={masks:6} ({r['objects']} objects): "
+                    f"{r['fps']:6.2f} frames/s  wall {r['wall_s']:6.1f} s  peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

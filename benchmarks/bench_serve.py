@@ -70,8 +70,12 @@ def build_results(root: Path, n_clips: int, frames: int) -> Path:
 def time_cli(results: Path) -> tuple[float, float, str]:
     """Seconds from launching `geocon serve` to its printed address and to the page's first 200."""
     start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "geocon_viewer.cli", "serve", str(results), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "geocon_viewer.cli", "serve", str(results), "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout is not None
         line = ""
@@ -97,7 +101,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=24)
     group = ap.add_mutually_exclusive_group()
     group.add_argument("--keep", type=Path, default=None, help="Keep the results folder here.")
-    group.add_argument("--results", type=Path, default=None, help="Measure this results folder instead of building one.")
+    group.add_argument(
+        "--results", type=Path, default=None, help="Measure this results folder instead of building one."
+    )
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         if args.results is not None:
@@ -106,7 +112,9 @@ def main() -> None:
         else:
             t0 = time.perf_counter()
             results = build_results(Path(tmp), args.clips, args.frames)
-            print(f"results: {args.clips} clips of {args.frames} frames (320x180) built in {time.perf_counter() - t0:.0f} s")
+            print(
+                f"results: {args.clips} clips of {args.frames} frames (320x180) built in {time.perf_counter() - t0:.0f} s"
+            )
 
         ready, page, line = time_cli(results)
         print(f"geocon serve, with tables:    address printed after {ready:.2f} s, page served after {page:.2f} s")
@@ -117,7 +125,9 @@ def main() -> None:
             ready_nt, page_nt, _ = time_cli(results)
         finally:
             shutil.move(Path(tmp) / "tables-aside", tables)
-        print(f"geocon serve, without tables: address printed after {ready_nt:.2f} s, page served after {page_nt:.2f} s")
+        print(
+            f"geocon serve, without tables: address printed after {ready_nt:.2f} s, page served after {page_nt:.2f} s"
+        )
 
         from geocon_core.results import ResultsIndex
         from geocon_viewer.audit_app import AuditApp

@@ -32,8 +32,15 @@ from .config import ScoreConfig, config_hash
 from .dataset import ClipEntry, load_dataset
 
 __all__ = [
-    "BENCH_FORMAT", "STATUS_FORMAT", "BenchError", "BenchSummary", "clip_dir", "is_flagged", "run_bench",
-    "read_status", "score_to_folder",
+    "BENCH_FORMAT",
+    "STATUS_FORMAT",
+    "BenchError",
+    "BenchSummary",
+    "clip_dir",
+    "is_flagged",
+    "run_bench",
+    "read_status",
+    "score_to_folder",
 ]
 
 BENCH_FORMAT = "geocon-bench/1"
@@ -88,7 +95,11 @@ def is_flagged(summary: dict[str, Any], expected_model: str | None) -> bool:
     """A clip worth auditing: it fails the report gate (or cannot be judged), has no pose, or its
     gate disagrees with the expected model of its category."""
     bg, gate = summary["background"], summary["gate"]
-    return bg["consistent"] is not True or not gate["pose_present"] or (expected_model is not None and gate["model"] != expected_model)
+    return (
+        bg["consistent"] is not True
+        or not gate["pose_present"]
+        or (expected_model is not None and gate["model"] != expected_model)
+    )
 
 
 def score_to_folder(
@@ -132,7 +143,9 @@ def _load_renderer(spec: str | None) -> Callable[[Path, Path], Any] | None:
     return getattr(importlib.import_module(module), name)
 
 
-def _score_one(entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: str | None, threads: int) -> dict[str, Any]:
+def _score_one(
+    entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: str | None, threads: int
+) -> dict[str, Any]:
     """Worker: score one clip into its folder and write its status (ok or failed)."""
     import cv2
 
@@ -145,8 +158,15 @@ def _score_one(entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer
     out.mkdir(parents=True)
     start = time.perf_counter()
     status: dict[str, Any] = {
-        "format": STATUS_FORMAT, "clip_id": entry.clip_id, "status": "ok", "error": None, "traceback": None,
-        "config_hash": config_hash(cfg), "meta": entry.meta, "video": str(entry.video), "rrd": None,
+        "format": STATUS_FORMAT,
+        "clip_id": entry.clip_id,
+        "status": "ok",
+        "error": None,
+        "traceback": None,
+        "config_hash": config_hash(cfg),
+        "meta": entry.meta,
+        "video": str(entry.video),
+        "rrd": None,
     }
     try:
         record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
@@ -181,10 +201,16 @@ def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
         return
     results.mkdir(parents=True, exist_ok=True)
     (results / CLIPS_DIR).mkdir(exist_ok=True)
-    _write_json(manifest, {
-        "format": BENCH_FORMAT, "dataset": str(dataset.resolve()), "config": cfg.to_dict(), "config_hash": digest,
-        "versions": software_versions(),
-    })
+    _write_json(
+        manifest,
+        {
+            "format": BENCH_FORMAT,
+            "dataset": str(dataset.resolve()),
+            "config": cfg.to_dict(),
+            "config_hash": digest,
+            "versions": software_versions(),
+        },
+    )
 
 
 def run_bench(
@@ -237,7 +263,9 @@ def run_bench(
             while queue or inflight:
                 while queue and len(inflight) < limit and not broken:
                     entry = queue.pop(0)
-                    fut = pool.submit(_score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), renderer, threads)
+                    fut = pool.submit(
+                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), renderer, threads
+                    )
                     inflight[fut] = entry
                 if not inflight:
                     break
@@ -270,17 +298,31 @@ def run_bench(
         from .tables import write_tables
 
         paths = write_tables(out)
-    return BenchSummary(results=out, total=len(entries), scored=len(todo), skipped=skipped, failed=failed,
-                        seconds=time.perf_counter() - start, tables=paths)
+    return BenchSummary(
+        results=out,
+        total=len(entries),
+        scored=len(todo),
+        skipped=skipped,
+        failed=failed,
+        seconds=time.perf_counter() - start,
+        tables=paths,
+    )
 
 
 def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any]:
     folder = clip_dir(results, entry.clip_id)
     folder.mkdir(parents=True, exist_ok=True)
     status = {
-        "format": STATUS_FORMAT, "clip_id": entry.clip_id, "status": "failed", "traceback": None, "rrd": None,
+        "format": STATUS_FORMAT,
+        "clip_id": entry.clip_id,
+        "status": "failed",
+        "traceback": None,
+        "rrd": None,
         "error": f"the worker process died {MAX_CRASHES} times while scoring this clip (out of memory or a crash in a native library)",
-        "config_hash": config_hash(cfg), "meta": entry.meta, "video": str(entry.video), "seconds": None,
+        "config_hash": config_hash(cfg),
+        "meta": entry.meta,
+        "video": str(entry.video),
+        "seconds": None,
     }
     _write_json(folder / "status.json", status)
     return status

@@ -24,7 +24,15 @@ from typing import Any
 
 from .record import Category
 
-__all__ = ["categorize", "STATIC_MOTION_PX", "STATIC_ROTATION_DEG", "COMPLEX_ROTATION_DEG", "MIN_OBJECT_FRAMES", "MIN_MATCHES", "STRESS_IR"]
+__all__ = [
+    "categorize",
+    "STATIC_MOTION_PX",
+    "STATIC_ROTATION_DEG",
+    "COMPLEX_ROTATION_DEG",
+    "MIN_OBJECT_FRAMES",
+    "MIN_MATCHES",
+    "STRESS_IR",
+]
 
 STATIC_MOTION_PX = 0.5
 """Median background displacement between adjacent frames (working px, scale 1) below which

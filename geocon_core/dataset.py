@@ -33,7 +33,17 @@ CATEGORIES = ("C1", "C2", "C3", "C4", "C5", "C6")
 EXPECTED_MODEL = {"C1": "H", "C2": "H", "C4": "H", "C3": "F", "C5": "F", "C6": "F"}
 """The expected rule (SPEC section 6): the background model each category should gate to."""
 REQUIRED_FIELDS = (
-    "clip_id", "prompt", "model", "model_version", "seed", "resolution", "fps", "duration", "masks_path", "category", "scene_id",
+    "clip_id",
+    "prompt",
+    "model",
+    "model_version",
+    "seed",
+    "resolution",
+    "fps",
+    "duration",
+    "masks_path",
+    "category",
+    "scene_id",
 )
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv")
 _CLIP_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+=-]{0,199}$")
@@ -90,18 +100,26 @@ def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
         problems.append(f"{name}: missing field{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
     cid = meta.get("clip_id")
     if "clip_id" in meta and (not isinstance(cid, str) or not _CLIP_ID.match(cid)):
-        problems.append(f"{name}: clip_id {cid!r} must be a string of letters, digits and . _ + = - (it names the result folder)")
+        problems.append(
+            f"{name}: clip_id {cid!r} must be a string of letters, digits and . _ + = - (it names the result folder)"
+        )
     for key in ("model", "scene_id", "prompt"):
         if key in meta and (meta[key] is None or str(meta[key]).strip() == ""):
             problems.append(f"{name}: {key} is empty")
     if "category" in meta and meta["category"] not in CATEGORIES:
         problems.append(f"{name}: unknown category {meta['category']!r} (expected one of {', '.join(CATEGORIES)})")
-    if "fps" in meta and not (isinstance(meta["fps"], (int, float)) and not isinstance(meta["fps"], bool) and meta["fps"] > 0):
+    if "fps" in meta and not (
+        isinstance(meta["fps"], (int, float)) and not isinstance(meta["fps"], bool) and meta["fps"] > 0
+    ):
         problems.append(f"{name}: fps must be a positive number, got {meta['fps']!r}")
-    if "duration" in meta and not (isinstance(meta["duration"], (int, float)) and not isinstance(meta["duration"], bool) and meta["duration"] >= 0):
+    if "duration" in meta and not (
+        isinstance(meta["duration"], (int, float)) and not isinstance(meta["duration"], bool) and meta["duration"] >= 0
+    ):
         problems.append(f"{name}: duration must be a non-negative number (seconds), got {meta['duration']!r}")
     res = meta.get("resolution")
-    if "resolution" in meta and not (isinstance(res, list) and len(res) == 2 and all(isinstance(v, int) and v > 0 for v in res)):
+    if "resolution" in meta and not (
+        isinstance(res, list) and len(res) == 2 and all(isinstance(v, int) and v > 0 for v in res)
+    ):
         problems.append(f"{name}: resolution must be [width, height] in pixels, got {res!r}")
     if "seed" in meta and meta["seed"] is not None and not isinstance(meta["seed"], (int, str)):
         problems.append(f"{name}: seed must be an integer or a string, got {meta['seed']!r}")
@@ -143,7 +161,9 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
             mine.append(f"{name}: clip_id {cid!r} is also used by {seen[cid].relative_to(base)}")
         video = _find_video(sidecar, meta)
         if video is None:
-            mine.append(f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another video, or a 'video' field)")
+            mine.append(
+                f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another video, or a 'video' field)"
+            )
         elif not video.exists():
             mine.append(f"{name}: clip file {meta.get('video')} does not exist")
         elif check_clips:
@@ -161,7 +181,15 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
             continue
         seen[cid] = sidecar
         assert video is not None
-        entries.append(ClipEntry(clip_id=cid, video=video.resolve(), masks=None if masks is None else masks.resolve(), sidecar=sidecar.resolve(), meta=meta))
+        entries.append(
+            ClipEntry(
+                clip_id=cid,
+                video=video.resolve(),
+                masks=None if masks is None else masks.resolve(),
+                sidecar=sidecar.resolve(),
+                meta=meta,
+            )
+        )
     if problems:
         raise DatasetError(base, problems)
     return sorted(entries, key=lambda e: e.clip_id)

@@ -32,7 +32,15 @@ import numpy as np
 
 from .reader import Frame
 
-__all__ = ["ObjectFlow", "FrameDiagnostics", "flow_hue", "OverlayWriter", "Overlays", "read_overlays", "OVERLAYS_FORMAT"]
+__all__ = [
+    "ObjectFlow",
+    "FrameDiagnostics",
+    "flow_hue",
+    "OverlayWriter",
+    "Overlays",
+    "read_overlays",
+    "OVERLAYS_FORMAT",
+]
 
 OVERLAYS_FORMAT = "geocon-overlays/1"
 OVERLAYS_DIR = "overlays"
@@ -115,7 +123,16 @@ class OverlayWriter:
             rgba, vmax = flow_hue(of.flow, of.reliable & of.mask)
             name = f"flow-{fd.index:05d}-{of.object_id:03d}.png"
             _imwrite(self.dir / name, cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
-            entry["flows"].append({"object_id": of.object_id, "t0": of.t0, "t1": of.t1, "box": list(of.box), "file": name, "max_magnitude": vmax})
+            entry["flows"].append(
+                {
+                    "object_id": of.object_id,
+                    "t0": of.t0,
+                    "t1": of.t1,
+                    "box": list(of.box),
+                    "file": name,
+                    "max_magnitude": vmax,
+                }
+            )
         self.frames[str(fd.index)] = entry
 
     def close(self) -> Path:

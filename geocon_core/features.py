@@ -189,7 +189,9 @@ class KltMatcher:
     def match(self, a: FeatureSet, b: FeatureSet) -> tuple[np.ndarray, np.ndarray]:
         if len(a) == 0:
             return np.zeros((0, 2)), np.zeros((0, 2))
-        params = dict(winSize=(21, 21), maxLevel=4, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+        params = dict(
+            winSize=(21, 21), maxLevel=4, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        )
         p0 = a.xy.reshape(-1, 1, 2)
         p1, st1, _ = cv2.calcOpticalFlowPyrLK(a.image, b.image, p0, None, **params)
         p0b, st2, _ = cv2.calcOpticalFlowPyrLK(b.image, a.image, p1, None, **params)

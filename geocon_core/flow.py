@@ -53,7 +53,15 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-__all__ = ["FlowField", "FlowBackend", "DisFlow", "FLOW_BACKENDS", "DIS_PRESETS", "make_flow_backend", "forward_backward"]
+__all__ = [
+    "FlowField",
+    "FlowBackend",
+    "DisFlow",
+    "FLOW_BACKENDS",
+    "DIS_PRESETS",
+    "make_flow_backend",
+    "forward_backward",
+]
 
 Box = tuple[int, int, int, int]
 
@@ -107,9 +115,7 @@ class FlowBackend(Protocol):
         ...
 
 
-def forward_backward(
-    fwd: np.ndarray, bwd: np.ndarray, fb_abs: float, fb_rel: float
-) -> tuple[np.ndarray, np.ndarray]:
+def forward_backward(fwd: np.ndarray, bwd: np.ndarray, fb_abs: float, fb_rel: float) -> tuple[np.ndarray, np.ndarray]:
     """``(fb_error, reliable)`` of the forward flow ``fwd`` (h, w, 2) given the backward flow
     ``bwd`` (h, w, 2) of the same region (the rule in the module docstring)."""
     h, w = fwd.shape[:2]
@@ -128,7 +134,9 @@ def forward_backward(
 def _check_images(gray0: np.ndarray, gray1: np.ndarray) -> None:
     for name, g in (("gray0", gray0), ("gray1", gray1)):
         if not isinstance(g, np.ndarray) or g.ndim != 2 or g.dtype != np.uint8:
-            raise ValueError(f"{name} must be an (h, w) uint8 grey image, got {getattr(g, 'shape', None)} {getattr(g, 'dtype', type(g))}")
+            raise ValueError(
+                f"{name} must be an (h, w) uint8 grey image, got {getattr(g, 'shape', None)} {getattr(g, 'dtype', type(g))}"
+            )
     if gray0.shape != gray1.shape:
         raise ValueError(f"gray0 and gray1 differ in size: {gray0.shape} vs {gray1.shape}")
     if min(gray0.shape) < 2:
@@ -207,12 +215,14 @@ class DisFlow:
         sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
         out = []
         for flow, err, rel in ((fwd, err_f, rel_f), (bwd, err_b, rel_b)):
-            out.append(FlowField(
-                box=(x0, y0, x1, y1),
-                flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
-                reliable=np.ascontiguousarray(rel[sl]),
-                fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
-            ))
+            out.append(
+                FlowField(
+                    box=(x0, y0, x1, y1),
+                    flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
+                    reliable=np.ascontiguousarray(rel[sl]),
+                    fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
+                )
+            )
         return out[0], out[1]
 
 
@@ -236,5 +246,7 @@ def make_flow_backend(name: str, **kwargs: Any) -> FlowBackend:
     if key == "raft":
         raise ValueError(_raft_missing())
     if key not in FLOW_BACKENDS:
-        raise ValueError(f"unknown flow backend {name!r}; valid: {', '.join(FLOW_BACKENDS)} (raft needs torch and a checkpoint)")
+        raise ValueError(
+            f"unknown flow backend {name!r}; valid: {', '.join(FLOW_BACKENDS)} (raft needs torch and a checkpoint)"
+        )
     return FLOW_BACKENDS[key](**kwargs)

@@ -50,9 +50,7 @@ def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray
     if not (0.0 < fov_x_deg < 180.0):
         raise ValueError(f"fov_x_deg must be in (0, 180), got {fov_x_deg}")
     f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2.0)
-    return np.array(
-        [[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]]
-    )
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
 def rotation_xyz(yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
@@ -102,9 +100,7 @@ def homography_from_rotation(K: np.ndarray, R_2from1: np.ndarray) -> np.ndarray:
     return K @ R_2from1 @ np.linalg.inv(K)
 
 
-def homography_from_plane(
-    K1: np.ndarray, K2: np.ndarray, T_2_1: np.ndarray, m_1: np.ndarray
-) -> np.ndarray:
+def homography_from_plane(K1: np.ndarray, K2: np.ndarray, T_2_1: np.ndarray, m_1: np.ndarray) -> np.ndarray:
     """Homography induced by the plane ``{X_1 : m_1 . X_1 = 1}`` (plane vector ``m = n / d`` in
     camera-1 coordinates) between two views with ``X_2 = T_2_1 X_1``:
     ``H_2from1 = K2 (R + t m^T) K1^-1``."""

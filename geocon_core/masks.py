@@ -475,7 +475,11 @@ class MotionSegmenter(_Coverage):
         self.fit_tau_px, self.static_px, self.f_gain = float(fit_tau_px), float(static_px), float(f_gain)
         self.k_sigma, self.min_px = float(k_sigma), float(min_px)
         self.min_area, self.max_area = float(min_area), float(max_area)
-        self.min_solidity, self.min_thickness, self.edge_ratio = float(min_solidity), float(min_thickness), float(edge_ratio)
+        self.min_solidity, self.min_thickness, self.edge_ratio = (
+            float(min_solidity),
+            float(min_thickness),
+            float(edge_ratio),
+        )
         self.refine = float(refine)
         self.halo_px = int(halo_px)
         self._halo_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * self.halo_px + 1, 2 * self.halo_px + 1))
@@ -528,7 +532,9 @@ class MotionSegmenter(_Coverage):
             raise ValueError(f"frames must be pushed in order: expected frame {self._pushed}, got {p}")
         W, H = self.info.working_size
         if frame.gray.shape != (H, W):
-            raise ValueError(f"frame {p} is {frame.gray.shape[1]}x{frame.gray.shape[0]}, expected the {W}x{H} working canvas")
+            raise ValueError(
+                f"frame {p} is {frame.gray.shape[1]}x{frame.gray.shape[0]}, expected the {W}x{H} working canvas"
+            )
         self._pushed += 1
         if p > 0 and p in self._dups:
             # an exact repeat: same labels as the frame it repeats; no new evidence
@@ -574,7 +580,9 @@ class MotionSegmenter(_Coverage):
         if self._finished and t >= self._pushed:
             raise ValueError(f"frame {t} was never pushed (finish() came after {self._pushed} frames)")
         if not self._available(t):
-            raise ValueError(f"labels of frame {t} are not final before frame {t + self.lookahead} is pushed or finish() is called")
+            raise ValueError(
+                f"labels of frame {t} are not final before frame {t + self.lookahead} is pushed or finish() is called"
+            )
         if self._cache is not None and self._cache[0] == t:
             return self._cache[1]
         seg = self._segs[t]
@@ -682,7 +690,9 @@ class MotionSegmenter(_Coverage):
         score = (res * np.float32(1.0 / thr)).astype(np.float32)
         return _Side(score=score, flow=flow, reliable=rel, direction=direction, regime=regime, threshold=thr)
 
-    def _wrong_way(self, Fm: np.ndarray, p1: np.ndarray, p2: np.ndarray, x2: np.ndarray, y2: np.ndarray) -> np.ndarray | None:
+    def _wrong_way(
+        self, Fm: np.ndarray, p1: np.ndarray, p2: np.ndarray, x2: np.ndarray, y2: np.ndarray
+    ) -> np.ndarray | None:
         """Parallax against cheirality (px, (h, w)), or None when the pose is ambiguous.
 
         The epipolar distance cannot see motion along the epipolar lines, e.g. an object
@@ -778,7 +788,9 @@ class MotionSegmenter(_Coverage):
             area = int(stats[k, cv2.CC_STAT_AREA])
             if not self._min_area_px <= area <= self._max_area_px:
                 continue
-            x, y, bw, bh = (int(stats[k, i]) for i in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
+            x, y, bw, bh = (
+                int(stats[k, i]) for i in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT)
+            )
             X0, Y0, X1, Y1 = max(0, x - pad), max(0, y - pad), min(rw, x + bw + pad), min(rh, y + bh + pad)
             piece = cc[Y0:Y1, X0:X1] == k
             if self._accept(piece, score[Y0:Y1, X0:X1], area):
@@ -883,7 +895,9 @@ def _shift(mask: np.ndarray, d: np.ndarray) -> np.ndarray:
     out = np.zeros_like(mask)
     if abs(dx) >= w or abs(dy) >= h:
         return out
-    out[max(0, dy) : h + min(0, dy), max(0, dx) : w + min(0, dx)] = mask[max(0, -dy) : h - max(0, dy), max(0, -dx) : w - max(0, dx)]
+    out[max(0, dy) : h + min(0, dy), max(0, dx) : w + min(0, dx)] = mask[
+        max(0, -dy) : h - max(0, dy), max(0, -dx) : w - max(0, dx)
+    ]
     return out
 
 
@@ -910,7 +924,9 @@ def make_mask_source(name: str, info: ClipInfo, **kwargs: Any) -> MaskSource:
     if key in ("sam2", "sam-2"):
         raise ValueError(_sam2_missing())
     if key not in MASK_SOURCES:
-        raise ValueError(f"unknown mask source {name!r}; valid: {', '.join(MASK_SOURCES)} (sam2 needs torch, the sam2 package and a checkpoint)")
+        raise ValueError(
+            f"unknown mask source {name!r}; valid: {', '.join(MASK_SOURCES)} (sam2 needs torch, the sam2 package and a checkpoint)"
+        )
     if key == "external":
         if "path" not in kwargs:
             raise ValueError("external masks need path=... (a folder of label PNGs, per-object folders or an .npz)")

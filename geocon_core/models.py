@@ -18,7 +18,17 @@ import numpy as np
 
 from .geometry import sampson_distance, symmetric_transfer_error, to_homogeneous
 
-__all__ = ["usac_params", "ModelFit", "fit_homography", "fit_fundamental", "hartley_normalisation", "inlier_mask", "inlier_stats", "segment_order", "segment_inlier_stats"]
+__all__ = [
+    "usac_params",
+    "ModelFit",
+    "fit_homography",
+    "fit_fundamental",
+    "hartley_normalisation",
+    "inlier_mask",
+    "inlier_stats",
+    "segment_order",
+    "segment_inlier_stats",
+]
 
 Family = Literal["H", "F"]
 
@@ -61,7 +71,9 @@ def inlier_mask(residuals: np.ndarray, tau: float) -> np.ndarray:
     return residuals <= np.float32(tau)
 
 
-def inlier_stats(residuals: np.ndarray, residuals_px: np.ndarray, tau: float) -> tuple[np.ndarray, float | None, float | None]:
+def inlier_stats(
+    residuals: np.ndarray, residuals_px: np.ndarray, tau: float
+) -> tuple[np.ndarray, float | None, float | None]:
     """Inlier mask (:func:`inlier_mask`), IR and GE from stored float32 residuals at threshold ``tau``."""
     inl = inlier_mask(residuals, tau)
     n = residuals.shape[0]
@@ -141,7 +153,15 @@ def usac_params(
     return p
 
 
-def _finish(family: Family, model: np.ndarray, res: np.ndarray, res_px: np.ndarray, tau: float, tau_px: float | None, min_inliers: int) -> ModelFit:
+def _finish(
+    family: Family,
+    model: np.ndarray,
+    res: np.ndarray,
+    res_px: np.ndarray,
+    tau: float,
+    tau_px: float | None,
+    min_inliers: int,
+) -> ModelFit:
     inl, ir, ge = inlier_stats(res, res_px, tau)
     k = int(np.count_nonzero(inl))
     valid, reason = (True, None) if k >= min_inliers else (False, "too_few_inliers")

@@ -191,6 +191,7 @@ class PoseEstimate:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict; :meth:`from_dict` inverts it exactly (arrays become nested lists)."""
+
         def opt(v: float | None) -> float | None:
             return None if v is None else float(v)
 
@@ -216,12 +217,26 @@ class PoseEstimate:
         return cls(**d)
 
 
-def _failure(reason: str, n_matches: int, focal_px: float, *, n_inliers: int = 0, method: str = "none",
-             parallax_px: float | None = None) -> PoseEstimate:
+def _failure(
+    reason: str,
+    n_matches: int,
+    focal_px: float,
+    *,
+    n_inliers: int = 0,
+    method: str = "none",
+    parallax_px: float | None = None,
+) -> PoseEstimate:
     return PoseEstimate(
-        pose_present=False, t_inf=None, T_cam0_camT=None, method=method, reason=reason,
-        n_matches=int(n_matches), n_inliers=int(n_inliers), rotation_deg=None,
-        parallax_px=parallax_px, focal_px=float(focal_px),
+        pose_present=False,
+        t_inf=None,
+        T_cam0_camT=None,
+        method=method,
+        reason=reason,
+        n_matches=int(n_matches),
+        n_inliers=int(n_inliers),
+        rotation_deg=None,
+        parallax_px=parallax_px,
+        focal_px=float(focal_px),
     )
 
 
@@ -455,9 +470,16 @@ class ClassicalPose:
 
         if explained and rot.inliers.sum() >= need:
             return PoseEstimate(
-                pose_present=True, t_inf=parallax / f, T_cam0_camT=make_pose(rot.R.T, np.zeros(3)), method="rotation",
-                reason=None, n_matches=n, n_inliers=int(rot.inliers.sum()),
-                rotation_deg=rotation_angle_deg(rot.R), parallax_px=parallax, focal_px=f,
+                pose_present=True,
+                t_inf=parallax / f,
+                T_cam0_camT=make_pose(rot.R.T, np.zeros(3)),
+                method="rotation",
+                reason=None,
+                n_matches=n,
+                n_inliers=int(rot.inliers.sum()),
+                rotation_deg=rotation_angle_deg(rot.R),
+                parallax_px=parallax,
+                focal_px=f,
                 focal_scale=rot.focal_scale,
             )
 
@@ -480,9 +502,17 @@ class ClassicalPose:
         if not (math.isfinite(t_inf) and np.isfinite(T).all()):
             return fail("degenerate", n_inl)
         return PoseEstimate(
-            pose_present=True, t_inf=t_inf, T_cam0_camT=T, method="essential", reason=None,
-            n_matches=n, n_inliers=n_inl, rotation_deg=rotation_angle_deg(ess.R),
-            parallax_px=parallax, focal_px=f, focal_scale=ess.focal_scale,
+            pose_present=True,
+            t_inf=t_inf,
+            T_cam0_camT=T,
+            method="essential",
+            reason=None,
+            n_matches=n,
+            n_inliers=n_inl,
+            rotation_deg=rotation_angle_deg(ess.R),
+            parallax_px=parallax,
+            focal_px=f,
+            focal_scale=ess.focal_scale,
         )
 
     # ---- rotation-only model
@@ -551,13 +581,16 @@ class ClassicalPose:
         f = _focal(K)
         thr = self.essential_px / f
         params = usac_params(
-            thr, seed, self.ransac_iters, self.confidence, lo_method=cv2.LOCAL_OPTIM_INNER_LO, polisher=cv2.NONE_POLISHER
+            thr,
+            seed,
+            self.ransac_iters,
+            self.confidence,
+            lo_method=cv2.LOCAL_OPTIM_INNER_LO,
+            polisher=cv2.NONE_POLISHER,
         )
         I3 = np.eye(3)
         try:
-            E, _ = cv2.findEssentialMat(
-                np.ascontiguousarray(n0), np.ascontiguousarray(n1), I3, I3, None, None, params
-            )
+            E, _ = cv2.findEssentialMat(np.ascontiguousarray(n0), np.ascontiguousarray(n1), I3, I3, None, None, params)
         except cv2.error:
             return None
         if E is None or E.ndim != 2 or E.shape[0] < 3 or E.shape[1] != 3 or not np.isfinite(E[:3]).all():
@@ -574,7 +607,12 @@ class ClassicalPose:
         m = int(inl.sum())
         if self.fit_focal and m > 12 and math.isfinite(cost0):
             R1, t1, s1, cost1 = _polish_essential(
-                R, t, n0[inl], n1[inl], focal_sigma=self.focal_sigma, noise=0.5 / f,
+                R,
+                t,
+                n0[inl],
+                n1[inl],
+                focal_sigma=self.focal_sigma,
+                noise=0.5 / f,
                 max_ratio=self.max_focal_ratio,
             )
             gain = (cost0 - cost1) / max(cost1 / (m - 6), 1e-300)
@@ -598,7 +636,7 @@ class ClassicalPose:
             return None
         d = np.sort(np.linalg.norm(X[ok], axis=1))
         k = int(math.floor(self.trim * len(d)))
-        d = d[k: len(d) - k]
+        d = d[k : len(d) - k]
         m = float(d.mean())
         return m if math.isfinite(m) and m > 0 else None
 
@@ -636,9 +674,7 @@ def _triangulate(n0: np.ndarray, n1: np.ndarray, R: np.ndarray, t: np.ndarray) -
     """Linear (DLT) triangulation in normalised coordinates; X in camera-0 coordinates, (N, 3)."""
     P0 = np.hstack([np.eye(3), np.zeros((3, 1))])
     P1 = np.hstack([R, np.asarray(t, dtype=float).reshape(3, 1)])
-    Xh = cv2.triangulatePoints(
-        P0, P1, np.ascontiguousarray(n0.T, dtype=float), np.ascontiguousarray(n1.T, dtype=float)
-    )
+    Xh = cv2.triangulatePoints(P0, P1, np.ascontiguousarray(n0.T, dtype=float), np.ascontiguousarray(n1.T, dtype=float))
     with np.errstate(divide="ignore", invalid="ignore"):
         return (Xh[:3] / Xh[3]).T
 
@@ -678,8 +714,14 @@ def _levenberg_marquardt(resid, apply, x, npar: int, *, h: float, iters: int = 4
 
 
 def _polish_essential(
-    R: np.ndarray, t: np.ndarray, n0: np.ndarray, n1: np.ndarray, *, focal_sigma: float | None = None,
-    noise: float = 1e-3, max_ratio: float = 1.6,
+    R: np.ndarray,
+    t: np.ndarray,
+    n0: np.ndarray,
+    n1: np.ndarray,
+    *,
+    focal_sigma: float | None = None,
+    noise: float = 1e-3,
+    max_ratio: float = 1.6,
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Levenberg-Marquardt on (rotation increment, translation direction on the sphere and,
     with ``focal_sigma``, the log of a focal scale s) minimising the Sampson distance of the
@@ -827,9 +869,16 @@ class PoseLog:
         if not self.pose_present or self.T_unit is None:
             return _failure("log_no_pose", n, f, method="log")
         return PoseEstimate(
-            pose_present=True, t_inf=self.t_inf, T_cam0_camT=self.T_unit.copy(), method="log", reason=None,
-            n_matches=n, n_inliers=0, rotation_deg=rotation_angle_deg(self.T_unit[:3, :3]),
-            parallax_px=None, focal_px=f,
+            pose_present=True,
+            t_inf=self.t_inf,
+            T_cam0_camT=self.T_unit.copy(),
+            method="log",
+            reason=None,
+            n_matches=n,
+            n_inliers=0,
+            rotation_deg=rotation_angle_deg(self.T_unit[:3, :3]),
+            parallax_px=None,
+            focal_px=f,
         )
 
 
@@ -859,5 +908,3 @@ def make_pose_backend(name: str, **kwargs: Any) -> PoseBackend:
         valid = ", ".join([*POSE_BACKENDS, "log"])
         raise ValueError(f"unknown pose backend {name!r}; valid: {valid}")
     return POSE_BACKENDS[key](**kwargs)
-
-

@@ -136,8 +136,14 @@ class ClipInfo:
             raise ValueError(f"content_box {self.content_box} is empty or outside the {W}x{H} canvas")
         for name in ("duplicates", "cuts"):
             ts = getattr(self, name)
-            if not isinstance(ts, tuple) or list(ts) != sorted(set(ts)) or any(not 1 <= t < self.num_frames for t in ts):
-                raise ValueError(f"{name} must be sorted distinct frame indices in 1..{self.num_frames - 1}, got {ts!r}")
+            if (
+                not isinstance(ts, tuple)
+                or list(ts) != sorted(set(ts))
+                or any(not 1 <= t < self.num_frames for t in ts)
+            ):
+                raise ValueError(
+                    f"{name} must be sorted distinct frame indices in 1..{self.num_frames - 1}, got {ts!r}"
+                )
 
     @property
     def content_mask(self) -> np.ndarray:
@@ -329,7 +335,9 @@ def _resolve(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
     if not path.exists():
         raise ClipError(f"{name}: no such file")
     if path.is_dir():
-        files = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()), key=_natural_key)
+        files = sorted(
+            (p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()), key=_natural_key
+        )
         if not files:
             raise ClipError(f"{name}: folder holds no PNG or JPEG frames")
         if len(files) == 1:
@@ -424,7 +432,11 @@ def _read_capture(cap: cv2.VideoCapture, name: str) -> Iterator[np.ndarray]:
 def _as_bgr(frame: np.ndarray) -> np.ndarray:
     """(h, w, 3) uint8 BGR from a decoded grey, BGR or BGRA frame."""
     if frame.dtype != np.uint8:
-        frame = cv2.convertScaleAbs(frame, alpha=255.0 / np.iinfo(frame.dtype).max) if frame.dtype.kind == "u" else frame.astype(np.uint8)
+        frame = (
+            cv2.convertScaleAbs(frame, alpha=255.0 / np.iinfo(frame.dtype).max)
+            if frame.dtype.kind == "u"
+            else frame.astype(np.uint8)
+        )
     if frame.ndim == 2 or frame.shape[2] == 1:
         return cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
     if frame.shape[2] == 4:
@@ -472,7 +484,9 @@ def _letterbox(bgr: np.ndarray, layout: _Layout, W: int, H: int) -> np.ndarray:
     return canvas
 
 
-def _content_box(source_size: tuple[int, int], bars: tuple[int, int, int, int], layout: _Layout) -> tuple[int, int, int, int]:
+def _content_box(
+    source_size: tuple[int, int], bars: tuple[int, int, int, int], layout: _Layout
+) -> tuple[int, int, int, int]:
     """(x0, y0, x1, y1) end-exclusive working pixels lying wholly inside the unbarred source,
     less :data:`BAR_MARGIN_PX` on each side with a bar."""
     (w, h), (sw, sh), (ox, oy) = source_size, layout.scaled_size, layout.offset

@@ -109,7 +109,15 @@ class MatchArrays:
 
     def __post_init__(self) -> None:
         m = int(self.offsets[-1]) if len(self.offsets) else 0
-        shapes = {"x1": (m, 2), "x2": (m, 2), "h_res": (m,), "f_res": (m,), "f_res_px": (m,), "h_inl": (m,), "f_inl": (m,)}
+        shapes = {
+            "x1": (m, 2),
+            "x2": (m, 2),
+            "h_res": (m,),
+            "f_res": (m,),
+            "f_res_px": (m,),
+            "h_inl": (m,),
+            "f_inl": (m,),
+        }
         for name, shape in shapes.items():
             if getattr(self, name).shape != shape:
                 raise ValueError(f"MatchArrays.{name} must have shape {shape}, got {getattr(self, name).shape}")
@@ -131,8 +139,15 @@ class MatchArrays:
         counts = [len(p["x1"]) for p in per_pair]
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         cat = {}
-        for name, dtype, shape in (("x1", np.float32, (0, 2)), ("x2", np.float32, (0, 2)), ("h_res", np.float32, (0,)),
-                                   ("f_res", np.float32, (0,)), ("f_res_px", np.float32, (0,)), ("h_inl", bool, (0,)), ("f_inl", bool, (0,))):
+        for name, dtype, shape in (
+            ("x1", np.float32, (0, 2)),
+            ("x2", np.float32, (0, 2)),
+            ("h_res", np.float32, (0,)),
+            ("f_res", np.float32, (0,)),
+            ("f_res_px", np.float32, (0,)),
+            ("h_inl", bool, (0,)),
+            ("f_inl", bool, (0,)),
+        ):
             parts = [np.asarray(p[name], dtype) for p in per_pair]
             cat[name] = np.concatenate(parts) if parts else np.zeros(shape, dtype)
         return cls(offsets=offsets, **cat)
@@ -166,8 +181,13 @@ class CellArrays:
         counts = [0 if e is None else len(e["weights"]) for e in per_entry]
         offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         out = {}
-        for name, dtype, shape in (("cells", np.int16, (0, 2)), ("positions", np.float32, (0, 2)), ("observed", np.float32, (0, 2)),
-                                   ("predicted", np.float32, (0, 2)), ("weights", np.float32, (0,))):
+        for name, dtype, shape in (
+            ("cells", np.int16, (0, 2)),
+            ("positions", np.float32, (0, 2)),
+            ("observed", np.float32, (0, 2)),
+            ("predicted", np.float32, (0, 2)),
+            ("weights", np.float32, (0,)),
+        ):
             parts = [np.asarray(e[name], dtype).reshape((-1,) + shape[1:]) for e in per_entry if e is not None]
             out[name] = np.concatenate(parts) if parts else np.zeros(shape, dtype)
         return cls(offsets=offsets, **out)
@@ -378,7 +398,10 @@ class ClipRecord:
                 "tau_f_px": bg.tau_f_px,
                 "other_family": {"model": bg.other.family, "ir": bg.other.ir, "ge": bg.other.ge},
             },
-            "per_gap": {str(g.gap): {"ir": g.ir, "ge": g.ge, "valid_pairs": g.valid_pairs, "total_pairs": g.total_pairs} for g in bg.chosen.per_gap},
+            "per_gap": {
+                str(g.gap): {"ir": g.ir, "ge": g.ge, "valid_pairs": g.valid_pairs, "total_pairs": g.total_pairs}
+                for g in bg.chosen.per_gap
+            },
             "coverage": {
                 "frames": self.video.get("num_frames"),
                 "duplicates": len(self.video.get("duplicates", [])),
@@ -386,8 +409,14 @@ class ClipRecord:
                 "invalid_reasons": bg.chosen.invalid_reasons,
             },
             "objects": [
-                {"id": o.object_id, "frames": o.frames, "adadfrc": o.adadfrc, "adadfrc_w2": o.adadfrc_w2,
-                 "adap90": o.adap90, "masked_share": o.masked_share}
+                {
+                    "id": o.object_id,
+                    "frames": o.frames,
+                    "adadfrc": o.adadfrc,
+                    "adadfrc_w2": o.adadfrc_w2,
+                    "adap90": o.adap90,
+                    "masked_share": o.masked_share,
+                }
                 for o in self.objects
             ],
             "masks": self.masks_source,
@@ -427,7 +456,11 @@ def _fit_from(d: dict | None) -> FitSummary | None:
 
 def _family_from(d: dict) -> FamilySummary:
     return FamilySummary(
-        family=d["family"], ir=d["ir"], ge=d["ge"], valid_pairs=d["valid_pairs"], total_pairs=d["total_pairs"],
+        family=d["family"],
+        ir=d["ir"],
+        ge=d["ge"],
+        valid_pairs=d["valid_pairs"],
+        total_pairs=d["total_pairs"],
         per_gap=tuple(GapSummary(**g) for g in d["per_gap"]),
         per_scale=tuple(ScaleSummary(**s) for s in d["per_scale"]),
         invalid_reasons=dict(d["invalid_reasons"]),
@@ -469,7 +502,9 @@ def read_record_json(path: str | Path) -> tuple[Path, dict[str, Any]]:
     folder = p if p.is_dir() else p.parent
     d = json.loads((folder / "record.json").read_text())
     if d.get("format") != RECORD_FORMAT:
-        raise ValueError(f"{folder / 'record.json'}: not a GeoCon record (format {d.get('format')!r}, expected {RECORD_FORMAT!r})")
+        raise ValueError(
+            f"{folder / 'record.json'}: not a GeoCon record (format {d.get('format')!r}, expected {RECORD_FORMAT!r})"
+        )
     return folder, d
 
 
@@ -483,7 +518,11 @@ def read_record(path: str | Path) -> ClipRecord:
     folder, d = read_record_json(path)
     with np.load(folder / "matches.npz", allow_pickle=False) as z:
         matches = MatchArrays(**{name: z[name] for name in MatchArrays.NAMES})
-        cells = CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES}) if "cells_offsets" in z.files else None
+        cells = (
+            CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES})
+            if "cells_offsets" in z.files
+            else None
+        )
         cloud = None
         if d.get("cloud") is not None:
             cloud = PointCloud(xyz=z["cloud_xyz"], rgb=z["cloud_rgb"], note=d["cloud"]["note"])
@@ -493,12 +532,23 @@ def read_record(path: str | Path) -> ClipRecord:
     background = BackgroundSummary(**{**b, "chosen": _family_from(b["chosen"]), "other": _family_from(b["other"])})
     pairs = pairs_from_json(d)
     return ClipRecord(
-        clip=d["clip"], video=d["video"], config=ScoreConfig.from_dict(d["config"]), config_hash=d["config_hash"],
-        versions=d["versions"], gate=gate, background=background, pairs=pairs, matches=matches,
-        intrinsics=d["intrinsics"], category=None if d["category"] is None else Category(**d["category"]),
-        warnings=tuple(d["warnings"]), masks_source=d["masks_source"], masked_share=tuple(d["masked_share"]),
+        clip=d["clip"],
+        video=d["video"],
+        config=ScoreConfig.from_dict(d["config"]),
+        config_hash=d["config_hash"],
+        versions=d["versions"],
+        gate=gate,
+        background=background,
+        pairs=pairs,
+        matches=matches,
+        intrinsics=d["intrinsics"],
+        category=None if d["category"] is None else Category(**d["category"]),
+        warnings=tuple(d["warnings"]),
+        masks_source=d["masks_source"],
+        masked_share=tuple(d["masked_share"]),
         objects=tuple(
-            ObjectSummary(**{**o, "per_scale": tuple(ObjectScaleSummary(**p) for p in o["per_scale"])}) for o in d["objects"]
+            ObjectSummary(**{**o, "per_scale": tuple(ObjectScaleSummary(**p) for p in o["per_scale"])})
+            for o in d["objects"]
         ),
         object_entries=tuple(ObjectEntry(**e) for e in d["object_entries"]),
         cells=cells,

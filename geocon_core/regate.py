@@ -24,9 +24,25 @@ from .models import inlier_mask, segment_inlier_stats, segment_order
 from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_record_json
 
 __all__ = [
-    "FitRow", "Regated", "aggregate_gaps", "regate_family", "regate_pairs", "pair_inliers", "DEFAULT_TAU_H_GRID", "DEFAULT_TAU_F_GRID", "sensitivity_scan",
-    "Thresholds", "ClipVerdict", "Residuals", "ResidualArrays", "choose_model", "report_verdict", "report_margin", "clip_verdict",
-    "load_residuals", "regate_clip",
+    "FitRow",
+    "Regated",
+    "aggregate_gaps",
+    "regate_family",
+    "regate_pairs",
+    "pair_inliers",
+    "DEFAULT_TAU_H_GRID",
+    "DEFAULT_TAU_F_GRID",
+    "sensitivity_scan",
+    "Thresholds",
+    "ClipVerdict",
+    "Residuals",
+    "ResidualArrays",
+    "choose_model",
+    "report_verdict",
+    "report_margin",
+    "clip_verdict",
+    "load_residuals",
+    "regate_clip",
 ]
 
 Family = Literal["H", "F"]
@@ -53,8 +69,15 @@ def _median(values: np.ndarray) -> float | None:
 
 
 def _aggregate(
-    gap: np.ndarray, scale: np.ndarray, valid: np.ndarray, ir: np.ndarray, ge: np.ndarray, *,
-    gaps: Sequence[int], scales: Sequence[float], aggregation: str,
+    gap: np.ndarray,
+    scale: np.ndarray,
+    valid: np.ndarray,
+    ir: np.ndarray,
+    ge: np.ndarray,
+    *,
+    gaps: Sequence[int],
+    scales: Sequence[float],
+    aggregation: str,
 ) -> tuple[tuple[GapSummary, ...], float | None, float | None]:
     """:func:`aggregate_gaps` on per-row arrays (float64 IR/GE, NaN where not valid)."""
     per_gap = []
@@ -84,6 +107,7 @@ def aggregate_gaps(
     ``median`` (the paper): per gap, the median IR and GE over its valid (pair, scale) rows;
     ``worst``: per gap and scale the median over pairs, and the gap takes its lowest IR and
     highest GE. The headline is the lowest per-gap IR and the highest per-gap GE."""
+
     def column(name: str) -> np.ndarray:
         return np.array([np.nan if getattr(r, name) is None else getattr(r, name) for r in rows], dtype=np.float64)
 
@@ -125,11 +149,15 @@ def _pair_table(record: "ClipRecord | Residuals") -> _PairTable:
     usable = {}
     for fam in ("H", "F"):
         fits = [p.fit(fam) for p in pairs]
-        usable[fam] = np.array([p.skip is None and f is not None and f.model is not None for p, f in zip(pairs, fits)], dtype=bool)
+        usable[fam] = np.array(
+            [p.skip is None and f is not None and f.model is not None for p, f in zip(pairs, fits)], dtype=bool
+        )
     m = record.matches
     table = _PairTable(
-        gap=np.array([p.gap for p in pairs], dtype=np.int64), scale=np.array([p.scale for p in pairs], dtype=np.float64),
-        index=np.array([p.index for p in pairs], dtype=np.int64), usable=usable,
+        gap=np.array([p.gap for p in pairs], dtype=np.int64),
+        scale=np.array([p.scale for p in pairs], dtype=np.float64),
+        index=np.array([p.index for p in pairs], dtype=np.int64),
+        usable=usable,
         order={"H": segment_order(m.h_res, m.offsets), "F": segment_order(m.f_res_px, m.offsets)},
     )
     if isinstance(record, Residuals):  # kept: a viewer re-gates the same clip many times
@@ -137,7 +165,9 @@ def _pair_table(record: "ClipRecord | Residuals") -> _PairTable:
     return table
 
 
-def _regate_arrays(record: "ClipRecord | Residuals", family: Family, tau: float, min_inliers: int | None) -> tuple[_PairTable, np.ndarray, np.ndarray, np.ndarray]:
+def _regate_arrays(
+    record: "ClipRecord | Residuals", family: Family, tau: float, min_inliers: int | None
+) -> tuple[_PairTable, np.ndarray, np.ndarray, np.ndarray]:
     """(pair table, valid, IR, GE) per pair of ``record.pairs`` at ``tau``; IR and GE are NaN
     where not valid."""
     if family not in ("H", "F"):
@@ -153,7 +183,9 @@ def _regate_arrays(record: "ClipRecord | Residuals", family: Family, tau: float,
     return table, valid, ir, np.where(valid, ge, np.nan)
 
 
-def regate_pairs(record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None) -> list[tuple[PairRecord, FitRow]]:
+def regate_pairs(
+    record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None
+) -> list[tuple[PairRecord, FitRow]]:
     """Every pair of a record with its IR and GE re-gated at ``tau`` (the rows behind
     :func:`regate_family`). A pair is valid when it was scored, its model exists and it keeps at
     least ``min_inliers`` (default: the record's) inliers."""
@@ -173,13 +205,24 @@ def pair_inliers(record: "ClipRecord | Residuals", index: int, family: Family, t
     return inlier_mask(res[record.matches.rows(index)], tau)
 
 
-def regate_family(record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None) -> Regated:
+def regate_family(
+    record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None
+) -> Regated:
     """Re-gate one family of a record at threshold ``tau`` from its stored residuals (no
     re-fitting: the models stay those of the scoring run); pairs as in :func:`regate_pairs`."""
     table, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
     cfg = record.config
-    per_gap, ir_c, ge_c = _aggregate(table.gap, table.scale, valid, ir, ge, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation)
-    return Regated(family=family, tau=float(tau), ir=ir_c, ge=ge_c, valid_pairs=sum(g.valid_pairs for g in per_gap), per_gap=per_gap)
+    per_gap, ir_c, ge_c = _aggregate(
+        table.gap, table.scale, valid, ir, ge, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation
+    )
+    return Regated(
+        family=family,
+        tau=float(tau),
+        ir=ir_c,
+        ge=ge_c,
+        valid_pairs=sum(g.valid_pairs for g in per_gap),
+        per_gap=per_gap,
+    )
 
 
 def sensitivity_scan(
@@ -199,6 +242,7 @@ def sensitivity_scan(
 
 
 # --- live re-gating of whole clips (the viewers' threshold controls) ---------------------------
+
 
 @dataclass(frozen=True)
 class Thresholds:
@@ -227,7 +271,9 @@ class Thresholds:
 
     def changed(self, recorded: "Thresholds") -> dict[str, tuple[float, float]]:
         """``name -> (recorded, now)`` for every threshold that differs from ``recorded``."""
-        return {n: (getattr(recorded, n), getattr(self, n)) for n in self.NAMES if getattr(self, n) != getattr(recorded, n)}
+        return {
+            n: (getattr(recorded, n), getattr(self, n)) for n in self.NAMES if getattr(self, n) != getattr(recorded, n)
+        }
 
 
 def choose_model(label: str, pose_present: bool, ir_h: float | None, ir_f: float | None) -> Family:
@@ -278,18 +324,33 @@ class ClipVerdict:
 
 
 def clip_verdict(
-    *, t_inf: float | None, pose_present: bool, ir_h: float | None, ge_h: float | None, ir_f: float | None, ge_f: float | None,
+    *,
+    t_inf: float | None,
+    pose_present: bool,
+    ir_h: float | None,
+    ge_h: float | None,
+    ir_f: float | None,
+    ge_f: float | None,
     thresholds: Thresholds,
 ) -> ClipVerdict:
     """The verdict from a clip's gate statistic and both families' scores (the scorer's rule)."""
-    label, _, margin = gate_decision(t_inf, pose_present=pose_present, low=thresholds.tau_t_low, high=thresholds.tau_t_high)
+    label, _, margin = gate_decision(
+        t_inf, pose_present=pose_present, low=thresholds.tau_t_low, high=thresholds.tau_t_high
+    )
     model = choose_model(label, pose_present and t_inf is not None, ir_h, ir_f)
     ir, ge = (ir_h, ge_h) if model == "H" else (ir_f, ge_f)
     return ClipVerdict(
-        label=label, model=model, margin=margin, ir=ir, ge=ge,
+        label=label,
+        model=model,
+        margin=margin,
+        ir=ir,
+        ge=ge,
         consistent=report_verdict(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
         report_margin=report_margin(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
-        ir_h=ir_h, ge_h=ge_h, ir_f=ir_f, ge_f=ge_f,
+        ir_h=ir_h,
+        ge_h=ge_h,
+        ir_f=ir_f,
+        ge_f=ge_f,
     )
 
 
@@ -347,4 +408,12 @@ def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipV
     res = source if isinstance(source, Residuals) else Residuals.of(source)
     h = regate_family(res, "H", thresholds.tau_h)  # type: ignore[arg-type]
     f = regate_family(res, "F", thresholds.tau_f)  # type: ignore[arg-type]
-    return clip_verdict(t_inf=res.t_inf, pose_present=res.pose_present, ir_h=h.ir, ge_h=h.ge, ir_f=f.ir, ge_f=f.ge, thresholds=thresholds)
+    return clip_verdict(
+        t_inf=res.t_inf,
+        pose_present=res.pose_present,
+        ir_h=h.ir,
+        ge_h=h.ge,
+        ir_f=f.ir,
+        ge_f=f.ge,
+        thresholds=thresholds,
+    )

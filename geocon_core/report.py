@@ -122,7 +122,10 @@ def _fig_tinf(b: _Builder, ok: pd.DataFrame) -> None:
     is_f = (ok["expected_model"] == "F").to_numpy()
     fig, ax = b.figure(2, 1, (10, 4))
     edges = np.linspace(0, max(0.1, float(np.nanmax(t)) * 1.05), 31)
-    for label, sel, col in (("expected H (C1/C2/C4)", ~is_f & fin, _color(0)), ("expected F (C3/C5/C6)", is_f & fin, _color(1))):
+    for label, sel, col in (
+        ("expected H (C1/C2/C4)", ~is_f & fin, _color(0)),
+        ("expected F (C3/C5/C6)", is_f & fin, _color(1)),
+    ):
         if sel.any():
             ax[0, 0].hist(t[sel], edges, alpha=0.55, color=col, label=f"{label}, n={int(sel.sum())}")
     for x, ls in zip(GATE_LINES, (":", "--", ":")):
@@ -134,7 +137,12 @@ def _fig_tinf(b: _Builder, ok: pd.DataFrame) -> None:
     for x, ls in zip(GATE_LINES, (":", "--", ":")):
         ax[0, 1].axhline(x, color="k", ls=ls, lw=1)
     ax[0, 1].set(ylabel="t_inf", title="t_inf per family")
-    b.save(fig, "tinf", "Translation statistic", "Where clips fall against the gate: expected-H clips should sit left of 0.03, expected-F clips right of 0.05; the gray zone between fits both models.")
+    b.save(
+        fig,
+        "tinf",
+        "Translation statistic",
+        "Where clips fall against the gate: expected-H clips should sit left of 0.03, expected-F clips right of 0.05; the gray zone between fits both models.",
+    )
 
 
 def _fig_margins(b: _Builder, ok: pd.DataFrame) -> None:
@@ -146,7 +154,12 @@ def _fig_margins(b: _Builder, ok: pd.DataFrame) -> None:
     _violins(ax[0, 0], groups)
     ax[0, 0].axhline(0, color="k", lw=1)
     ax[0, 0].set(ylabel="gate margin (t_inf units)", title="Gate margins per platform")
-    b.save(fig, "margins", "Gate margins", "Distance of t_inf to the nearer gate threshold; values near 0 are thin decisions that flip with small pose errors.")
+    b.save(
+        fig,
+        "margins",
+        "Gate margins",
+        "Distance of t_inf to the nearer gate threshold; values near 0 are thin decisions that flip with small pose errors.",
+    )
 
 
 def _fig_calibration(b: _Builder, ok: pd.DataFrame, seed: int) -> dict[str, Any] | None:
@@ -166,7 +179,12 @@ def _fig_calibration(b: _Builder, ok: pd.DataFrame, seed: int) -> dict[str, Any]
         a.axvline(x, color="k", ls=ls, lw=1)
     a.set(xlabel="t_inf (bin median)", ylabel="share expected F", ylim=(-0.02, 1.02), title="Gate calibration")
     a.legend(fontsize=7)
-    b.save(fig, "calibration", "Gate calibration", "Share of expected-F clips per t_inf bin; a well-placed gate has the curve rise across the gray zone.")
+    b.save(
+        fig,
+        "calibration",
+        "Gate calibration",
+        "Share of expected-F clips per t_inf bin; a well-placed gate has the curve rise across the gray zone.",
+    )
     taus = np.linspace(0.0, max(0.1, float(np.nanmax(t))), 101)
     nb = stats.net_benefit(t, is_f, taus)
     boot = stats.bootstrap_tau(t, is_f, B=400, seed=seed)
@@ -185,7 +203,12 @@ def _fig_calibration(b: _Builder, ok: pd.DataFrame, seed: int) -> dict[str, Any]
     ax[0, 2].bar(x, boot.argmax_counts, color=_color(2))
     ax[0, 2].set_xticks(x, [f"{g:g}" for g in boot.grid])
     ax[0, 2].set(xlabel="tau_t", ylabel="replicates", title=f"argmax histogram (best {boot.best_tau:g})")
-    b.save(fig, "net_benefit_bootstrap", "Threshold choice", "Net benefit of calling F above tau_t for three false-positive costs, and which tau_t of the grid maximises balanced accuracy across bootstrap replicates.")
+    b.save(
+        fig,
+        "net_benefit_bootstrap",
+        "Threshold choice",
+        "Net benefit of calling F above tau_t for three false-positive costs, and which tau_t of the grid maximises balanced accuracy across bootstrap replicates.",
+    )
     return {"best_tau": boot.best_tau, "grid": list(boot.grid), "argmax_counts": boot.argmax_counts.tolist()}
 
 
@@ -207,11 +230,24 @@ def _fig_ridgelines(b: _Builder, ok: pd.DataFrame) -> None:
                     continue
                 h, _ = np.histogram(np.clip(v, *top), edges)
                 h = 0.8 * h / max(1, h.max())
-                ax[0, j].fill_between(edges[:-1], i, i + h, step="post", alpha=0.5, color=col, label=f"{fam.upper()} fit" if i == 0 else None)
+                ax[0, j].fill_between(
+                    edges[:-1],
+                    i,
+                    i + h,
+                    step="post",
+                    alpha=0.5,
+                    color=col,
+                    label=f"{fam.upper()} fit" if i == 0 else None,
+                )
         ax[0, j].set_yticks(np.arange(len(cats)) + 0.3, cats)
         ax[0, j].set(xlabel="IR" if metric == "ir" else "GE (px)", title=f"{metric.upper()} per family, H vs F fit")
         ax[0, j].legend(fontsize=7)
-    b.save(fig, "ridgelines", "IR/GE ridgelines", "Distribution of each family's clip IR and GE under the homography and the fundamental-matrix fit; translation families should separate H from F.")
+    b.save(
+        fig,
+        "ridgelines",
+        "IR/GE ridgelines",
+        "Distribution of each family's clip IR and GE under the homography and the fundamental-matrix fit; translation families should separate H from F.",
+    )
 
 
 def _fig_effects(b: _Builder, ok: pd.DataFrame, boot: int, seed: int) -> pd.DataFrame | None:
@@ -231,11 +267,18 @@ def _fig_effects(b: _Builder, ok: pd.DataFrame, boot: int, seed: int) -> pd.Data
     for j, metric in enumerate(("ir", "ge")):
         d = df[df["metric"] == metric]
         y = np.arange(len(d))
-        ax[0, j].errorbar(d["difference"], y, xerr=[d["difference"] - d["low"], d["high"] - d["difference"]], fmt="o", capsize=3)
+        ax[0, j].errorbar(
+            d["difference"], y, xerr=[d["difference"] - d["low"], d["high"] - d["difference"]], fmt="o", capsize=3
+        )
         ax[0, j].axvline(0, color="k", lw=1)
         ax[0, j].set_yticks(y, d["model"])
         ax[0, j].set(xlabel=f"median {metric.upper()} difference vs. the other platforms", title=metric.upper())
-    b.save(fig, "effect_sizes", "Effect sizes", "Scene-balanced median difference of each platform against the pooled others, with 95% bootstrap CIs (resampling scenes); an interval clear of 0 is a real gap.")
+    b.save(
+        fig,
+        "effect_sizes",
+        "Effect sizes",
+        "Scene-balanced median difference of each platform against the pooled others, with 95% bootstrap CIs (resampling scenes); an interval clear of 0 is a real gap.",
+    )
     return df
 
 
@@ -274,7 +317,12 @@ def _fig_dynamic(b: _Builder, objects: pd.DataFrame, frames: pd.DataFrame) -> li
     ax[0, 2].bar(x, summ["rate_above_p80"], color=[_color(models.index(m)) for m in summ["model"]])
     ax[0, 2].set_xticks(x, [f"{m}\n{c}" for m, c in zip(summ["model"], summ["category"])], fontsize=7)
     ax[0, 2].set(ylabel="share above P80", title="Share above P80 (~20% by construction)")
-    b.save(fig, "adap90", "Dynamic coherence", "Per-object AdaP90 (90th percentile of the per-frame AdaDFRC): severity and tail shape matter, not the rate above P80, which is near 20% by construction.")
+    b.save(
+        fig,
+        "adap90",
+        "Dynamic coherence",
+        "Per-object AdaP90 (90th percentile of the per-frame AdaDFRC): severity and tail shape matter, not the rate above P80, which is near 20% by construction.",
+    )
     top = stats.top_hardest(obj, frames, n=8)
     if top:
         fig, ax = b.figure(1, len(top), (7, 0.75 * len(top) + 0.6))
@@ -284,12 +332,23 @@ def _fig_dynamic(b: _Builder, objects: pd.DataFrame, frames: pd.DataFrame) -> li
                 xs, ys = zip(*t["trace"])
                 a.plot(xs, ys, color=_color(models.index(t["model"])), lw=1)
             a.set_yticks([])
-            a.text(1.01, 0.5, f"{t['clip_id']} #{t['object_id']}  P50 {t['p50']:.2f}  P90 {t['p90']:.2f}  n={t['frames']}",
-                   transform=a.transAxes, fontsize=7, va="center")
+            a.text(
+                1.01,
+                0.5,
+                f"{t['clip_id']} #{t['object_id']}  P50 {t['p50']:.2f}  P90 {t['p90']:.2f}  n={t['frames']}",
+                transform=a.transAxes,
+                fontsize=7,
+                va="center",
+            )
             if i < len(top) - 1:
                 a.set_xticks([])
         ax[-1, 0].set_xlabel("frame")
-        b.save(fig, "top_objects", "Hardest objects", "Per-frame AdaDFRC (D_t, px²) of the objects with the highest AdaP90: a sustained plateau is a deforming object, a lone spike a segmentation glitch.")
+        b.save(
+            fig,
+            "top_objects",
+            "Hardest objects",
+            "Per-frame AdaDFRC (D_t, px²) of the objects with the highest AdaP90: a sustained plateau is a deforming object, a lone spike a segmentation glitch.",
+        )
     return top
 
 
@@ -307,10 +366,18 @@ def _fig_sensitivity(b: _Builder, sens: pd.DataFrame, config: dict[str, Any]) ->
                 d = tab[(tab["model"] == m) & (tab["family"] == fam)]
                 a.plot(d["tau"], d[metric], "o-", color=_color(k), label=m, ms=3)
             a.axvline(recorded, color="k", ls="--", lw=1)
-            a.set(xlabel=f"tau_{fam} ({'px' if fam == 'H' else 'normalised Sampson'})", ylabel=metric.upper(),
-                  title=f"{metric.upper()} vs tau_{fam} (clips gated {fam})")
+            a.set(
+                xlabel=f"tau_{fam} ({'px' if fam == 'H' else 'normalised Sampson'})",
+                ylabel=metric.upper(),
+                title=f"{metric.upper()} vs tau_{fam} (clips gated {fam})",
+            )
             a.legend(fontsize=7)
-    b.save(fig, "sensitivity", "Threshold-score sensitivity", "Scene-balanced median IR and GE re-gated from stored residuals at other thresholds (dashed: the recorded one); rankings that survive the sweep are robust.")
+    b.save(
+        fig,
+        "sensitivity",
+        "Threshold-score sensitivity",
+        "Scene-balanced median IR and GE re-gated from stored residuals at other thresholds (dashed: the recorded one); rankings that survive the sweep are robust.",
+    )
 
 
 def _html_table(df: pd.DataFrame, floats: str = "{:.4g}") -> str:
@@ -350,7 +417,9 @@ def _flagged(ok: pd.DataFrame, top: list[dict[str, Any]], rel: str) -> str:
         if why:
             reasons[r.clip_id] = why
     for t in top[:5]:
-        reasons.setdefault(t["clip_id"], []).append(f"object {t['object_id']} among the hardest (AdaP90 {t['adap90']:.2f})")
+        reasons.setdefault(t["clip_id"], []).append(
+            f"object {t['object_id']} among the hardest (AdaP90 {t['adap90']:.2f})"
+        )
     rows = []
     index = ok.set_index("clip_id")
     for cid, why in sorted(reasons.items()):
@@ -360,12 +429,16 @@ def _flagged(ok: pd.DataFrame, top: list[dict[str, Any]], rel: str) -> str:
             rrd = f'<a href="{html.escape(rel + "/" + r["rrd"])}">audit.rrd</a>'
         else:
             rrd = f"<code>geocon view {html.escape(str(r['record']))}</code>"
-        rows.append(f"<tr><td>{html.escape(cid)}</td><td>{html.escape(str(r['model']))}</td><td>{html.escape(str(r['category']))}</td>"
-                    f"<td>{html.escape('; '.join(why))}</td><td><a href=\"{html.escape(rec)}\">record</a></td><td>{rrd}</td></tr>")
+        rows.append(
+            f"<tr><td>{html.escape(cid)}</td><td>{html.escape(str(r['model']))}</td><td>{html.escape(str(r['category']))}</td>"
+            f'<td>{html.escape("; ".join(why))}</td><td><a href="{html.escape(rec)}">record</a></td><td>{rrd}</td></tr>'
+        )
     if not rows:
         return "<p>No clip is flagged.</p>"
-    return ("<table><thead><tr><th>clip</th><th>platform</th><th>category</th><th>why</th><th>record</th><th>recording</th></tr></thead>"
-            f"<tbody>{''.join(rows)}</tbody></table>")
+    return (
+        "<table><thead><tr><th>clip</th><th>platform</th><th>category</th><th>why</th><th>record</th><th>recording</th></tr></thead>"
+        f"<tbody>{''.join(rows)}</tbody></table>"
+    )
 
 
 _CSS = """body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1180px;margin:2em auto;padding:0 1em;color:#222}
@@ -376,8 +449,13 @@ figcaption{color:#444;font-size:.9em}.warn{color:#a33}nav a{margin-right:1em}cod
 
 
 def build_report(
-    results: str | Path, out: str | Path | None = None, *, seed: int = 0, bootstrap: int = 10_000,
-    formats: Sequence[str] = ("png", "svg"), progress: Callable[[str], None] | None = None,
+    results: str | Path,
+    out: str | Path | None = None,
+    *,
+    seed: int = 0,
+    bootstrap: int = 10_000,
+    formats: Sequence[str] = ("png", "svg"),
+    progress: Callable[[str], None] | None = None,
 ) -> ReportResult:
     """Write the report of the results folder ``results`` into ``out`` (default
     ``RESULTS/report``). Raises ValueError when the folder holds no benchmark results."""
@@ -395,8 +473,10 @@ def build_report(
     versions = bench.get("versions", {})
     clips = tables["clips"]
     ok = clips[clips["status"] == "ok"].copy()
-    footer = (f"config {bench.get('config_hash')} · geocon {versions.get('geocon', '?')} · opencv {versions.get('opencv', '?')} · "
-              f"n = {len(ok)} clips")
+    footer = (
+        f"config {bench.get('config_hash')} · geocon {versions.get('geocon', '?')} · opencv {versions.get('opencv', '?')} · "
+        f"n = {len(ok)} clips"
+    )
     b = _Builder(target, footer, formats)
     warnings: list[str] = []
     sections: list[tuple[str, str]] = []
@@ -408,9 +488,16 @@ def build_report(
         sb.append(t)
     sbt = pd.concat(sb, ignore_index=True)[["metric", "model", "median", "low", "high", "n_scenes", "n_clips"]]
     b.table(sbt, "scene_balanced")
-    sections.append(("Scene-balanced medians per platform", "<p>Each scene counts once; 95% bootstrap CIs over scenes "
-                     f"(B = {bootstrap}).</p>" + _html_table(sbt)))
-    per_cat = pd.concat([stats.scene_balanced_table(ok, m, B=bootstrap, seed=seed).assign(metric=m.upper()) for m in ("ir", "ge")], ignore_index=True)
+    sections.append(
+        (
+            "Scene-balanced medians per platform",
+            f"<p>Each scene counts once; 95% bootstrap CIs over scenes (B = {bootstrap}).</p>" + _html_table(sbt),
+        )
+    )
+    per_cat = pd.concat(
+        [stats.scene_balanced_table(ok, m, B=bootstrap, seed=seed).assign(metric=m.upper()) for m in ("ir", "ge")],
+        ignore_index=True,
+    )
     per_cat = per_cat[["metric", "model", "category", "median", "low", "high", "n_scenes", "n_clips"]]
     b.table(per_cat, "per_category")
     rates = stats.gate_rates(ok)
@@ -420,22 +507,34 @@ def build_report(
     margins = stats.margin_summary(ok)
     aligned = stats.percentile_aligned(ok)
     b.table(aligned, "percentile_aligned")
-    sections.append(("Per category", _html_table(per_cat)
-                     + "<h3>F-rates and anomaly rates (expected rule C1/C2/C4 → H, C3/C5/C6 → F)</h3>"
-                     + "<p>Present-only: clips with a pose and a decided gate; fail→F: every clip, no pose counted as F.</p>"
-                     + _html_table(rates[[c for c in rates.columns if not c.endswith(("_low", "_high"))]])
-                     + f"<p>Cross-platform consensus: {cons.attrs['n_unanimous']} of {cons.attrs['n_tuples']} (scene, category) tuples "
-                       f"with at least two decided platforms are unanimous ({cons.attrs['consensus_rate']:.1%}).</p>"
-                     + "<h3>Gate margins</h3>" + _html_table(margins)
-                     + "<h3>Percentile-aligned GE (at matched IR percentiles)</h3>" + _html_table(aligned)))
+    sections.append(
+        (
+            "Per category",
+            _html_table(per_cat)
+            + "<h3>F-rates and anomaly rates (expected rule C1/C2/C4 → H, C3/C5/C6 → F)</h3>"
+            + "<p>Present-only: clips with a pose and a decided gate; fail→F: every clip, no pose counted as F.</p>"
+            + _html_table(rates[[c for c in rates.columns if not c.endswith(("_low", "_high"))]])
+            + f"<p>Cross-platform consensus: {cons.attrs['n_unanimous']} of {cons.attrs['n_tuples']} (scene, category) tuples "
+            f"with at least two decided platforms are unanimous ({cons.attrs['consensus_rate']:.1%}).</p>"
+            + "<h3>Gate margins</h3>"
+            + _html_table(margins)
+            + "<h3>Percentile-aligned GE (at matched IR percentiles)</h3>"
+            + _html_table(aligned),
+        )
+    )
 
     say("figures")
     _fig_tinf(b, ok)
     _fig_margins(b, ok)
     calib = _fig_calibration(b, ok, seed)
     if calib is not None:
-        sections.append(("Gate calibration", f"<p>Bootstrap-optimal tau_t on the grid {calib['grid']}: <b>{calib['best_tau']:g}</b> "
-                         f"(argmax counts {calib['argmax_counts']}).</p>"))
+        sections.append(
+            (
+                "Gate calibration",
+                f"<p>Bootstrap-optimal tau_t on the grid {calib['grid']}: <b>{calib['best_tau']:g}</b> "
+                f"(argmax counts {calib['argmax_counts']}).</p>",
+            )
+        )
     _fig_ridgelines(b, ok)
     _fig_effects(b, ok, bootstrap, seed)
     top = _fig_dynamic(b, tables["objects"], tables["object_frames"])
@@ -456,16 +555,22 @@ def build_report(
     )
     skipped = "".join(f"<li>{html.escape(s)}</li>" for s in b.skipped)
     warnings.extend(f"skipped figure: {s}" for s in b.skipped)
-    sections = [("Clips that failed", fail_html), ("Flagged clips", _flagged(ok, top, rel_s)), *sections,
-                ("Figures", figs + (f"<p>Skipped:</p><ul>{skipped}</ul>" if skipped else ""))]
+    sections = [
+        ("Clips that failed", fail_html),
+        ("Flagged clips", _flagged(ok, top, rel_s)),
+        *sections,
+        ("Figures", figs + (f"<p>Skipped:</p><ul>{skipped}</ul>" if skipped else "")),
+    ]
     nav = "".join(f'<a href="#s{i}">{html.escape(t)}</a>' for i, (t, _) in enumerate(sections))
     body = "".join(f'<h2 id="s{i}">{html.escape(t)}</h2>{content}' for i, (t, content) in enumerate(sections))
     ver = ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in sorted(versions.items()))
-    page = (f"<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>GeoCon benchmark report</title><style>{_CSS}</style></head><body>"
-            f"<h1>GeoCon benchmark report</h1><p class=\"meta\">dataset {html.escape(str(bench.get('dataset')))} · config "
-            f"<b>{html.escape(str(bench.get('config_hash')))}</b> (preset {html.escape(str(bench.get('config', {}).get('preset')))}) · {ver}</p>"
-            f"<p>{len(clips)} clips: {len(ok)} scored, <span class=\"warn\">{len(failed)} failed</span>; "
-            f"{ok['model'].nunique()} platforms, {ok['scene_id'].nunique()} scenes.</p><nav>{nav}</nav>{body}</body></html>")
+    page = (
+        f'<!doctype html><html lang="en"><head><meta charset="utf-8"><title>GeoCon benchmark report</title><style>{_CSS}</style></head><body>'
+        f'<h1>GeoCon benchmark report</h1><p class="meta">dataset {html.escape(str(bench.get("dataset")))} · config '
+        f"<b>{html.escape(str(bench.get('config_hash')))}</b> (preset {html.escape(str(bench.get('config', {}).get('preset')))}) · {ver}</p>"
+        f'<p>{len(clips)} clips: {len(ok)} scored, <span class="warn">{len(failed)} failed</span>; '
+        f"{ok['model'].nunique()} platforms, {ok['scene_id'].nunique()} scenes.</p><nav>{nav}</nav>{body}</body></html>"
+    )
     path = target / "report.html"
     tmp = target / ".report.html.part"
     tmp.write_text(page)

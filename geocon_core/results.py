@@ -80,7 +80,11 @@ class TriageRow:
     @property
     def gate_mismatch(self) -> bool:
         """The gate chose another family than the clip's expected one (sidecar category)."""
-        return self.verdict is not None and self.clip.expected_model is not None and self.verdict.model != self.clip.expected_model
+        return (
+            self.verdict is not None
+            and self.clip.expected_model is not None
+            and self.verdict.model != self.clip.expected_model
+        )
 
 
 def _none_last(v: float | None, *, descending: bool = False) -> float:
@@ -109,7 +113,9 @@ def _num(v: Any) -> float | None:
     return None if math.isnan(f) else f
 
 
-def _from_record_json(clip_id: str, status: dict[str, Any], folder: Path, d: dict[str, Any] | None = None) -> ResultClip:
+def _from_record_json(
+    clip_id: str, status: dict[str, Any], folder: Path, d: dict[str, Any] | None = None
+) -> ResultClip:
     """A clip's triage numbers from its ``record.json`` (no arrays read; ``d`` when already parsed)."""
     if d is None:
         d = json.loads((folder / "record.json").read_text())
@@ -117,23 +123,52 @@ def _from_record_json(clip_id: str, status: dict[str, Any], folder: Path, d: dic
     fam = {bg["chosen"]["family"]: bg["chosen"], bg["other"]["family"]: bg["other"]}
     adap90 = [o["adap90"] for o in d.get("objects", []) if o.get("adap90") is not None]
     meta = status.get("meta") or {}
-    rrd = folder / status["rrd"] if status.get("rrd") else (folder / "audit.rrd" if (folder / "audit.rrd").is_file() else None)
+    rrd = (
+        folder / status["rrd"]
+        if status.get("rrd")
+        else (folder / "audit.rrd" if (folder / "audit.rrd").is_file() else None)
+    )
     return ResultClip(
-        clip_id=clip_id, platform=str(meta.get("model", "-")), category=meta.get("category"),
-        expected_model=EXPECTED_MODEL.get(meta.get("category")), status="ok", error=None, folder=folder, rrd=rrd,
-        prompt=meta.get("prompt"), t_inf=gate["t_inf"], pose_present=bool(gate["pose_present"]),
-        ir_h=fam["H"]["ir"], ge_h=fam["H"]["ge"], ir_f=fam["F"]["ir"], ge_f=fam["F"]["ge"],
-        adap90_max=max(adap90) if adap90 else None, n_objects=len(d.get("objects", [])),
+        clip_id=clip_id,
+        platform=str(meta.get("model", "-")),
+        category=meta.get("category"),
+        expected_model=EXPECTED_MODEL.get(meta.get("category")),
+        status="ok",
+        error=None,
+        folder=folder,
+        rrd=rrd,
+        prompt=meta.get("prompt"),
+        t_inf=gate["t_inf"],
+        pose_present=bool(gate["pose_present"]),
+        ir_h=fam["H"]["ir"],
+        ge_h=fam["H"]["ge"],
+        ir_f=fam["F"]["ir"],
+        ge_f=fam["F"]["ge"],
+        adap90_max=max(adap90) if adap90 else None,
+        n_objects=len(d.get("objects", [])),
     )
 
 
 def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultClip:
     meta = status.get("meta") or {}
     return ResultClip(
-        clip_id=clip_id, platform=str(meta.get("model", "-")), category=meta.get("category"),
-        expected_model=EXPECTED_MODEL.get(meta.get("category")), status="failed", error=status.get("error") or "unknown error",
-        folder=folder, rrd=None, prompt=meta.get("prompt"), t_inf=None, pose_present=False,
-        ir_h=None, ge_h=None, ir_f=None, ge_f=None, adap90_max=None, n_objects=0,
+        clip_id=clip_id,
+        platform=str(meta.get("model", "-")),
+        category=meta.get("category"),
+        expected_model=EXPECTED_MODEL.get(meta.get("category")),
+        status="failed",
+        error=status.get("error") or "unknown error",
+        folder=folder,
+        rrd=None,
+        prompt=meta.get("prompt"),
+        t_inf=None,
+        pose_present=False,
+        ir_h=None,
+        ge_h=None,
+        ir_f=None,
+        ge_f=None,
+        adap90_max=None,
+        n_objects=0,
     )
 
 
@@ -156,7 +191,9 @@ class ResultsIndex:
     """Every clip of a results folder, the thresholds it was scored with (``recorded``), and lazily
     loaded residuals for live re-gating (:meth:`triage`, :meth:`verdict`)."""
 
-    def __init__(self, root: Path, clips: list[ResultClip], config: ScoreConfig, config_hash: str | None, kind: str) -> None:
+    def __init__(
+        self, root: Path, clips: list[ResultClip], config: ScoreConfig, config_hash: str | None, kind: str
+    ) -> None:
         self.root = root
         self.clips = clips
         self.by_id = {c.clip_id: c for c in clips}
@@ -174,7 +211,9 @@ class ResultsIndex:
         """A ``geocon bench`` results folder, or one record folder (``geocon score --out``)."""
         root = Path(path)
         if not root.exists():
-            raise ResultsError(f"{root} does not exist: give a results folder from `geocon bench` or a record folder from `geocon score`")
+            raise ResultsError(
+                f"{root} does not exist: give a results folder from `geocon bench` or a record folder from `geocon score`"
+            )
         if root.is_file() and root.name == "record.json":
             root = root.parent
         if (root / "bench.json").is_file():
@@ -186,9 +225,13 @@ class ResultsIndex:
                 clip = _from_record_json(root.name, status, root, d)
                 config = ScoreConfig.from_dict(d["config"])
             except (json.JSONDecodeError, KeyError, TypeError) as exc:
-                raise ResultsError(f"{root / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc})") from None
+                raise ResultsError(
+                    f"{root / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc})"
+                ) from None
             return cls(root, [clip], config, d.get("config_hash"), "record")
-        raise ResultsError(f"{root} holds neither bench.json (from `geocon bench`) nor record.json (from `geocon score --out`)")
+        raise ResultsError(
+            f"{root} holds neither bench.json (from `geocon bench`) nor record.json (from `geocon score --out`)"
+        )
 
     @classmethod
     def _open_bench(cls, root: Path) -> "ResultsIndex":
@@ -197,8 +240,14 @@ class ResultsIndex:
         except json.JSONDecodeError:
             raise ResultsError(f"{root / 'bench.json'} is not valid JSON") from None
         if manifest.get("format") != BENCH_FORMAT:
-            raise ResultsError(f"{root / 'bench.json'} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})")
-        folders = sorted((p for p in (root / CLIPS_DIR).iterdir() if p.is_dir()), key=lambda p: p.name) if (root / CLIPS_DIR).is_dir() else []
+            raise ResultsError(
+                f"{root / 'bench.json'} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})"
+            )
+        folders = (
+            sorted((p for p in (root / CLIPS_DIR).iterdir() if p.is_dir()), key=lambda p: p.name)
+            if (root / CLIPS_DIR).is_dir()
+            else []
+        )
         statuses = []
         newest = 0.0
         for folder in folders:
@@ -219,13 +268,27 @@ class ResultsIndex:
                 clips.append(_from_record_json(cid, status, folder))
                 continue
             meta = status.get("meta") or {}
-            clips.append(ResultClip(
-                clip_id=cid, platform=str(meta.get("model", "-")), category=meta.get("category"),
-                expected_model=EXPECTED_MODEL.get(meta.get("category")), status="ok", error=None, folder=folder,
-                rrd=folder / status["rrd"] if status.get("rrd") else None, prompt=meta.get("prompt"),
-                t_inf=_num(row["t_inf"]), pose_present=bool(row["pose_present"]), ir_h=_num(row["ir_h"]), ge_h=_num(row["ge_h"]),
-                ir_f=_num(row["ir_f"]), ge_f=_num(row["ge_f"]), adap90_max=_num(row["adap90_max"]), n_objects=int(row["n_objects"]),
-            ))
+            clips.append(
+                ResultClip(
+                    clip_id=cid,
+                    platform=str(meta.get("model", "-")),
+                    category=meta.get("category"),
+                    expected_model=EXPECTED_MODEL.get(meta.get("category")),
+                    status="ok",
+                    error=None,
+                    folder=folder,
+                    rrd=folder / status["rrd"] if status.get("rrd") else None,
+                    prompt=meta.get("prompt"),
+                    t_inf=_num(row["t_inf"]),
+                    pose_present=bool(row["pose_present"]),
+                    ir_h=_num(row["ir_h"]),
+                    ge_h=_num(row["ge_h"]),
+                    ir_f=_num(row["ir_f"]),
+                    ge_f=_num(row["ge_f"]),
+                    adap90_max=_num(row["adap90_max"]),
+                    n_objects=int(row["n_objects"]),
+                )
+            )
         return cls(root, clips, ScoreConfig.from_dict(manifest["config"]), manifest.get("config_hash"), "bench")
 
     # --- facets --------------------------------------------------------------------------------
@@ -288,10 +351,26 @@ class ResultsIndex:
             return None
         ir_h, ge_h = self._family(clip, "H", thresholds.tau_h)
         ir_f, ge_f = self._family(clip, "F", thresholds.tau_f)
-        return clip_verdict(t_inf=clip.t_inf, pose_present=clip.pose_present, ir_h=ir_h, ge_h=ge_h, ir_f=ir_f, ge_f=ge_f, thresholds=thresholds)
+        return clip_verdict(
+            t_inf=clip.t_inf,
+            pose_present=clip.pose_present,
+            ir_h=ir_h,
+            ge_h=ge_h,
+            ir_f=ir_f,
+            ge_f=ge_f,
+            thresholds=thresholds,
+        )
 
-    def triage(self, thresholds: Thresholds | None = None, *, platform: str | None = None, category: str | None = None,
-               gate_label: str | None = None, state: str | None = None, flagged_only: bool = False) -> list[TriageRow]:
+    def triage(
+        self,
+        thresholds: Thresholds | None = None,
+        *,
+        platform: str | None = None,
+        category: str | None = None,
+        gate_label: str | None = None,
+        state: str | None = None,
+        flagged_only: bool = False,
+    ) -> list[TriageRow]:
         """The clips passing the filters (None = any), most severe first (:func:`severity_key`).
         ``gate_label`` filters on the hysteresis label (H/F/U) at ``thresholds``; ``state`` on the
         verdict name (:data:`VERDICTS`); ``flagged_only`` keeps clips that are not passing or whose

@@ -168,10 +168,14 @@ class RigidityResult:
 
 
 def _invalid(reason: str, n_pixels: int) -> RigidityResult:
-    return RigidityResult(valid=False, reason=reason, d_t=None, w2=None, affine=None, cells=None, n_pixels=int(n_pixels))
+    return RigidityResult(
+        valid=False, reason=reason, d_t=None, w2=None, affine=None, cells=None, n_pixels=int(n_pixels)
+    )
 
 
-def _cell_arrays(a: np.ndarray, b: np.ndarray, weights: np.ndarray, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cell_arrays(
+    a: np.ndarray, b: np.ndarray, weights: np.ndarray, names: tuple[str, str]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     a = np.asarray(a, np.float64)
     b = np.asarray(b, np.float64)
     w = np.asarray(weights, np.float64)
@@ -258,7 +262,9 @@ def _transport_lp(cost: np.ndarray, marginal: np.ndarray) -> float:
     rows = np.concatenate([flat // c, c + flat % c])
     a_eq = csr_matrix((np.ones(2 * c * c), (rows, np.concatenate([flat, flat]))), shape=(2 * c, c * c))
     b_eq = np.concatenate([marginal, marginal])
-    res = linprog((cost / cmax).ravel(), A_eq=a_eq, b_eq=b_eq, bounds=(0, None), method=_HIGHS_METHOD, options=_HIGHS_OPTIONS)
+    res = linprog(
+        (cost / cmax).ravel(), A_eq=a_eq, b_eq=b_eq, bounds=(0, None), method=_HIGHS_METHOD, options=_HIGHS_OPTIONS
+    )
     if res.status != 0 or res.x is None:  # a feasible, bounded LP: should never happen
         raise RuntimeError(f"optimal transport LP failed: {res.message}")
     return float(cost.ravel() @ np.clip(res.x, 0.0, None))

@@ -25,39 +25,44 @@ import numpy as np
 from ._version import __version__
 from .category import categorize
 from .config import ScoreConfig, config_hash
+from .diagnostics import FrameDiagnostics, ObjectFlow
 from .features import FeatureSet, Matcher, make_matcher, scaled_inputs
 from .flow import FlowBackend, make_flow_backend
 from .gate import gate_decision
-from .diagnostics import FrameDiagnostics, ObjectFlow
 from .geometry import scale_intrinsics, triangulate_two_view
 from .masks import make_mask_source
 from .models import ModelFit, fit_fundamental, fit_homography
-from .regate import FitRow, aggregate_gaps, choose_model, report_verdict
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
-from .rigidity import adadfrc_pair, object_scores
 from .record import (
     BackgroundSummary,
     CellArrays,
-    ObjectEntry,
-    ObjectScaleSummary,
-    ObjectSummary,
     ClipRecord,
-    PointCloud,
     FamilySummary,
     FitSummary,
     GateRecord,
     GateWindow,
     MatchArrays,
+    ObjectEntry,
+    ObjectScaleSummary,
+    ObjectSummary,
     PairRecord,
+    PointCloud,
     ScaleSummary,
 )
+from .regate import FitRow, aggregate_gaps, choose_model, report_verdict
+from .rigidity import adadfrc_pair, object_scores
 
 __all__ = ["score_clip", "software_versions"]
 
 
 def software_versions() -> dict[str, str]:
-    versions = {"geocon": __version__, "python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__}
+    versions = {
+        "geocon": __version__,
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "opencv": cv2.__version__,
+    }
     return versions
 
 
@@ -81,8 +86,14 @@ class _Scored:
 def _fit_summary(fit: ModelFit) -> FitSummary:
     model = None if fit.model is None else [[float(v) for v in row] for row in fit.model]
     return FitSummary(
-        valid=fit.valid, reason=fit.reason, ir=fit.ir, ge=fit.ge, n_inliers=fit.n_inliers,
-        tau=fit.tau, tau_px=fit.tau_px, model=model,
+        valid=fit.valid,
+        reason=fit.reason,
+        ir=fit.ir,
+        ge=fit.ge,
+        n_inliers=fit.n_inliers,
+        tau=fit.tau,
+        tau_px=fit.tau_px,
+        model=model,
     )
 
 
@@ -102,7 +113,9 @@ class _Timer:
 
 
 class _Pipeline:
-    def __init__(self, info: ClipInfo, config: ScoreConfig, matcher: Matcher, flow: FlowBackend | None, timer: _Timer) -> None:
+    def __init__(
+        self, info: ClipInfo, config: ScoreConfig, matcher: Matcher, flow: FlowBackend | None, timer: _Timer
+    ) -> None:
         self.info, self.config, self.matcher, self.flow, self.timer = info, config, matcher, flow, timer
         self.s_max = max(config.scales)
         self.keep_flows = False
@@ -135,7 +148,9 @@ class _Pipeline:
             results.append(_Scored(t0, t1, gap, s, None, x1.astype(np.float32), x2.astype(np.float32), h, f))
         return results
 
-    def score_objects(self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None) -> tuple[list[tuple], list[ObjectFlow]]:
+    def score_objects(
+        self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None
+    ) -> tuple[list[tuple], list[ObjectFlow]]:
         """AdaDFRC of every object of frame t0 on the pair (t0, t1), at every scale:
         (object_id, t0, t1, scale, RigidityResult | reason), and the flow slices at scale 1
         (kept only when diagnostics are streamed)."""
@@ -165,16 +180,31 @@ class _Pipeline:
                 field = self.flow.compute(g0, g1, box)
                 x0, y0, x1, y1 = field.box
                 res = adadfrc_pair(
-                    field.flow, mask[y0:y1, x0:x1], field.reliable,
-                    grid=self.config.grid, min_cells=self.config.min_cells, origin=(float(x0), float(y0)),
+                    field.flow,
+                    mask[y0:y1, x0:x1],
+                    field.reliable,
+                    grid=self.config.grid,
+                    min_cells=self.config.min_cells,
+                    origin=(float(x0), float(y0)),
                 )
                 out.append((oid, f0.index, f1.index, s, res))
                 if self.keep_flows and s == 1.0:
-                    flows.append(ObjectFlow(oid, f0.index, f1.index, field.box, field.flow, field.reliable, mask[y0:y1, x0:x1]))
+                    flows.append(
+                        ObjectFlow(oid, f0.index, f1.index, field.box, field.flow, field.reliable, mask[y0:y1, x0:x1])
+                    )
         self.timer.add("objects", start)
         return out, flows
 
-    def pose(self, fa: Future, fb: Future, backend: PoseBackend, K: np.ndarray, t0: int, t1: int, rgb0: np.ndarray | None = None):
+    def pose(
+        self,
+        fa: Future,
+        fb: Future,
+        backend: PoseBackend,
+        K: np.ndarray,
+        t0: int,
+        t1: int,
+        rgb0: np.ndarray | None = None,
+    ):
         """The relative pose (t0 -> t1); with ``rgb0`` (frame t0), also the two-view point cloud."""
         a, b = fa.result()[self.s_max], fb.result()[self.s_max]
         start = time.perf_counter()
@@ -186,13 +216,17 @@ class _Pipeline:
         return est, _two_view_cloud(est, K, x0, x1, rgb0, self.s_max)
 
 
-def _two_view_cloud(est: PoseEstimate, K: np.ndarray, x0: np.ndarray, x1: np.ndarray, rgb0: np.ndarray, scale: float) -> PointCloud:
+def _two_view_cloud(
+    est: PoseEstimate, K: np.ndarray, x0: np.ndarray, x1: np.ndarray, rgb0: np.ndarray, scale: float
+) -> PointCloud:
     empty = PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), "")
     if not est.pose_present:
         return replace(empty, note=f"no point cloud: no first-last pose ({est.reason})")
     T = np.asarray(est.T_cam0_camT, dtype=float)
     if not np.linalg.norm(T[:3, 3]) > 0:
-        return replace(empty, note=f"no point cloud: {est.method} pose without translation (no parallax to triangulate)")
+        return replace(
+            empty, note=f"no point cloud: {est.method} pose without translation (no parallax to triangulate)"
+        )
     Ks = K.copy()
     Ks[0, 0] *= est.focal_scale
     Ks[1, 1] *= est.focal_scale
@@ -289,7 +323,9 @@ def score_clip(
                     break
                 pending.popleft()
                 flows = () if fut is None else tuple(fut.result()[1])
-                on_frame(FrameDiagnostics(frame.index, frame, info.fps, labels, float(masked_share[frame.index]), flows))
+                on_frame(
+                    FrameDiagnostics(frame.index, frame, info.fps, labels, float(masked_share[frame.index]), flows)
+                )
 
         def process(t: int) -> None:
             """Everything that needs frame t and its mask; runs once labels(t) are final."""
@@ -324,7 +360,9 @@ def score_clip(
                     pair_futures.append(pool.submit(pipe.score_pair, feats[t0], feats[t], t0, t, gap))
             if labels is not None and t >= 1 and (t - 1) in labels_buf:
                 object_futures.append(
-                    pool.submit(pipe.score_objects, frames_buf[t - 1], frame, labels_buf[t - 1], info.pair_skip_reason(t - 1, t))
+                    pool.submit(
+                        pipe.score_objects, frames_buf[t - 1], frame, labels_buf[t - 1], info.pair_skip_reason(t - 1, t)
+                    )
                 )
                 if on_frame is not None and pending and pending[-1][0].index == t - 1:
                     pending[-1][2] = object_futures[-1]  # frame t-1 is complete once its flows are
@@ -393,7 +431,11 @@ def _aggregate(family: str, scored: list[_Scored], cfg: ScoreConfig) -> FamilySu
     rows = []
     for r in scored:
         fit = None if r.skip else fit_of(r)
-        rows.append(FitRow(r.gap, r.scale, False, None, None) if fit is None else FitRow(r.gap, r.scale, fit.valid, fit.ir, fit.ge))
+        rows.append(
+            FitRow(r.gap, r.scale, False, None, None)
+            if fit is None
+            else FitRow(r.gap, r.scale, fit.valid, fit.ir, fit.ge)
+        )
     per_gap, ir, ge = aggregate_gaps(rows, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation)
     reasons: dict[str, int] = {}
     for r in scored:
@@ -445,50 +487,99 @@ def _assemble(clip, info, cfg, K, backend, pose, timeline_poses, windows, scored
         warnings.append("no valid pair: the background could not be judged")
     tau_f_px = fam["F"].per_scale[list(cfg.scales).index(max(cfg.scales))].tau_f_px
     background = BackgroundSummary(
-        model=model, ir=chosen.ir, ge=chosen.ge, valid_pairs=chosen.valid_pairs, total_pairs=chosen.total_pairs,
-        consistent=consistent, tau_f_px=tau_f_px, chosen=chosen, other=other, choice_note=note,
+        model=model,
+        ir=chosen.ir,
+        ge=chosen.ge,
+        valid_pairs=chosen.valid_pairs,
+        total_pairs=chosen.total_pairs,
+        consistent=consistent,
+        tau_f_px=tau_f_px,
+        chosen=chosen,
+        other=other,
+        choice_note=note,
     )
     timeline = []
     for (s, e), est in timeline_poses:
-        wl = gate_decision(est.t_inf, pose_present=est.pose_present, tau_t=cfg.tau_t, low=cfg.tau_t_low, high=cfg.tau_t_high)[0] if est.pose_present else None
+        wl = (
+            gate_decision(
+                est.t_inf, pose_present=est.pose_present, tau_t=cfg.tau_t, low=cfg.tau_t_low, high=cfg.tau_t_high
+            )[0]
+            if est.pose_present
+            else None
+        )
         timeline.append(GateWindow(start=s, end=e, t_inf=est.t_inf, label=wl, pose_present=est.pose_present))
     if (0, info.num_frames - 1) in windows:
-        timeline.append(GateWindow(0, info.num_frames - 1, pose.t_inf, label if pose.pose_present else None, pose.pose_present))
+        timeline.append(
+            GateWindow(0, info.num_frames - 1, pose.t_inf, label if pose.pose_present else None, pose.pose_present)
+        )
     gate = GateRecord(
-        label=label, binary_label=binary, model=model, t_inf=pose.t_inf, pose_present=pose.pose_present, margin=margin,
-        backend=backend.name, thresholds={"tau_t": cfg.tau_t, "low": cfg.tau_t_low, "high": cfg.tau_t_high},
-        pose=pose.to_dict(), timeline=tuple(timeline),
+        label=label,
+        binary_label=binary,
+        model=model,
+        t_inf=pose.t_inf,
+        pose_present=pose.pose_present,
+        margin=margin,
+        backend=backend.name,
+        thresholds={"tau_t": cfg.tau_t, "low": cfg.tau_t_low, "high": cfg.tau_t_high},
+        pose=pose.to_dict(),
+        timeline=tuple(timeline),
     )
     pairs, arrays = [], []
     for i, r in enumerate(scored):
         pairs.append(
             PairRecord(
-                index=i, t0=r.t0, t1=r.t1, gap=r.gap, scale=r.scale, n_matches=len(r.x1), skip=r.skip,
-                h=None if r.h is None else _fit_summary(r.h), f=None if r.f is None else _fit_summary(r.f),
+                index=i,
+                t0=r.t0,
+                t1=r.t1,
+                gap=r.gap,
+                scale=r.scale,
+                n_matches=len(r.x1),
+                skip=r.skip,
+                h=None if r.h is None else _fit_summary(r.h),
+                f=None if r.f is None else _fit_summary(r.f),
             )
         )
         m = len(r.x1)
         z32, zb = np.zeros(m, np.float32), np.zeros(m, bool)
-        arrays.append({
-            "x1": r.x1, "x2": r.x2,
-            "h_res": z32 if r.h is None else r.h.residuals, "f_res": z32 if r.f is None else r.f.residuals,
-            "f_res_px": z32 if r.f is None else r.f.residuals_px,
-            "h_inl": zb if r.h is None else r.h.inliers, "f_inl": zb if r.f is None else r.f.inliers,
-        })
+        arrays.append(
+            {
+                "x1": r.x1,
+                "x2": r.x2,
+                "h_res": z32 if r.h is None else r.h.residuals,
+                "f_res": z32 if r.f is None else r.f.residuals,
+                "f_res_px": z32 if r.f is None else r.f.residuals_px,
+                "h_inl": zb if r.h is None else r.h.inliers,
+                "f_inl": zb if r.f is None else r.f.inliers,
+            }
+        )
     if info.duplicates:
         warnings.append(f"{len(info.duplicates)} duplicated frame(s): pairs across them are not scored")
     if info.cuts:
         warnings.append(f"{len(info.cuts)} hard cut(s) at frame(s) {list(info.cuts)}: pairs across them are not scored")
     return ClipRecord(
-        clip=clip, video=info.to_dict(), config=cfg, config_hash=config_hash(cfg), versions=software_versions(),
-        gate=gate, background=background, pairs=tuple(pairs), matches=MatchArrays.concatenate(arrays),
-        intrinsics=[[float(v) for v in row] for row in K], category=None, warnings=tuple(warnings),
+        clip=clip,
+        video=info.to_dict(),
+        config=cfg,
+        config_hash=config_hash(cfg),
+        versions=software_versions(),
+        gate=gate,
+        background=background,
+        pairs=tuple(pairs),
+        matches=MatchArrays.concatenate(arrays),
+        intrinsics=[[float(v) for v in row] for row in K],
+        category=None,
+        warnings=tuple(warnings),
     )
 
 
 def _with_objects(
-    record: ClipRecord, cfg: ScoreConfig, mask_source, masks_path, masked_share: np.ndarray,
-    object_share: dict[int, dict[int, float]], results: list[tuple],
+    record: ClipRecord,
+    cfg: ScoreConfig,
+    mask_source,
+    masks_path,
+    masked_share: np.ndarray,
+    object_share: dict[int, dict[int, float]],
+    results: list[tuple],
 ) -> ClipRecord:
     """Add object entries, per-object summaries, masked share and the category to a record."""
     entries: list[ObjectEntry] = []
@@ -502,9 +593,17 @@ def _with_objects(
         affine = None if res.affine is None else [[float(v) for v in row] for row in res.affine]
         entries.append(ObjectEntry(i, oid, t0, t1, s, res.valid, res.reason, res.d_t, res.w2, res.n_pixels, affine))
         c = res.cells
-        cells.append(None if c is None else {
-            "cells": c.cells, "positions": c.positions, "observed": c.observed, "predicted": c.predicted, "weights": c.weights,
-        })
+        cells.append(
+            None
+            if c is None
+            else {
+                "cells": c.cells,
+                "positions": c.positions,
+                "observed": c.observed,
+                "predicted": c.predicted,
+                "weights": c.weights,
+            }
+        )
     summaries = []
     s_max = max(cfg.scales)
     for oid in sorted({e.object_id for e in entries}):
@@ -525,17 +624,33 @@ def _with_objects(
             per_scale.append(ObjectScaleSummary(s, S, w2, p90, len(valid), dict(sorted(skipped.items()))))
         head = next(p for p in per_scale if p.scale == s_max)
         shares = [object_share.get(t, {}).get(oid, 0.0) for t in frames]
-        summaries.append(ObjectSummary(
-            object_id=oid, frames=len(frames), first_frame=frames[0], last_frame=frames[-1],
-            masked_share=float(np.mean(shares)) if shares else 0.0,
-            adadfrc=head.adadfrc, adadfrc_w2=head.adadfrc_w2, adap90=head.adap90, per_scale=tuple(per_scale),
-        ))
+        summaries.append(
+            ObjectSummary(
+                object_id=oid,
+                frames=len(frames),
+                first_frame=frames[0],
+                last_frame=frames[-1],
+                masked_share=float(np.mean(shares)) if shares else 0.0,
+                adadfrc=head.adadfrc,
+                adadfrc_w2=head.adadfrc_w2,
+                adap90=head.adap90,
+                per_scale=tuple(per_scale),
+            )
+        )
     warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
-    source = "none" if mask_source is None else (f"external:{masks_path}" if masks_path is not None else mask_source.name)
+    source = (
+        "none" if mask_source is None else (f"external:{masks_path}" if masks_path is not None else mask_source.name)
+    )
     category = _categorize(record, cfg, [o.frames for o in summaries])
     return replace(
-        record, masks_source=source, masked_share=tuple(float(v) for v in masked_share), objects=tuple(summaries),
-        object_entries=tuple(entries), cells=CellArrays.concatenate(cells), warnings=tuple(warnings), category=category,
+        record,
+        masks_source=source,
+        masked_share=tuple(float(v) for v in masked_share),
+        objects=tuple(summaries),
+        object_entries=tuple(entries),
+        cells=CellArrays.concatenate(cells),
+        warnings=tuple(warnings),
+        category=category,
     )
 
 

@@ -36,9 +36,27 @@ import pandas as pd
 from .dataset import EXPECTED_MODEL
 
 __all__ = [
-    "EXPECTED_MODEL", "Interval", "TAU_GRID", "TauBootstrap", "wilson_interval", "scene_balanced_median", "bootstrap_median_ci",
-    "median_difference_ci", "scene_balanced_table", "gate_rates", "consensus", "margin_summary", "calibration_bins", "net_benefit",
-    "balanced_accuracy", "bootstrap_tau", "tinf_densities", "percentile_aligned", "adap90_summary", "top_hardest", "sensitivity_table",
+    "EXPECTED_MODEL",
+    "Interval",
+    "TAU_GRID",
+    "TauBootstrap",
+    "wilson_interval",
+    "scene_balanced_median",
+    "bootstrap_median_ci",
+    "median_difference_ci",
+    "scene_balanced_table",
+    "gate_rates",
+    "consensus",
+    "margin_summary",
+    "calibration_bins",
+    "net_benefit",
+    "balanced_accuracy",
+    "bootstrap_tau",
+    "tinf_densities",
+    "percentile_aligned",
+    "adap90_summary",
+    "top_hardest",
+    "sensitivity_table",
 ]
 
 TAU_GRID = (0.02, 0.03, 0.04, 0.06, 0.08)
@@ -92,7 +110,9 @@ def _boot_medians(per_scene: np.ndarray, B: int, rng: np.random.Generator) -> np
     return np.median(per_scene[idx], axis=1)
 
 
-def bootstrap_median_ci(values: Sequence[float], scenes: Sequence[Hashable], *, B: int = 10_000, confidence: float = 0.95, seed: int = 0) -> Interval:
+def bootstrap_median_ci(
+    values: Sequence[float], scenes: Sequence[Hashable], *, B: int = 10_000, confidence: float = 0.95, seed: int = 0
+) -> Interval:
     """Scene-balanced median with a percentile bootstrap interval resampling scenes."""
     m = _scene_medians(values, scenes)
     if m.size == 0:
@@ -102,7 +122,9 @@ def bootstrap_median_ci(values: Sequence[float], scenes: Sequence[Hashable], *, 
     return Interval(float(np.median(m)), float(np.quantile(boot, a)), float(np.quantile(boot, 1 - a)), int(m.size))
 
 
-def median_difference_ci(values_a, scenes_a, values_b, scenes_b, *, B: int = 10_000, confidence: float = 0.95, seed: int = 0) -> Interval:
+def median_difference_ci(
+    values_a, scenes_a, values_b, scenes_b, *, B: int = 10_000, confidence: float = 0.95, seed: int = 0
+) -> Interval:
     """Effect size: scene-balanced median(a) - median(b), each side's scenes resampled
     independently; ``n`` is the smaller number of scenes."""
     ma, mb = _scene_medians(values_a, scenes_a), _scene_medians(values_b, scenes_b)
@@ -111,15 +133,27 @@ def median_difference_ci(values_a, scenes_a, values_b, scenes_b, *, B: int = 10_
     rng = np.random.default_rng(seed)
     diff = _boot_medians(ma, B, rng) - _boot_medians(mb, B, rng)
     a = (1 - confidence) / 2
-    return Interval(float(np.median(ma) - np.median(mb)), float(np.quantile(diff, a)), float(np.quantile(diff, 1 - a)), int(min(ma.size, mb.size)))
+    return Interval(
+        float(np.median(ma) - np.median(mb)),
+        float(np.quantile(diff, a)),
+        float(np.quantile(diff, 1 - a)),
+        int(min(ma.size, mb.size)),
+    )
 
 
 def _ok(df: pd.DataFrame) -> pd.DataFrame:
     return df[df["status"] == "ok"] if "status" in df else df
 
 
-def scene_balanced_table(df: pd.DataFrame, value: str, *, by: Sequence[str] = ("model", "category"), scene: str = "scene_id",
-                         B: int = 10_000, seed: int = 0) -> pd.DataFrame:
+def scene_balanced_table(
+    df: pd.DataFrame,
+    value: str,
+    *,
+    by: Sequence[str] = ("model", "category"),
+    scene: str = "scene_id",
+    B: int = 10_000,
+    seed: int = 0,
+) -> pd.DataFrame:
     """Per group: the scene-balanced median of ``value`` with its bootstrap CI (columns
     ``by..., median, low, high, n_scenes, n_clips``), over scored rows with a finite value."""
     rows = []
@@ -128,7 +162,16 @@ def scene_balanced_table(df: pd.DataFrame, value: str, *, by: Sequence[str] = ("
     for key, g in data.groupby(list(by), sort=True):
         ci = bootstrap_median_ci(g[value].to_numpy(float), g[scene].to_numpy(), B=B, seed=seed)
         key = key if isinstance(key, tuple) else (key,)
-        rows.append({**dict(zip(by, key)), "median": ci.estimate, "low": ci.low, "high": ci.high, "n_scenes": ci.n, "n_clips": len(g)})
+        rows.append(
+            {
+                **dict(zip(by, key)),
+                "median": ci.estimate,
+                "low": ci.low,
+                "high": ci.high,
+                "n_scenes": ci.n,
+                "n_clips": len(g),
+            }
+        )
     return pd.DataFrame(rows, columns=[*by, "median", "low", "high", "n_scenes", "n_clips"])
 
 
@@ -146,13 +189,21 @@ def gate_rates(clips: pd.DataFrame, *, by: Sequence[str] = ("model", "category")
         present = g[pose & (g["gate_label"] != "U")]
         fam_fail_f = np.where(pose, g["gate_model"], "F")
         expected = g["expected_model"].to_numpy()
-        rows.append({
-            **dict(zip(by, key)), "n_clips": len(g), "n_present": len(present),
-            **_rate_cols("f_rate_present", int((present["gate_label"] == "F").sum()), len(present)),
-            **_rate_cols("anomaly_rate_present", int((present["gate_label"] != present["expected_model"]).sum()), len(present)),
-            **_rate_cols("f_rate_fail_f", int((fam_fail_f == "F").sum()), len(g)),
-            **_rate_cols("anomaly_rate_fail_f", int((fam_fail_f != expected).sum()), len(g)),
-        })
+        rows.append(
+            {
+                **dict(zip(by, key)),
+                "n_clips": len(g),
+                "n_present": len(present),
+                **_rate_cols("f_rate_present", int((present["gate_label"] == "F").sum()), len(present)),
+                **_rate_cols(
+                    "anomaly_rate_present",
+                    int((present["gate_label"] != present["expected_model"]).sum()),
+                    len(present),
+                ),
+                **_rate_cols("f_rate_fail_f", int((fam_fail_f == "F").sum()), len(g)),
+                **_rate_cols("anomaly_rate_fail_f", int((fam_fail_f != expected).sum()), len(g)),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -165,12 +216,22 @@ def consensus(clips: pd.DataFrame) -> pd.DataFrame:
     for (scene, cat), g in _ok(clips).groupby(["scene_id", "category"], sort=True):
         decided = g[g["pose_present"].fillna(False).astype(bool) & g["gate_label"].isin(["H", "F"])]
         labels = set(decided["gate_label"])
-        rows.append({"scene_id": scene, "category": cat, "platforms": int(g["model"].nunique()), "n_decided": len(decided),
-                     "labels": ",".join(sorted(labels)), "unanimous": (len(labels) == 1) if len(decided) >= 2 else pd.NA})
+        rows.append(
+            {
+                "scene_id": scene,
+                "category": cat,
+                "platforms": int(g["model"].nunique()),
+                "n_decided": len(decided),
+                "labels": ",".join(sorted(labels)),
+                "unanimous": (len(labels) == 1) if len(decided) >= 2 else pd.NA,
+            }
+        )
     out = pd.DataFrame(rows, columns=["scene_id", "category", "platforms", "n_decided", "labels", "unanimous"])
     judged = out[out["n_decided"] >= 2]
     n_un = int((judged["unanimous"] == True).sum())  # noqa: E712  (NA-aware)
-    out.attrs.update(consensus_rate=(n_un / len(judged)) if len(judged) else _NAN, n_tuples=len(judged), n_unanimous=n_un)
+    out.attrs.update(
+        consensus_rate=(n_un / len(judged)) if len(judged) else _NAN, n_tuples=len(judged), n_unanimous=n_un
+    )
     return out
 
 
@@ -182,8 +243,16 @@ def margin_summary(clips: pd.DataFrame, *, by: Sequence[str] = ("model",)) -> pd
     for key, g in data.groupby(list(by), sort=True):
         key = key if isinstance(key, tuple) else (key,)
         m = g["margin"].to_numpy(float)
-        rows.append({**dict(zip(by, key)), "n": m.size, "p10": float(np.percentile(m, 10)), "median": float(np.median(m)),
-                     "p90": float(np.percentile(m, 90)), "thin_share": float(np.mean(np.abs(m) < 0.01))})
+        rows.append(
+            {
+                **dict(zip(by, key)),
+                "n": m.size,
+                "p10": float(np.percentile(m, 10)),
+                "median": float(np.median(m)),
+                "p90": float(np.percentile(m, 90)),
+                "thin_share": float(np.mean(np.abs(m) < 0.01)),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -201,8 +270,19 @@ def calibration_bins(t_inf, is_f, *, K: int = 12, confidence: float = 0.95) -> p
     for i, idx in enumerate(np.array_split(order, min(K, t.size)) if t.size else []):
         k, n = int(y[idx].sum()), idx.size
         w = wilson_interval(k, n, confidence=confidence)
-        rows.append({"bin": i, "t_low": float(t[idx].min()), "t_high": float(t[idx].max()), "t_mid": float(np.median(t[idx])),
-                     "n": n, "k": k, "p": w.estimate, "low": w.low, "high": w.high})
+        rows.append(
+            {
+                "bin": i,
+                "t_low": float(t[idx].min()),
+                "t_high": float(t[idx].max()),
+                "t_mid": float(np.median(t[idx])),
+                "n": n,
+                "k": k,
+                "p": w.estimate,
+                "low": w.low,
+                "high": w.high,
+            }
+        )
     return pd.DataFrame(rows, columns=["bin", "t_low", "t_high", "t_mid", "n", "k", "p", "low", "high"])
 
 
@@ -214,8 +294,16 @@ def net_benefit(t_inf, is_f, taus: Sequence[float], *, costs: Sequence[float] = 
         pred = t >= tau
         tp, fp = int((pred & y).sum()), int((pred & ~y).sum())
         for c in costs:
-            rows.append({"tau": float(tau), "c": float(c), "tp": tp, "fp": fp, "n": t.size,
-                         "net_benefit": (tp - c * fp) / t.size if t.size else _NAN})
+            rows.append(
+                {
+                    "tau": float(tau),
+                    "c": float(c),
+                    "tp": tp,
+                    "fp": fp,
+                    "n": t.size,
+                    "net_benefit": (tp - c * fp) / t.size if t.size else _NAN,
+                }
+            )
     return pd.DataFrame(rows, columns=["tau", "c", "tp", "fp", "n", "net_benefit"])
 
 
@@ -258,8 +346,15 @@ def bootstrap_tau(t_inf, is_f, *, grid: Sequence[float] = TAU_GRID, B: int = 400
         n = neg[rng.integers(0, neg.size, neg.size)]
         ba[b] = ((p[:, None] >= g).mean(axis=0) + (n[:, None] < g).mean(axis=0)) / 2
     wins = np.bincount(np.argmax(ba, axis=1), minlength=g.size)
-    return TauBootstrap(tuple(float(v) for v in g), ba.mean(axis=0), np.quantile(ba, 0.025, axis=0), np.quantile(ba, 0.975, axis=0),
-                        wins, float(g[int(np.argmax(wins))]), B)
+    return TauBootstrap(
+        tuple(float(v) for v in g),
+        ba.mean(axis=0),
+        np.quantile(ba, 0.025, axis=0),
+        np.quantile(ba, 0.975, axis=0),
+        wins,
+        float(g[int(np.argmax(wins))]),
+        B,
+    )
 
 
 def tinf_densities(t_inf, is_f, *, bins: int = 30, t_max: float | None = None) -> pd.DataFrame:
@@ -273,8 +368,15 @@ def tinf_densities(t_inf, is_f, *, bins: int = 30, t_max: float | None = None) -
     return pd.DataFrame({"left": edges[:-1], "right": edges[1:], "density_h": dh, "density_f": df})
 
 
-def percentile_aligned(clips: pd.DataFrame, *, x: str = "ir", y: str = "ge", percentiles: Sequence[float] = (10, 25, 50, 75, 90),
-                       by: Sequence[str] = ("model",), band: float = 10.0) -> pd.DataFrame:
+def percentile_aligned(
+    clips: pd.DataFrame,
+    *,
+    x: str = "ir",
+    y: str = "ge",
+    percentiles: Sequence[float] = (10, 25, 50, 75, 90),
+    by: Sequence[str] = ("model",),
+    band: float = 10.0,
+) -> pd.DataFrame:
     """Per group and percentile p: ``x_p`` (percentile p of x) and ``y_at`` (the median y over the
     clips whose x lies between percentiles p - band and p + band of x)."""
     rows = []
@@ -286,8 +388,15 @@ def percentile_aligned(clips: pd.DataFrame, *, x: str = "ir", y: str = "ge", per
         for p in percentiles:
             lo, hi = np.percentile(xv, max(0.0, p - band)), np.percentile(xv, min(100.0, p + band))
             sel = (xv >= lo) & (xv <= hi)
-            rows.append({**dict(zip(by, key)), "percentile": float(p), f"{x}_p": float(np.percentile(xv, p)),
-                         f"{y}_at": float(np.median(yv[sel])), "n": int(sel.sum())})
+            rows.append(
+                {
+                    **dict(zip(by, key)),
+                    "percentile": float(p),
+                    f"{x}_p": float(np.percentile(xv, p)),
+                    f"{y}_at": float(np.median(yv[sel])),
+                    "n": int(sel.sum()),
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -299,25 +408,51 @@ def adap90_summary(objects: pd.DataFrame, *, by: Sequence[str] = ("model", "cate
         key = key if isinstance(key, tuple) else (key,)
         v = g["adap90"].to_numpy(float)
         p80 = float(np.percentile(v, 80))
-        rows.append({**dict(zip(by, key)), "n_objects": v.size, "p50": float(np.median(v)), "p80": p80,
-                     "rate_above_p80": float(np.mean(v > p80)), "max": float(v.max())})
+        rows.append(
+            {
+                **dict(zip(by, key)),
+                "n_objects": v.size,
+                "p50": float(np.median(v)),
+                "p80": p80,
+                "rate_above_p80": float(np.mean(v > p80)),
+                "max": float(v.max()),
+            }
+        )
     return pd.DataFrame(rows, columns=[*by, "n_objects", "p50", "p80", "rate_above_p80", "max"])
 
 
-def top_hardest(objects: pd.DataFrame, object_frames: pd.DataFrame, *, n: int = 10, by: Sequence[str] = ("model",)) -> list[dict[str, Any]]:
+def top_hardest(
+    objects: pd.DataFrame, object_frames: pd.DataFrame, *, n: int = 10, by: Sequence[str] = ("model",)
+) -> list[dict[str, Any]]:
     """Per group, the ``n`` objects with the highest AdaP90 with their per-frame ``D_t`` trace
     (valid frames, in order), P50/P90 of the trace and its length."""
     out = []
     data = objects[np.isfinite(objects["adap90"].astype(float))]
     for key, g in data.groupby(list(by), sort=True):
         key = key if isinstance(key, tuple) else (key,)
-        for row in g.sort_values(["adap90", "clip_id", "object_id"], ascending=[False, True, True]).head(n).itertuples():
-            fr = object_frames[(object_frames["clip_id"] == row.clip_id) & (object_frames["object_id"] == row.object_id) & object_frames["valid"]]
+        for row in (
+            g.sort_values(["adap90", "clip_id", "object_id"], ascending=[False, True, True]).head(n).itertuples()
+        ):
+            fr = object_frames[
+                (object_frames["clip_id"] == row.clip_id)
+                & (object_frames["object_id"] == row.object_id)
+                & object_frames["valid"]
+            ]
             fr = fr.sort_values("t0")
             d = fr["d_t"].to_numpy(float)
-            out.append({**dict(zip(by, key)), "clip_id": row.clip_id, "object_id": int(row.object_id), "category": row.category,
-                        "adap90": float(row.adap90), "trace": list(zip(fr["t0"].astype(int).tolist(), d.tolist())),
-                        "p50": float(np.median(d)) if d.size else _NAN, "p90": float(np.percentile(d, 90)) if d.size else _NAN, "frames": int(d.size)})
+            out.append(
+                {
+                    **dict(zip(by, key)),
+                    "clip_id": row.clip_id,
+                    "object_id": int(row.object_id),
+                    "category": row.category,
+                    "adap90": float(row.adap90),
+                    "trace": list(zip(fr["t0"].astype(int).tolist(), d.tolist())),
+                    "p50": float(np.median(d)) if d.size else _NAN,
+                    "p90": float(np.percentile(d, 90)) if d.size else _NAN,
+                    "frames": int(d.size),
+                }
+            )
     return out
 
 
@@ -327,6 +462,12 @@ def sensitivity_table(sensitivity: pd.DataFrame, *, by: Sequence[str] = ("model"
     rows = []
     data = sensitivity[sensitivity["chosen"]]
     for key, g in data.groupby([*by, "family", "tau"], sort=True):
-        rows.append({**dict(zip([*by, "family", "tau"], key)), "ir": scene_balanced_median(g["ir"], g["scene_id"]),
-                     "ge": scene_balanced_median(g["ge"], g["scene_id"]), "n_clips": len(g)})
+        rows.append(
+            {
+                **dict(zip([*by, "family", "tau"], key)),
+                "ir": scene_balanced_median(g["ir"], g["scene_id"]),
+                "ge": scene_balanced_median(g["ge"], g["scene_id"]),
+                "n_clips": len(g),
+            }
+        )
     return pd.DataFrame(rows, columns=[*by, "family", "tau", "ir", "ge", "n_clips"])

@@ -27,7 +27,12 @@ def _num(v: float | None) -> float:
 
 
 def _group(meta: dict[str, Any], clip_id: str) -> dict[str, Any]:
-    return {"clip_id": clip_id, "model": str(meta.get("model")), "scene_id": str(meta.get("scene_id")), "category": meta.get("category")}
+    return {
+        "clip_id": clip_id,
+        "model": str(meta.get("model")),
+        "scene_id": str(meta.get("scene_id")),
+        "category": meta.get("category"),
+    }
 
 
 def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) -> dict[str, Any]:
@@ -45,22 +50,59 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         "config_hash": status.get("config_hash"),
     }
     if record is None:
-        row.update(preset=None, frames=0, gate_label=None, gate_model=None, binary_label=None, t_inf=_NAN, pose_present=None,
-                   margin=_NAN, ir=_NAN, ge=_NAN, ir_h=_NAN, ge_h=_NAN, ir_f=_NAN, ge_f=_NAN, valid_pairs=0, total_pairs=0,
-                   consistent=None, tau_f_px=_NAN, observed_category=None, n_objects=0, adadfrc_max=_NAN, adap90_max=_NAN,
-                   masked_share_mean=_NAN)
+        row.update(
+            preset=None,
+            frames=0,
+            gate_label=None,
+            gate_model=None,
+            binary_label=None,
+            t_inf=_NAN,
+            pose_present=None,
+            margin=_NAN,
+            ir=_NAN,
+            ge=_NAN,
+            ir_h=_NAN,
+            ge_h=_NAN,
+            ir_f=_NAN,
+            ge_f=_NAN,
+            valid_pairs=0,
+            total_pairs=0,
+            consistent=None,
+            tau_f_px=_NAN,
+            observed_category=None,
+            n_objects=0,
+            adadfrc_max=_NAN,
+            adap90_max=_NAN,
+            masked_share_mean=_NAN,
+        )
         return row
     bg, gate = record.background, record.gate
     fam = {bg.chosen.family: bg.chosen, bg.other.family: bg.other}
     adadfrc = [o.adadfrc for o in record.objects if o.adadfrc is not None]
     adap90 = [o.adap90 for o in record.objects if o.adap90 is not None]
     row.update(
-        preset=record.config.preset, frames=int(record.video.get("num_frames") or 0), gate_label=gate.label, gate_model=gate.model,
-        binary_label=gate.binary_label, t_inf=_num(gate.t_inf), pose_present=bool(gate.pose_present), margin=_num(gate.margin),
-        ir=_num(bg.ir), ge=_num(bg.ge), ir_h=_num(fam["H"].ir), ge_h=_num(fam["H"].ge), ir_f=_num(fam["F"].ir), ge_f=_num(fam["F"].ge),
-        valid_pairs=bg.valid_pairs, total_pairs=bg.total_pairs, consistent=bg.consistent, tau_f_px=_num(bg.tau_f_px),
-        observed_category=None if record.category is None else record.category.label, n_objects=len(record.objects),
-        adadfrc_max=max(adadfrc) if adadfrc else _NAN, adap90_max=max(adap90) if adap90 else _NAN,
+        preset=record.config.preset,
+        frames=int(record.video.get("num_frames") or 0),
+        gate_label=gate.label,
+        gate_model=gate.model,
+        binary_label=gate.binary_label,
+        t_inf=_num(gate.t_inf),
+        pose_present=bool(gate.pose_present),
+        margin=_num(gate.margin),
+        ir=_num(bg.ir),
+        ge=_num(bg.ge),
+        ir_h=_num(fam["H"].ir),
+        ge_h=_num(fam["H"].ge),
+        ir_f=_num(fam["F"].ir),
+        ge_f=_num(fam["F"].ge),
+        valid_pairs=bg.valid_pairs,
+        total_pairs=bg.total_pairs,
+        consistent=bg.consistent,
+        tau_f_px=_num(bg.tau_f_px),
+        observed_category=None if record.category is None else record.category.label,
+        n_objects=len(record.objects),
+        adadfrc_max=max(adadfrc) if adadfrc else _NAN,
+        adap90_max=max(adap90) if adap90 else _NAN,
         masked_share_mean=float(sum(record.masked_share) / len(record.masked_share)) if record.masked_share else _NAN,
     )
     return row
@@ -69,14 +111,23 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
 def _fit_cols(prefix: str, fit) -> dict[str, Any]:
     if fit is None:
         return {f"{prefix}_valid": False, f"{prefix}_ir": _NAN, f"{prefix}_ge": _NAN, f"{prefix}_inliers": 0}
-    return {f"{prefix}_valid": bool(fit.valid), f"{prefix}_ir": _num(fit.ir), f"{prefix}_ge": _num(fit.ge), f"{prefix}_inliers": int(fit.n_inliers)}
+    return {
+        f"{prefix}_valid": bool(fit.valid),
+        f"{prefix}_ir": _num(fit.ir),
+        f"{prefix}_ge": _num(fit.ge),
+        f"{prefix}_inliers": int(fit.n_inliers),
+    }
 
 
 def collect_rows(results: str | Path) -> dict[str, list[dict[str, Any]]]:
     """The rows of every table, from the finished clips of a results folder."""
     base = Path(results)
     rows: dict[str, list[dict[str, Any]]] = {name: [] for name in TABLES}
-    folders = sorted((p for p in (base / CLIPS_DIR).iterdir() if p.is_dir()), key=lambda p: p.name) if (base / CLIPS_DIR).is_dir() else []
+    folders = (
+        sorted((p for p in (base / CLIPS_DIR).iterdir() if p.is_dir()), key=lambda p: p.name)
+        if (base / CLIPS_DIR).is_dir()
+        else []
+    )
     for folder in folders:
         status = read_status(folder)
         if status is None:
@@ -89,55 +140,167 @@ def collect_rows(results: str | Path) -> dict[str, list[dict[str, Any]]]:
         group = _group(status.get("meta") or {}, status["clip_id"])
         chosen = record.background.model
         for p in record.pairs:
-            rows["pairs"].append({
-                **group, "pair_index": p.index, "t0": p.t0, "t1": p.t1, "gap": p.gap, "scale": p.scale, "n_matches": p.n_matches,
-                "skip": p.skip, **_fit_cols("h", p.h), **_fit_cols("f", p.f), "chosen": chosen,
-            })
+            rows["pairs"].append(
+                {
+                    **group,
+                    "pair_index": p.index,
+                    "t0": p.t0,
+                    "t1": p.t1,
+                    "gap": p.gap,
+                    "scale": p.scale,
+                    "n_matches": p.n_matches,
+                    "skip": p.skip,
+                    **_fit_cols("h", p.h),
+                    **_fit_cols("f", p.f),
+                    "chosen": chosen,
+                }
+            )
         for o in record.objects:
-            rows["objects"].append({
-                **group, "object_id": o.object_id, "frames": o.frames, "first_frame": o.first_frame, "last_frame": o.last_frame,
-                "masked_share": float(o.masked_share), "adadfrc": _num(o.adadfrc), "adadfrc_w2": _num(o.adadfrc_w2), "adap90": _num(o.adap90),
-            })
+            rows["objects"].append(
+                {
+                    **group,
+                    "object_id": o.object_id,
+                    "frames": o.frames,
+                    "first_frame": o.first_frame,
+                    "last_frame": o.last_frame,
+                    "masked_share": float(o.masked_share),
+                    "adadfrc": _num(o.adadfrc),
+                    "adadfrc_w2": _num(o.adadfrc_w2),
+                    "adap90": _num(o.adap90),
+                }
+            )
         top = max(record.config.scales)
         for e in sorted(record.object_entries, key=lambda e: (e.object_id, e.t0, e.t1)):
             if e.scale != top:
                 continue
-            rows["object_frames"].append({
-                **group, "object_id": e.object_id, "t0": e.t0, "t1": e.t1, "valid": bool(e.valid), "reason": e.reason,
-                "d_t": _num(e.d_t), "w2": _num(e.w2), "n_pixels": int(e.n_pixels),
-            })
+            rows["object_frames"].append(
+                {
+                    **group,
+                    "object_id": e.object_id,
+                    "t0": e.t0,
+                    "t1": e.t1,
+                    "valid": bool(e.valid),
+                    "reason": e.reason,
+                    "d_t": _num(e.d_t),
+                    "w2": _num(e.w2),
+                    "n_pixels": int(e.n_pixels),
+                }
+            )
         recorded = {"H": record.config.tau_h, "F": record.config.tau_f}
         for r in sensitivity_scan(record):
-            rows["sensitivity"].append({
-                **group, "family": r.family, "tau": r.tau, "ir": _num(r.ir), "ge": _num(r.ge), "valid_pairs": r.valid_pairs,
-                "chosen": r.family == chosen, "is_default": math.isclose(r.tau, recorded[r.family], rel_tol=0, abs_tol=1e-12),
-            })
+            rows["sensitivity"].append(
+                {
+                    **group,
+                    "family": r.family,
+                    "tau": r.tau,
+                    "ir": _num(r.ir),
+                    "ge": _num(r.ge),
+                    "valid_pairs": r.valid_pairs,
+                    "chosen": r.family == chosen,
+                    "is_default": math.isclose(r.tau, recorded[r.family], rel_tol=0, abs_tol=1e-12),
+                }
+            )
     return rows
 
 
 _GROUP = ["clip_id", "model", "scene_id", "category"]
 COLUMNS: dict[str, list[str]] = {
-    "clips": _GROUP + [
-        "model_version", "prompt", "seed", "expected_model", "status", "error", "record", "rrd", "config_hash", "preset", "frames",
-        "gate_label", "gate_model", "binary_label", "t_inf", "pose_present", "margin", "ir", "ge", "ir_h", "ge_h", "ir_f", "ge_f",
-        "valid_pairs", "total_pairs", "consistent", "tau_f_px", "observed_category", "n_objects", "adadfrc_max", "adap90_max",
+    "clips": _GROUP
+    + [
+        "model_version",
+        "prompt",
+        "seed",
+        "expected_model",
+        "status",
+        "error",
+        "record",
+        "rrd",
+        "config_hash",
+        "preset",
+        "frames",
+        "gate_label",
+        "gate_model",
+        "binary_label",
+        "t_inf",
+        "pose_present",
+        "margin",
+        "ir",
+        "ge",
+        "ir_h",
+        "ge_h",
+        "ir_f",
+        "ge_f",
+        "valid_pairs",
+        "total_pairs",
+        "consistent",
+        "tau_f_px",
+        "observed_category",
+        "n_objects",
+        "adadfrc_max",
+        "adap90_max",
         "masked_share_mean",
     ],
-    "pairs": _GROUP + [
-        "pair_index", "t0", "t1", "gap", "scale", "n_matches", "skip", "h_valid", "h_ir", "h_ge", "h_inliers",
-        "f_valid", "f_ir", "f_ge", "f_inliers", "chosen",
+    "pairs": _GROUP
+    + [
+        "pair_index",
+        "t0",
+        "t1",
+        "gap",
+        "scale",
+        "n_matches",
+        "skip",
+        "h_valid",
+        "h_ir",
+        "h_ge",
+        "h_inliers",
+        "f_valid",
+        "f_ir",
+        "f_ge",
+        "f_inliers",
+        "chosen",
     ],
-    "objects": _GROUP + ["object_id", "frames", "first_frame", "last_frame", "masked_share", "adadfrc", "adadfrc_w2", "adap90"],
+    "objects": _GROUP
+    + ["object_id", "frames", "first_frame", "last_frame", "masked_share", "adadfrc", "adadfrc_w2", "adap90"],
     "object_frames": _GROUP + ["object_id", "t0", "t1", "valid", "reason", "d_t", "w2", "n_pixels"],
     "sensitivity": _GROUP + ["family", "tau", "ir", "ge", "valid_pairs", "chosen", "is_default"],
 }
 """Column order of every table (see ``docs/bench-tables.md``)."""
 _DTYPES: dict[str, dict[str, str]] = {
-    "clips": {"pose_present": "boolean", "consistent": "boolean", "frames": "int64", "valid_pairs": "int64", "total_pairs": "int64",
-              "n_objects": "int64"},
+    "clips": {
+        "pose_present": "boolean",
+        "consistent": "boolean",
+        "frames": "int64",
+        "valid_pairs": "int64",
+        "total_pairs": "int64",
+        "n_objects": "int64",
+    },
 }
-_FLOAT = {"t_inf", "margin", "ir", "ge", "ir_h", "ge_h", "ir_f", "ge_f", "tau_f_px", "adadfrc_max", "adap90_max", "masked_share_mean",
-          "scale", "h_ir", "h_ge", "f_ir", "f_ge", "masked_share", "adadfrc", "adadfrc_w2", "adap90", "d_t", "w2", "tau"}
+_FLOAT = {
+    "t_inf",
+    "margin",
+    "ir",
+    "ge",
+    "ir_h",
+    "ge_h",
+    "ir_f",
+    "ge_f",
+    "tau_f_px",
+    "adadfrc_max",
+    "adap90_max",
+    "masked_share_mean",
+    "scale",
+    "h_ir",
+    "h_ge",
+    "f_ir",
+    "f_ge",
+    "masked_share",
+    "adadfrc",
+    "adadfrc_w2",
+    "adap90",
+    "d_t",
+    "w2",
+    "tau",
+}
 
 
 def _frame(name: str, rows: list[dict[str, Any]]):
@@ -157,7 +320,9 @@ def write_tables(results: str | Path) -> tuple[Path, ...]:
     try:
         import pyarrow  # noqa: F401
     except ImportError:
-        raise ImportError("writing Parquet tables needs the bench extra: pip install 'geocon[bench]' (or bash scripts/bootstrap.sh bench)") from None
+        raise ImportError(
+            "writing Parquet tables needs the bench extra: pip install 'geocon[bench]' (or bash scripts/bootstrap.sh bench)"
+        ) from None
     base = Path(results)
     folder = base / "tables"
     folder.mkdir(parents=True, exist_ok=True)
@@ -178,5 +343,7 @@ def read_tables(results: str | Path) -> dict[str, Any]:
     folder = Path(results) / "tables"
     missing = [n for n in TABLES if not (folder / f"{n}.parquet").is_file()]
     if missing:
-        raise FileNotFoundError(f"{folder}: missing {', '.join(f'{n}.parquet' for n in missing)}; run `geocon bench` first")
+        raise FileNotFoundError(
+            f"{folder}: missing {', '.join(f'{n}.parquet' for n in missing)}; run `geocon bench` first"
+        )
     return {name: pd.read_parquet(folder / f"{name}.parquet") for name in TABLES}

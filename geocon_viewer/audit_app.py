@@ -108,7 +108,9 @@ class AuditApp:
     folder). Drive it from Python through its GUI handles (setting ``.value`` runs the callbacks),
     or open :attr:`url` in a browser. :meth:`stop` shuts the server down and frees its port."""
 
-    def __init__(self, results: str | Path | ResultsIndex, *, host: str = "127.0.0.1", port: int = 8080, preload: bool = True) -> None:
+    def __init__(
+        self, results: str | Path | ResultsIndex, *, host: str = "127.0.0.1", port: int = 8080, preload: bool = True
+    ) -> None:
         self.index = results if isinstance(results, ResultsIndex) else ResultsIndex.open(results)
         self.thresholds: Thresholds = self.index.recorded
         self.rows: list[TriageRow] = []
@@ -121,7 +123,9 @@ class AuditApp:
         self.cloud_handle: Any = None
         """The selected clip's point cloud in the scene (None when it has none)."""
         self.server = viser.ViserServer(host=host, port=port, label="GeoCon audit", verbose=False)
-        self.server.gui.configure_theme(control_width="large", show_logo=False, show_share_button=False, brand_color=(40, 110, 180))
+        self.server.gui.configure_theme(
+            control_width="large", show_logo=False, show_share_button=False, brand_color=(40, 110, 180)
+        )
         self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("-y")
         self._build_gui()
@@ -161,18 +165,29 @@ class AuditApp:
         gui = self.server.gui
         facets = self.index.facets()
         n = len(self.index.clips)
-        title = f"{self.index.root.name}: {n} clip{'s' if n != 1 else ''}" + (f" · config {self.index.config_hash}" if self.index.config_hash else "")
+        title = f"{self.index.root.name}: {n} clip{'s' if n != 1 else ''}" + (
+            f" · config {self.index.config_hash}" if self.index.config_hash else ""
+        )
         gui.add_markdown(f"**GeoCon audit** · {title}")
         with gui.add_folder("Triage"):
             self.platform = gui.add_dropdown("platform", [ANY, *facets["platform"]], initial_value=ANY)
             self.category = gui.add_dropdown("category", [ANY, *facets["category"]], initial_value=ANY)
             self.gate_label = gui.add_dropdown("gate label", [ANY, "H", "F", "U"], initial_value=ANY)
-            self.state = gui.add_dropdown("verdict", [ANY, FLAGGED, *VERDICTS], initial_value=ANY,
-                                          hint="flagged: not passing, or the gate disagrees with the clip's category")
+            self.state = gui.add_dropdown(
+                "verdict",
+                [ANY, FLAGGED, *VERDICTS],
+                initial_value=ANY,
+                hint="flagged: not passing, or the gate disagrees with the clip's category",
+            )
             self.summary_md = gui.add_markdown("")
             self.table_md = gui.add_markdown("")
             self.page = gui.add_number("page", 1, min=1, step=1, hint=f"{LIST_ROWS} clips a page, most severe first")
-            self.clip = gui.add_dropdown("clip", ["(none)"], initial_value="(none)", hint="The clip shown in the scene, the frame panel and the plots")
+            self.clip = gui.add_dropdown(
+                "clip",
+                ["(none)"],
+                initial_value="(none)",
+                hint="The clip shown in the scene, the frame panel and the plots",
+            )
             buttons = gui.add_button_group("", ["◀ more severe", "less severe ▶"])
         with gui.add_folder("Thresholds"):
             self.number: dict[str, Any] = {}
@@ -195,12 +210,17 @@ class AuditApp:
             self.image = gui.add_image(np.zeros((36, 64, 3), np.uint8), format="jpeg", jpeg_quality=85)
             self.slider = gui.add_slider("frame", 0, 1, 1, 0)
             self.play = gui.add_checkbox("play", False)
-            self.show_matches = gui.add_checkbox("inliers / outliers", True, hint="Background matches of the pair (t, t+1): green inliers, red outliers")
+            self.show_matches = gui.add_checkbox(
+                "inliers / outliers", True, hint="Background matches of the pair (t, t+1): green inliers, red outliers"
+            )
             self.show_masks = gui.add_checkbox("object masks", True)
             self.frame_md = gui.add_markdown("")
         with self.frame_panel.add_tab("Audit card"):
             self.card_md = gui.add_markdown("")
-            self.rrd_button = gui.add_button("Write the Rerun recording (.rrd)", hint="For a bug report: writes audit.rrd beside the record and offers it as a download")
+            self.rrd_button = gui.add_button(
+                "Write the Rerun recording (.rrd)",
+                hint="For a bug report: writes audit.rrd beside the record and offers it as a download",
+            )
             self.rrd_md = gui.add_markdown("")
         self.frame_panel.dock_left()
         self.frame_panel.set_width(470)
@@ -221,8 +241,13 @@ class AuditApp:
 
     def _empty_plot(self, title: str):
         x = np.zeros(1)
-        return self.server.gui.add_uplot((x, x), (uplot.Series(label="frame"), uplot.Series(label="-")), title=title, aspect=2.2,
-                                         scales={"x": uplot.Scale(time=False)})
+        return self.server.gui.add_uplot(
+            (x, x),
+            (uplot.Series(label="frame"), uplot.Series(label="-")),
+            title=title,
+            aspect=2.2,
+            scales={"x": uplot.Scale(time=False)},
+        )
 
     # --- triage list ---------------------------------------------------------------------------
     def _filters(self) -> dict[str, Any]:
@@ -231,8 +256,11 @@ class AuditApp:
 
         state = self.state.value
         return {
-            "platform": pick(self.platform), "category": pick(self.category), "gate_label": pick(self.gate_label),
-            "state": None if state in (ANY, FLAGGED) else state, "flagged_only": state == FLAGGED,
+            "platform": pick(self.platform),
+            "category": pick(self.category),
+            "gate_label": pick(self.gate_label),
+            "state": None if state in (ANY, FLAGGED) else state,
+            "flagged_only": state == FLAGGED,
         }
 
     def refresh(self, *, keep_selection: bool = True) -> None:
@@ -265,7 +293,7 @@ class AuditApp:
         page = min(max(1, int(self.page.value)), pages)
         start = (page - 1) * LIST_ROWS
         lines = ["| # | clip | plat. | cat | gate | IR | GE | |", "|---|---|---|---|---|---|---|---|"]
-        for i, r in enumerate(self.rows[start:start + LIST_ROWS], start=start + 1):
+        for i, r in enumerate(self.rows[start : start + LIST_ROWS], start=start + 1):
             v = r.verdict
             gate = "–" if v is None else f"{v.label}→{v.model}" + ("≠" if r.gate_mismatch else "")
             mark = _STATE_MARK[r.state]
@@ -274,10 +302,14 @@ class AuditApp:
                 name = f"**{name}**"
             ir = "–" if v is None else _fmt(v.ir)
             ge = "–" if v is None else _fmt(v.ge, ".2f")
-            lines.append(f"| {i} | {name} | {r.clip.platform} | {r.clip.category or '–'} | {gate} | {ir} | {ge} | {mark} |")
+            lines.append(
+                f"| {i} | {name} | {r.clip.platform} | {r.clip.category or '–'} | {gate} | {ir} | {ge} | {mark} |"
+            )
         if not self.rows:
             lines.append("| | no clip matches the filters | | | | | | |")
-        self.table_md.content = "\n".join(lines) + f"\n\npage {page} of {pages} · ≠: gate differs from the category's expected model"
+        self.table_md.content = (
+            "\n".join(lines) + f"\n\npage {page} of {pages} · ≠: gate differs from the category's expected model"
+        )
 
     def _on_filters(self) -> None:
         self.page.value = 1
@@ -314,10 +346,13 @@ class AuditApp:
     def _render_thresholds(self) -> None:
         changed = self.thresholds.changed(self.index.recorded)
         if not changed:
-            text = "All thresholds as recorded" + (f" (config `{self.index.config_hash}`)." if self.index.config_hash else ".")
+            text = "All thresholds as recorded" + (
+                f" (config `{self.index.config_hash}`)." if self.index.config_hash else "."
+            )
         else:
             text = "**Differs from the recorded config:** " + ", ".join(
-                f"{_THRESHOLD_LABELS[k][0]} {now:g} (recorded {old:g})" for k, (old, now) in changed.items())
+                f"{_THRESHOLD_LABELS[k][0]} {now:g} (recorded {old:g})" for k, (old, now) in changed.items()
+            )
             text += ". Scores are re-gated from the stored residuals (models not re-fitted)."
         self.thresholds_md.content = text
 
@@ -349,7 +384,9 @@ class AuditApp:
                 return
             record = read_record(clip.folder)
             w, _ = record.video["working_size"]
-            view = ClipView(clip_id, clip.folder, record, read_overlays(clip.folder), display_scale=min(1.0, DISPLAY_WIDTH / w))
+            view = ClipView(
+                clip_id, clip.folder, record, read_overlays(clip.folder), display_scale=min(1.0, DISPLAY_WIDTH / w)
+            )
             self.view = view
             n = view.num_frames
             self.slider.max = max(1, n - 1)
@@ -392,7 +429,9 @@ class AuditApp:
                     return
                 img = f.rgb
                 if view.display_scale < 1.0:
-                    img = cv2.resize(img, None, fx=view.display_scale, fy=view.display_scale, interpolation=cv2.INTER_AREA)
+                    img = cv2.resize(
+                        img, None, fx=view.display_scale, fy=view.display_scale, interpolation=cv2.INTER_AREA
+                    )
                 view.frames[f.index] = img
                 if view is not self.view:
                     continue
@@ -458,7 +497,14 @@ class AuditApp:
             xy, inl = matches
             r = max(2, round(3 * k * 1.5))
             for (x, y), ok in zip(xy * k, inl):
-                cv2.circle(img, (int(round(x)), int(round(y))), r, INLIER if ok else OUTLIER, -1 if ok else 1, lineType=cv2.LINE_AA)
+                cv2.circle(
+                    img,
+                    (int(round(x)), int(round(y))),
+                    r,
+                    INLIER if ok else OUTLIER,
+                    -1 if ok else 1,
+                    lineType=cv2.LINE_AA,
+                )
         return img
 
     def _render_frame(self) -> None:
@@ -498,20 +544,49 @@ class AuditApp:
         self.cloud_handle = None
         if cloud is not None and len(cloud.xyz):
             depth = float(np.median(cloud.xyz[:, 2])) or 1.0
-            self.cloud_handle = scene.add_point_cloud("/cloud", points=cloud.xyz.astype(np.float32), colors=cloud.rgb, point_size=0.012 * depth,
-                                  precision="float32", point_shape="circle")
+            self.cloud_handle = scene.add_point_cloud(
+                "/cloud",
+                points=cloud.xyz.astype(np.float32),
+                colors=cloud.rgb,
+                point_size=0.012 * depth,
+                precision="float32",
+                point_shape="circle",
+            )
+
         def frustum(name: str, t: int, color: tuple[int, int, int], **pose: Any) -> None:
             img = view.frames.get(t)
-            view.frustums[t] = scene.add_camera_frustum(name, fov=fov, aspect=w / h, scale=0.08 * depth, thickness=0.004 * depth, color=color,
-                                                        image=None if img is None else _thumb(img), format="jpeg", jpeg_quality=80, **pose)
+            view.frustums[t] = scene.add_camera_frustum(
+                name,
+                fov=fov,
+                aspect=w / h,
+                scale=0.08 * depth,
+                thickness=0.004 * depth,
+                color=color,
+                image=None if img is None else _thumb(img),
+                format="jpeg",
+                jpeg_quality=80,
+                **pose,
+            )
 
         frustum("/cam_first", 0, (90, 200, 255))
         T = rec.gate.pose.get("T_cam0_camT")
         if T is not None:
             T = np.asarray(T, dtype=float)
-            frustum("/cam_last", view.num_frames - 1, (255, 180, 60), wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz, position=T[:3, 3])
+            frustum(
+                "/cam_last",
+                view.num_frames - 1,
+                (255, 180, 60),
+                wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz,
+                position=T[:3, 3],
+            )
             if np.linalg.norm(T[:3, 3]) > 0:
-                scene.add_line_segments("/baseline", np.array([[[0, 0, 0], T[:3, 3]]], np.float32), colors=(255, 255, 255), thickness=2.0, thickness_units="screen")
+                scene.add_line_segments(
+                    "/baseline",
+                    np.array([[[0, 0, 0], T[:3, 3]]], np.float32),
+                    colors=(255, 255, 255),
+                    thickness=2.0,
+                    thickness_units="screen",
+                )
         note = "no point cloud" if cloud is None else cloud.note
         scene.add_label("/note", note, position=(0.0, -0.12 * depth, 0.0))
         cam = self.server.initial_camera
@@ -541,12 +616,18 @@ class AuditApp:
         th = self.thresholds
         line = {"width": 2}
         self.ir_plot.data = (x, ir, np.full(n, th.ir_gate))
-        self.ir_plot.series = (uplot.Series(label="frame"), uplot.Series(label=f"IR {v.model} (scale {s:g})", stroke="#1f77b4", **line),
-                               uplot.Series(label=f"gate {th.ir_gate:g}", stroke="#d62728", dash=(6, 4)))
+        self.ir_plot.series = (
+            uplot.Series(label="frame"),
+            uplot.Series(label=f"IR {v.model} (scale {s:g})", stroke="#1f77b4", **line),
+            uplot.Series(label=f"gate {th.ir_gate:g}", stroke="#d62728", dash=(6, 4)),
+        )
         self.ir_plot.title = f"IR per pair ({v.model}, tau {tau:g})"
         self.ge_plot.data = (x, ge, np.full(n, th.ge_gate))
-        self.ge_plot.series = (uplot.Series(label="frame"), uplot.Series(label=f"GE {v.model} px", stroke="#ff7f0e", **line),
-                               uplot.Series(label=f"gate {th.ge_gate:g} px", stroke="#d62728", dash=(6, 4)))
+        self.ge_plot.series = (
+            uplot.Series(label="frame"),
+            uplot.Series(label=f"GE {v.model} px", stroke="#ff7f0e", **line),
+            uplot.Series(label=f"gate {th.ge_gate:g} px", stroke="#d62728", dash=(6, 4)),
+        )
         objects = sorted(rec.objects, key=lambda o: -(o.adap90 or 0.0))[:6]
         s_obj = max((e.scale for e in rec.object_entries), default=s)
         ys = []
@@ -558,8 +639,15 @@ class AuditApp:
             ys.append(y)
         if objects:
             self.obj_plot.data = (x, *ys)
-            self.obj_plot.series = (uplot.Series(label="frame"), *[
-                uplot.Series(label=f"object {o.object_id}", stroke="#%02x%02x%02x" % _object_color(o.object_id), width=2) for o in objects])
+            self.obj_plot.series = (
+                uplot.Series(label="frame"),
+                *[
+                    uplot.Series(
+                        label=f"object {o.object_id}", stroke="#%02x%02x%02x" % _object_color(o.object_id), width=2
+                    )
+                    for o in objects
+                ],
+            )
             self.obj_plot.title = f"AdaDFRC D_t (px²), {len(objects)} of {len(rec.objects)} objects by AdaP90"
         else:
             self.obj_plot.data = (x, np.full(n, np.nan))
@@ -573,10 +661,13 @@ class AuditApp:
             gx, gy = np.array([0.0, n - 1.0]), np.full(2, np.nan)
         clip_t = np.full(len(gx), np.nan if rec.gate.t_inf is None else rec.gate.t_inf)
         self.gate_plot.data = (gx, gy, np.full(len(gx), th.tau_t_low), np.full(len(gx), th.tau_t_high), clip_t)
-        self.gate_plot.series = (uplot.Series(label="window end"), uplot.Series(label="t_inf per window", stroke="#9467bd", width=2),
-                                 uplot.Series(label=f"low {th.tau_t_low:g}", stroke="#2ca02c", dash=(6, 4)),
-                                 uplot.Series(label=f"high {th.tau_t_high:g}", stroke="#d62728", dash=(6, 4)),
-                                 uplot.Series(label="first→last", stroke="#555555", dash=(2, 3)))
+        self.gate_plot.series = (
+            uplot.Series(label="window end"),
+            uplot.Series(label="t_inf per window", stroke="#9467bd", width=2),
+            uplot.Series(label=f"low {th.tau_t_low:g}", stroke="#2ca02c", dash=(6, 4)),
+            uplot.Series(label=f"high {th.tau_t_high:g}", stroke="#d62728", dash=(6, 4)),
+            uplot.Series(label="first→last", stroke="#555555", dash=(2, 3)),
+        )
         self.gate_plot.title = f"Gate t_inf: {v.label} (margin {_fmt(v.margin, '+.4f')})"
 
     def _card(self) -> str:
@@ -602,7 +693,9 @@ class AuditApp:
         lines.append(f"- valid pairs {bg.valid_pairs} of {bg.total_pairs}; masks: {rec.masks_source}")
         if rec.objects:
             worst = max(rec.objects, key=lambda o: o.adap90 or 0.0)
-            lines.append(f"- {len(rec.objects)} objects; worst AdaP90 {_fmt(worst.adap90, '.3g')} px² (object {worst.object_id})")
+            lines.append(
+                f"- {len(rec.objects)} objects; worst AdaP90 {_fmt(worst.adap90, '.3g')} px² (object {worst.object_id})"
+            )
         if rec.warnings:
             lines += ["", *[f"⚠ {w}" for w in rec.warnings]]
         lines += ["", f"`{rec.clip}`", f"record `{view.folder}`"]

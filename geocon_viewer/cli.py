@@ -10,7 +10,17 @@ from typing import Annotated, Optional
 
 import typer
 
-from geocon_core.cli import FRAME_SINKS, RECORD_RENDERERS, _default_out, _fail, _rerun_version, _score_with_progress, app, err, out
+from geocon_core.cli import (
+    FRAME_SINKS,
+    RECORD_RENDERERS,
+    _default_out,
+    _fail,
+    _rerun_version,
+    _score_with_progress,
+    app,
+    err,
+    out,
+)
 
 
 def _rrd_sink(path: Path):
@@ -54,19 +64,44 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
 
 @app.command()
 def view(
-    target: Annotated[Path, typer.Argument(help="A record folder (from `geocon score`/`geocon demo`) or a clip (its saved record is used, or it is scored first).")],
-    save: Annotated[Optional[Path], typer.Option("--save", help="Write the recording here (default: audit.rrd in the record folder).")] = None,
-    connect: Annotated[Optional[str], typer.Option("--connect", help="Stream to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy.")] = None,
-    serve: Annotated[bool, typer.Option("--serve", help="Serve the web viewer on 127.0.0.1 even when a display is available.")] = False,
+    target: Annotated[
+        Path,
+        typer.Argument(
+            help="A record folder (from `geocon score`/`geocon demo`) or a clip (its saved record is used, or it is scored first)."
+        ),
+    ],
+    save: Annotated[
+        Optional[Path],
+        typer.Option("--save", help="Write the recording here (default: audit.rrd in the record folder)."),
+    ] = None,
+    connect: Annotated[
+        Optional[str],
+        typer.Option("--connect", help="Stream to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy."),
+    ] = None,
+    serve: Annotated[
+        bool, typer.Option("--serve", help="Serve the web viewer on 127.0.0.1 even when a display is available.")
+    ] = False,
     headless: Annotated[bool, typer.Option("--headless", help="Only write the recording; open no viewer.")] = False,
-    screenshot: Annotated[Optional[Path], typer.Option("--screenshot", help="Save a PNG of the default layout at --at: the headless native viewer (needs a Vulkan driver, e.g. Debian mesa-vulkan-drivers), else the web viewer in headless Chromium.")] = None,
-    at: Annotated[Optional[int], typer.Option("--at", help="Frame to show first (default: the worst-scoring pair).")] = None,
-    preset_name: Annotated[str, typer.Option("--preset", help="Preset used when the clip has to be scored first.")] = "paper",
+    screenshot: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--screenshot",
+            help="Save a PNG of the default layout at --at: the headless native viewer (needs a Vulkan driver, e.g. Debian mesa-vulkan-drivers), else the web viewer in headless Chromium.",
+        ),
+    ] = None,
+    at: Annotated[
+        Optional[int], typer.Option("--at", help="Frame to show first (default: the worst-scoring pair).")
+    ] = None,
+    preset_name: Annotated[
+        str, typer.Option("--preset", help="Preset used when the clip has to be scored first.")
+    ] = "paper",
 ) -> None:
     """Re-render the Rerun recording of a saved record without re-scoring, then open it: the
     native viewer when a display is available, otherwise the web viewer served on 127.0.0.1."""
     if "rrd" not in FRAME_SINKS:
-        raise _fail("geocon view needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)")
+        raise _fail(
+            "geocon view needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)"
+        )
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from geocon_core.record import read_record
@@ -76,13 +111,19 @@ def view(
     folder = _resolve_record(target, preset_name)
     rrd = save or folder / "audit.rrd"
     try:
-        with Progress(TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), console=err) as bar:
+        with Progress(
+            TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), console=err
+        ) as bar:
             task = bar.add_task("render", total=None)
-            write_rrd(folder, rrd, connect=connect, progress=lambda done, total: bar.update(task, completed=done, total=total))
+            write_rrd(
+                folder, rrd, connect=connect, progress=lambda done, total: bar.update(task, completed=done, total=total)
+            )
     except ValueError as exc:
         raise _fail(str(exc)) from None
     frame = at if at is not None else worst_frame(read_record(folder))
-    out.print(f"recording: {rrd} ({rrd.stat().st_size / 1e6:.1f} MB, Rerun {_rerun_version()}: open it with a viewer of the same version)")
+    out.print(
+        f"recording: {rrd} ({rrd.stat().st_size / 1e6:.1f} MB, Rerun {_rerun_version()}: open it with a viewer of the same version)"
+    )
     if screenshot is not None:
         from .screenshot import ScreenshotError, screenshot_rrd
 
@@ -100,23 +141,48 @@ def view(
         out.print(f"opened the native viewer at the worst pair (frame {frame})")
         return
     try:
-        serve_web(rrd, announce=lambda url: out.print(f"web viewer: {url}  (127.0.0.1 only; Ctrl-C to stop). Worst pair: frame {frame}.", soft_wrap=True))
+        serve_web(
+            rrd,
+            announce=lambda url: out.print(
+                f"web viewer: {url}  (127.0.0.1 only; Ctrl-C to stop). Worst pair: frame {frame}.", soft_wrap=True
+            ),
+        )
     except RuntimeError as exc:
         raise _fail(str(exc)) from None
 
 
 @app.command()
 def serve(
-    results: Annotated[Path, typer.Argument(help="A results folder from `geocon bench`, or a record folder from `geocon score --out`.")],
-    port: Annotated[int, typer.Option("--port", help="Port to serve on (a busy port moves to the next free one; 0 picks any free port).")] = 8080,
-    host: Annotated[str, typer.Option("--host", help="Address to bind. The default serves this machine only; 0.0.0.0 exposes the app to your network.")] = "127.0.0.1",
-    screenshot: Annotated[Optional[Path], typer.Option("--screenshot", help="Save a PNG of the page as headless Chromium shows it, then stop.")] = None,
-    clip: Annotated[Optional[str], typer.Option("--clip", help="Clip id to select first (default: the most severe).")] = None,
+    results: Annotated[
+        Path, typer.Argument(help="A results folder from `geocon bench`, or a record folder from `geocon score --out`.")
+    ],
+    port: Annotated[
+        int,
+        typer.Option(
+            "--port", help="Port to serve on (a busy port moves to the next free one; 0 picks any free port)."
+        ),
+    ] = 8080,
+    host: Annotated[
+        str,
+        typer.Option(
+            "--host",
+            help="Address to bind. The default serves this machine only; 0.0.0.0 exposes the app to your network.",
+        ),
+    ] = "127.0.0.1",
+    screenshot: Annotated[
+        Optional[Path],
+        typer.Option("--screenshot", help="Save a PNG of the page as headless Chromium shows it, then stop."),
+    ] = None,
+    clip: Annotated[
+        Optional[str], typer.Option("--clip", help="Clip id to select first (default: the most severe).")
+    ] = None,
 ) -> None:
     """Browse a benchmark's clips in the Viser audit app: the triage list (most severe first), live
     re-gating at other thresholds, the 3D scene, frames with overlays and the IR/GE/AdaDFRC plots."""
     if importlib.util.find_spec("viser") is None:
-        raise _fail("geocon serve needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)")
+        raise _fail(
+            "geocon serve needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)"
+        )
     import time
 
     from geocon_core.results import ResultsError
@@ -136,9 +202,11 @@ def serve(
                 raise _fail(f"no clip {clip!r} in {results}")
             audit.clip.value = clip
         n = len(audit.index.clips)
-        out.print(f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {time.perf_counter() - start:.1f} s; "
-                  f"{'this machine only' if audit.host in ('127.0.0.1', 'localhost', '::1') else 'reachable from the network'}; Ctrl-C to stop)",
-                  soft_wrap=True)
+        out.print(
+            f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {time.perf_counter() - start:.1f} s; "
+            f"{'this machine only' if audit.host in ('127.0.0.1', 'localhost', '::1') else 'reachable from the network'}; Ctrl-C to stop)",
+            soft_wrap=True,
+        )
         if screenshot is not None:
             from .screenshot import ScreenshotError, screenshot_url
 

@@ -53,7 +53,18 @@ import rerun.blueprint as rrb
 from geocon_core.diagnostics import FlowSlice, FrameDiagnostics, flow_hue
 from geocon_core.record import ClipRecord
 
-__all__ = ["RerunAudit", "AuditFrame", "RrdSink", "write_rrd", "blueprint", "audit_card", "worst_frame", "residual_map", "RERUN_VERSION", "frames_from_diagnostics"]
+__all__ = [
+    "RerunAudit",
+    "AuditFrame",
+    "RrdSink",
+    "write_rrd",
+    "blueprint",
+    "audit_card",
+    "worst_frame",
+    "residual_map",
+    "RERUN_VERSION",
+    "frames_from_diagnostics",
+]
 
 RERUN_VERSION = rr.__version__
 INLIER = (60, 200, 90, 255)
@@ -112,7 +123,9 @@ def _png(image: np.ndarray, level: int = 6) -> bytes:
     return buf.tobytes()
 
 
-def residual_map(xy: np.ndarray, residuals: np.ndarray, size: tuple[int, int], vmax: float, *, cell: int = 8, sigma_px: float = 24.0) -> np.ndarray:
+def residual_map(
+    xy: np.ndarray, residuals: np.ndarray, size: tuple[int, int], vmax: float, *, cell: int = 8, sigma_px: float = 24.0
+) -> np.ndarray:
     """A low-resolution RGBA picture (h/cell, w/cell, 4) of per-match residuals spread over an
     image of ``size`` (w, h): a Gaussian-weighted mean of the residuals around each point,
     inferno-coloured over [0, vmax], opaque where matches are dense and transparent where there
@@ -174,7 +187,10 @@ class _FrameVideo:
         self.stream = None
         self.indices: list[int] = []
         # Only undo what the encoder did: a caller that chose a real-time policy keeps it.
-        self._demote = hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) not in (os.SCHED_FIFO, os.SCHED_RR)
+        self._demote = hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) not in (
+            os.SCHED_FIFO,
+            os.SCHED_RR,
+        )
 
     def add(self, index: int, rgb: np.ndarray) -> None:
         import av
@@ -187,7 +203,9 @@ class _FrameVideo:
             st.width, st.height, st.pix_fmt = w - w % 2, h - h % 2, "yuv420p"
             st.options = {"preset": "10", "crf": str(self.crf), "svtav1-params": "pred-struct=1:keyint=48"}
             self.stream = st
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb[: self.stream.height, : self.stream.width]), format="rgb24")
+        frame = av.VideoFrame.from_ndarray(
+            np.ascontiguousarray(rgb[: self.stream.height, : self.stream.width]), format="rgb24"
+        )
         frame.pts = len(self.indices)
         self.indices.append(index)
         for packet in self.stream.encode(frame):
@@ -214,7 +232,15 @@ class RerunAudit:
     drawn over the frames (default: the largest).
     """
 
-    def __init__(self, rec: rr.RecordingStream, *, fps: float, frames: str = "video", quality: int | None = None, scale: float | None = None) -> None:
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        *,
+        fps: float,
+        frames: str = "video",
+        quality: int | None = None,
+        scale: float | None = None,
+    ) -> None:
         if frames not in ("video", "jpeg"):
             raise ValueError(f"frames must be 'video' or 'jpeg', got {frames!r}")
         if not fps > 0:
@@ -244,7 +270,9 @@ class RerunAudit:
         if self.video is not None:
             self.video.add(f.index, f.rgb)
         else:
-            ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+            ok, jpg = cv2.imencode(
+                ".jpg", cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, self.quality]
+            )
             assert ok
             rec.log("frame/image", rr.EncodedImage(contents=jpg.tobytes(), media_type="image/jpeg", draw_order=0.0))
         if f.labels is not None:
@@ -261,7 +289,10 @@ class RerunAudit:
                 patch = sl.image[: y1 - y0, : x1 - x0]
                 covered = patch[..., 3] > 0
                 hue[y0:y1, x0:x1][covered] = patch[covered]
-            rec.log("frame/flow", rr.EncodedImage(contents=_png(hue, level=1), media_type="image/png", opacity=0.9, draw_order=2.0))
+            rec.log(
+                "frame/flow",
+                rr.EncodedImage(contents=_png(hue, level=1), media_type="image/png", opacity=0.9, draw_order=2.0),
+            )
             self._flow_shown = True
         elif self._flow_shown:
             rec.log("frame/flow", rr.Clear(recursive=False))
@@ -270,7 +301,11 @@ class RerunAudit:
 
     def _log_content(self, content: np.ndarray) -> None:
         outside = (~content).astype(np.uint8)
-        self.rec.log("frame/content", rr.AnnotationContext([(0, "content", (0, 0, 0, 0)), (1, "outside the content box", (40, 40, 160, 160))]), static=True)
+        self.rec.log(
+            "frame/content",
+            rr.AnnotationContext([(0, "content", (0, 0, 0, 0)), (1, "outside the content box", (40, 40, 160, 160))]),
+            static=True,
+        )
         self.rec.log("frame/content", rr.SegmentationImage(outside, opacity=0.5, draw_order=0.5), static=True)
         self._content_logged = True
 
@@ -296,12 +331,24 @@ class RerunAudit:
                     indexes=[rr.TimeColumn("frame", sequence=t), rr.TimeColumn("video_time", duration=t / self.fps)],
                     columns=rr.VideoFrameReference.columns_nanos(ns),
                 )
-        rec.send_property("geocon", rr.AnyValues(
-            clip=record.clip, config_hash=record.config_hash, preset=record.config.preset,
-            geocon_version=record.versions.get("geocon", "?"), rerun_version=RERUN_VERSION,
-        ))
+        rec.send_property(
+            "geocon",
+            rr.AnyValues(
+                clip=record.clip,
+                config_hash=record.config_hash,
+                preset=record.config.preset,
+                geocon_version=record.versions.get("geocon", "?"),
+                rerun_version=RERUN_VERSION,
+            ),
+        )
         ids = [o.object_id for o in record.objects]
-        rec.log("frame/objects", rr.AnnotationContext([(0, "background", (0, 0, 0, 0))] + [(i, f"object {i}", _object_color(i)) for i in ids]), static=True)
+        rec.log(
+            "frame/objects",
+            rr.AnnotationContext(
+                [(0, "background", (0, 0, 0, 0))] + [(i, f"object {i}", _object_color(i)) for i in ids]
+            ),
+            static=True,
+        )
         self._log_matches(record)
         self._log_cells(record)
         self._log_series(record)
@@ -339,20 +386,62 @@ class RerunAudit:
                 res_px, inl, rule = a["h_res"] / s, a["h_inl"], f"H: symmetric transfer error <= {fit.tau:g} px"
                 vmax = 2.0 * fit.tau / s
             else:
-                res_px, inl, rule = a["f_res_px"] / s, a["f_inl"], f"F: normalised Sampson <= {fit.tau:g} (~{(fit.tau_px or 0) / s:.2f} px)"
+                res_px, inl, rule = (
+                    a["f_res_px"] / s,
+                    a["f_inl"],
+                    f"F: normalised Sampson <= {fit.tau:g} (~{(fit.tau_px or 0) / s:.2f} px)",
+                )
                 vmax = 2.0 * (fit.tau_px or 1.0) / s
             ir = "invalid" if fit.ir is None else f"IR {fit.ir:.3f}"
             ge = "" if fit.ge is None else f", GE {fit.ge / s:.2f} px"
-            rec.log("frame/matches/inliers", rr.Points2D(r1[inl], radii=MATCH_RADIUS, colors=INLIER, labels=f"inliers ({rule}); {ir}{ge}", show_labels=False, draw_order=3.0))
-            rec.log("frame/matches/outliers", rr.Points2D(r1[~inl], radii=OUTLIER_RADIUS, colors=OUTLIER, labels=f"outliers ({rule})", show_labels=False, draw_order=3.1))
+            rec.log(
+                "frame/matches/inliers",
+                rr.Points2D(
+                    r1[inl],
+                    radii=MATCH_RADIUS,
+                    colors=INLIER,
+                    labels=f"inliers ({rule}); {ir}{ge}",
+                    show_labels=False,
+                    draw_order=3.0,
+                ),
+            )
+            rec.log(
+                "frame/matches/outliers",
+                rr.Points2D(
+                    r1[~inl],
+                    radii=OUTLIER_RADIUS,
+                    colors=OUTLIER,
+                    labels=f"outliers ({rule})",
+                    show_labels=False,
+                    draw_order=3.1,
+                ),
+            )
             strips = np.stack([r1, r2], axis=1)
-            rec.log("frame/matches/lines", rr.LineStrips2D(strips, radii=LINE_RADIUS, colors=_colormap(res_px, vmax), labels=f"x_t -> x_t+1, colour = residual 0..{vmax:.2f} px", show_labels=False, draw_order=2.9))
+            rec.log(
+                "frame/matches/lines",
+                rr.LineStrips2D(
+                    strips,
+                    radii=LINE_RADIUS,
+                    colors=_colormap(res_px, vmax),
+                    labels=f"x_t -> x_t+1, colour = residual 0..{vmax:.2f} px",
+                    show_labels=False,
+                    draw_order=2.9,
+                ),
+            )
             heat = residual_map(x1, res_px, (w, h), vmax)
             cell = 8
             # cell i covers working pixels [i*cell, (i+1)*cell) -> Rerun coordinates + 0.5
             rec.log("frame/residual_map", rr.Transform3D(scale=[cell, cell, 1.0], translation=[0.5, 0.5, 0.0]))
-            rec.log("frame/residual_map", rr.EncodedImage(contents=_png(heat), media_type="image/png", opacity=0.85, draw_order=4.0,
-                                                          magnification_filter="Linear"))
+            rec.log(
+                "frame/residual_map",
+                rr.EncodedImage(
+                    contents=_png(heat),
+                    media_type="image/png",
+                    opacity=0.85,
+                    draw_order=4.0,
+                    magnification_filter="Linear",
+                ),
+            )
         n = int(record.video.get("num_frames") or 0)
         if n:  # the last frame starts no pair
             self._time(n - 1)
@@ -376,10 +465,30 @@ class RerunAudit:
             pos = (cells["positions"].astype(np.float64) + 0.5) / s_max  # working pixels, Rerun's +0.5 centres
             obs, pred = cells["observed"] / s_max, cells["predicted"] / s_max
             color = _object_color(e.object_id)
-            rec.log(f"{base}/observed", rr.Arrows2D(origins=pos, vectors=ARROW_GAIN * obs, colors=color, radii=1.2,
-                                                    labels=f"object {e.object_id}: median cell flow x{ARROW_GAIN:g}", show_labels=False, draw_order=5.0))
-            rec.log(f"{base}/predicted", rr.Arrows2D(origins=pos, vectors=ARROW_GAIN * pred, colors=(255, 255, 255, 255), radii=0.8,
-                                                     labels=f"object {e.object_id}: affine prediction x{ARROW_GAIN:g}; D_t {e.d_t:.3g} px^2", show_labels=False, draw_order=5.1))
+            rec.log(
+                f"{base}/observed",
+                rr.Arrows2D(
+                    origins=pos,
+                    vectors=ARROW_GAIN * obs,
+                    colors=color,
+                    radii=1.2,
+                    labels=f"object {e.object_id}: median cell flow x{ARROW_GAIN:g}",
+                    show_labels=False,
+                    draw_order=5.0,
+                ),
+            )
+            rec.log(
+                f"{base}/predicted",
+                rr.Arrows2D(
+                    origins=pos,
+                    vectors=ARROW_GAIN * pred,
+                    colors=(255, 255, 255, 255),
+                    radii=0.8,
+                    labels=f"object {e.object_id}: affine prediction x{ARROW_GAIN:g}; D_t {e.d_t:.3g} px^2",
+                    show_labels=False,
+                    draw_order=5.1,
+                ),
+            )
             seen.setdefault(e.object_id, set()).add(e.t0)
         for oid, ts in seen.items():  # no stale arrows once an object is gone
             for t in sorted(ts):
@@ -412,39 +521,60 @@ class RerunAudit:
                     line(path, f"{metric.upper()} {fam} gap {gap} scale {s:g}", color)
                     if ok:
                         vals = [getattr(p.fit(fam), metric) for p in ok]
-                        rec.send_columns(path, indexes=cols([p.t0 for p in ok]), columns=rr.Scalars.columns(scalars=vals))
+                        rec.send_columns(
+                            path, indexes=cols([p.t0 for p in ok]), columns=rr.Scalars.columns(scalars=vals)
+                        )
                 for p in rows:
                     f = p.fit(fam)
                     bad = p.skip is not None or f is None or not f.valid or f.ir < cfg.ir_gate or f.ge > cfg.ge_gate
                     if bad and gap == 1 and s == max(cfg.scales):
                         flagged_t.append(p.t0)
                         flagged_v.append(0.0 if f is None or f.ir is None else f.ir)
-        for path, name, value, color in (("series/background/ir/gate", f"IR gate {cfg.ir_gate:g}", cfg.ir_gate, (90, 160, 255, 255)),
-                                         ("series/background/ge/gate", f"GE gate {cfg.ge_gate:g} px", cfg.ge_gate, (255, 150, 80, 255))):
+        for path, name, value, color in (
+            ("series/background/ir/gate", f"IR gate {cfg.ir_gate:g}", cfg.ir_gate, (90, 160, 255, 255)),
+            ("series/background/ge/gate", f"GE gate {cfg.ge_gate:g} px", cfg.ge_gate, (255, 150, 80, 255)),
+        ):
             line(path, name, color, 1.0)
             rec.send_columns(path, indexes=cols(frames), columns=rr.Scalars.columns(scalars=np.full(n, value)))
-        rec.log("series/background/ir/flagged", rr.SeriesPoints(colors=[OUTLIER], names=["flagged pair (gap 1)"], markers=["cross"], marker_sizes=[4.0]), static=True)
+        rec.log(
+            "series/background/ir/flagged",
+            rr.SeriesPoints(colors=[OUTLIER], names=["flagged pair (gap 1)"], markers=["cross"], marker_sizes=[4.0]),
+            static=True,
+        )
         if flagged_t:
-            rec.send_columns("series/background/ir/flagged", indexes=cols(flagged_t), columns=rr.Scalars.columns(scalars=flagged_v))
+            rec.send_columns(
+                "series/background/ir/flagged", indexes=cols(flagged_t), columns=rr.Scalars.columns(scalars=flagged_v)
+            )
         s_max = max(cfg.scales)
         for o in record.objects:
             path = f"series/objects/{o.object_id}"
             line(path, f"AdaDFRC D_t object {o.object_id} (px^2)", _object_color(o.object_id))
             es = [e for e in record.object_entries if e.object_id == o.object_id and e.scale == s_max and e.valid]
             if es:
-                rec.send_columns(path, indexes=cols([e.t0 for e in es]), columns=rr.Scalars.columns(scalars=[e.d_t for e in es]))
+                rec.send_columns(
+                    path, indexes=cols([e.t0 for e in es]), columns=rr.Scalars.columns(scalars=[e.d_t for e in es])
+                )
         g = record.gate
         wins = [w for w in g.timeline if w.t_inf is not None]
         line("series/gate/t_inf", "t_inf per window (at its last frame)", (230, 230, 230, 255), 2.0)
         if wins:
-            rec.send_columns("series/gate/t_inf", indexes=cols([w.end for w in wins]), columns=rr.Scalars.columns(scalars=[w.t_inf for w in wins]))
-        for name, value, color in (("low", g.thresholds["low"], (80, 200, 120, 255)), ("high", g.thresholds["high"], (240, 90, 90, 255))):
+            rec.send_columns(
+                "series/gate/t_inf",
+                indexes=cols([w.end for w in wins]),
+                columns=rr.Scalars.columns(scalars=[w.t_inf for w in wins]),
+            )
+        for name, value, color in (
+            ("low", g.thresholds["low"], (80, 200, 120, 255)),
+            ("high", g.thresholds["high"], (240, 90, 90, 255)),
+        ):
             path = f"series/gate/{name}"
             line(path, f"gate {name} {value:g}", color, 1.0)
             rec.send_columns(path, indexes=cols(frames), columns=rr.Scalars.columns(scalars=np.full(n, value)))
         if g.margin is not None:
             line("series/gate/margin", f"clip margin {g.margin:+.4f} ({g.label})", (200, 200, 90, 255), 1.0)
-            rec.send_columns("series/gate/margin", indexes=cols(frames), columns=rr.Scalars.columns(scalars=np.full(n, g.margin)))
+            rec.send_columns(
+                "series/gate/margin", indexes=cols(frames), columns=rr.Scalars.columns(scalars=np.full(n, g.margin))
+            )
 
     def _log_world(self, record: ClipRecord) -> None:
         rec = self.rec
@@ -463,13 +593,31 @@ class RerunAudit:
             depth = float(np.median(xyz[:, 2])) if len(xyz) else 1.0
             rec.log("world/points", rr.Points3D(xyz, colors=rgb, radii=0.004 * depth), static=True)
         plane = 0.15 * depth
-        rec.log("world/cam_first", rr.Pinhole(image_from_camera=K, resolution=[w, h], image_plane_distance=plane, color=(90, 200, 255, 255)), static=True)
+        rec.log(
+            "world/cam_first",
+            rr.Pinhole(image_from_camera=K, resolution=[w, h], image_plane_distance=plane, color=(90, 200, 255, 255)),
+            static=True,
+        )
         if T is not None:
             rec.log("world/cam_last", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
-            rec.log("world/cam_last", rr.Pinhole(image_from_camera=K, resolution=[w, h], image_plane_distance=plane, color=(255, 180, 60, 255)), static=True)
+            rec.log(
+                "world/cam_last",
+                rr.Pinhole(
+                    image_from_camera=K, resolution=[w, h], image_plane_distance=plane, color=(255, 180, 60, 255)
+                ),
+                static=True,
+            )
             if np.linalg.norm(T[:3, 3]) > 0:
-                rec.log("world/baseline", rr.LineStrips3D([[[0, 0, 0], T[:3, 3].tolist()]], colors=(255, 255, 255, 255), radii=0.002 * depth,
-                                                          labels=["baseline first -> last"]), static=True)
+                rec.log(
+                    "world/baseline",
+                    rr.LineStrips3D(
+                        [[[0, 0, 0], T[:3, 3].tolist()]],
+                        colors=(255, 255, 255, 255),
+                        radii=0.002 * depth,
+                        labels=["baseline first -> last"],
+                    ),
+                    static=True,
+                )
         note = "no point cloud" if cloud is None else cloud.note
         rec.log("world/note", rr.TextDocument(note), static=True)
 
@@ -493,12 +641,18 @@ def blueprint() -> rrb.Blueprint:
     """The default layout: frame with matches, residual map and object flow on top; 3D, the
     time series and the audit card below."""
     frame_view = rrb.Spatial2DView(
-        name="Frame + background matches", origin="frame",
+        name="Frame + background matches",
+        origin="frame",
         contents=["+ frame/image", "+ frame/content", "+ frame/objects", "+ frame/matches/**"],
     )
-    residual_view = rrb.Spatial2DView(name="Residual map", origin="frame", contents=["+ frame/image", "+ frame/residual_map/**"])
-    object_view = rrb.Spatial2DView(name="Object flow + AdaDFRC cells", origin="frame",
-                                    contents=["+ frame/image", "+ frame/objects", "+ frame/flow", "+ frame/cells/**"])
+    residual_view = rrb.Spatial2DView(
+        name="Residual map", origin="frame", contents=["+ frame/image", "+ frame/residual_map/**"]
+    )
+    object_view = rrb.Spatial2DView(
+        name="Object flow + AdaDFRC cells",
+        origin="frame",
+        contents=["+ frame/image", "+ frame/objects", "+ frame/flow", "+ frame/cells/**"],
+    )
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(frame_view, residual_view, object_view),
@@ -572,16 +726,27 @@ def audit_card(record: ClipRecord) -> str:
         "",
         "| gap | IR | GE (px) | valid |",
         "|---|---|---|---|",
-        *[f"| {gs.gap} | {_fmt(gs.ir, '.3f')} | {_fmt(gs.ge, '.2f')} | {gs.valid_pairs}/{gs.total_pairs} |" for gs in bg.chosen.per_gap],
+        *[
+            f"| {gs.gap} | {_fmt(gs.ir, '.3f')} | {_fmt(gs.ge, '.2f')} | {gs.valid_pairs}/{gs.total_pairs} |"
+            for gs in bg.chosen.per_gap
+        ],
         "",
         "## Coverage",
         f"- {v.get('num_frames')} frames at {v.get('fps')} fps, working size {v.get('working_size')}, content box {v.get('content_box')}",
         f"- duplicated frames {len(v.get('duplicates', []))}, hard cuts {len(v.get('cuts', []))}; masks: {record.masks_source}",
     ]
     if record.objects:
-        lines += ["", "## Objects", "", "| id | frames | AdaDFRC (px^2) | W2 | AdaP90 | masked share |", "|---|---|---|---|---|---|"]
-        lines += [f"| {o.object_id} | {o.frames} | {_fmt(o.adadfrc, '.3g')} | {_fmt(o.adadfrc_w2, '.3g')} | {_fmt(o.adap90, '.3g')} | {o.masked_share:.3f} |"
-                  for o in record.objects]
+        lines += [
+            "",
+            "## Objects",
+            "",
+            "| id | frames | AdaDFRC (px^2) | W2 | AdaP90 | masked share |",
+            "|---|---|---|---|---|---|",
+        ]
+        lines += [
+            f"| {o.object_id} | {o.frames} | {_fmt(o.adadfrc, '.3g')} | {_fmt(o.adadfrc_w2, '.3g')} | {_fmt(o.adap90, '.3g')} | {o.masked_share:.3f} |"
+            for o in record.objects
+        ]
     if record.warnings:
         lines += ["", "## Warnings", *[f"- {w}" for w in record.warnings]]
     versions = ", ".join(f"{k} {val}" for k, val in record.versions.items())
@@ -634,7 +799,9 @@ class RrdSink:
         return self.path
 
 
-def write_rrd(record_dir: str | Path, path: str | Path | None, *, connect: str | None = None, progress=None) -> Path | None:
+def write_rrd(
+    record_dir: str | Path, path: str | Path | None, *, connect: str | None = None, progress=None
+) -> Path | None:
     """Re-render the recording of a saved record (``record.json`` + ``matches.npz`` + ``overlays/``)
     without re-scoring: frames are decoded again from the clip the record names."""
     from geocon_core.diagnostics import read_overlays
@@ -656,5 +823,7 @@ def write_rrd(record_dir: str | Path, path: str | Path | None, *, connect: str |
             if progress is not None:
                 progress(frame.index + 1, info.num_frames)
     else:
-        sink.rec.log("audit/missing_clip", rr.TextDocument(f"the clip {clip} was not found: frames are not shown"), static=True)
+        sink.rec.log(
+            "audit/missing_clip", rr.TextDocument(f"the clip {clip} was not found: frames are not shown"), static=True
+        )
     return sink.finish(record)

@@ -34,7 +34,15 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ScreenshotError", "find_chromium", "find_rerun_binary", "screenshot_native", "screenshot_rrd", "screenshot_web", "screenshot_url"]
+__all__ = [
+    "ScreenshotError",
+    "find_chromium",
+    "find_rerun_binary",
+    "screenshot_native",
+    "screenshot_rrd",
+    "screenshot_web",
+    "screenshot_url",
+]
 
 _CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
 _CHROMIUM_FLAGS = (
@@ -166,8 +174,9 @@ def _import_error(log_path: Path) -> str | None:
     return None
 
 
-def _start_rerun(rerun_bin: str, rrd: Path, workdir: Path,
-                 deadline: float) -> tuple[subprocess.Popen[bytes], str, Path]:
+def _start_rerun(
+    rerun_bin: str, rrd: Path, workdir: Path, deadline: float
+) -> tuple[subprocess.Popen[bytes], str, Path]:
     """Serve ``rrd`` on loopback; return the process, the viewer URL that opens the recording and the log."""
     last_error = "no attempt"
     for attempt in range(3):
@@ -262,8 +271,9 @@ class _DevToolsPipe:
                 self._closed = True
                 self._lock.notify_all()
 
-    def call(self, method: str, params: dict[str, Any] | None = None, *, session: str | None = None,
-             timeout: float = 30.0) -> dict[str, Any]:
+    def call(
+        self, method: str, params: dict[str, Any] | None = None, *, session: str | None = None, timeout: float = 30.0
+    ) -> dict[str, Any]:
         with self._lock:
             self._next_id += 1
             msg_id = self._next_id
@@ -320,18 +330,34 @@ _FD_TRAMPOLINE = (
 )
 
 
-def _start_chromium(chromium: str, profile: Path, width: int, height: int,
-                    log_path: Path) -> tuple[subprocess.Popen[bytes], _DevToolsPipe]:
+def _start_chromium(
+    chromium: str, profile: Path, width: int, height: int, log_path: Path
+) -> tuple[subprocess.Popen[bytes], _DevToolsPipe]:
     """Start headless Chromium with the DevTools protocol on fds 3 (commands in) and 4 (replies out)."""
     cmd_r, cmd_w = os.pipe()  # we write commands -> Chromium reads fd 3
     out_r, out_w = os.pipe()  # Chromium writes fd 4 -> we read
-    cmd = [sys.executable, "-c", _FD_TRAMPOLINE, str(cmd_r), str(out_w), chromium, *_CHROMIUM_FLAGS,
-           f"--user-data-dir={profile}", f"--window-size={width},{height}", "about:blank"]
+    cmd = [
+        sys.executable,
+        "-c",
+        _FD_TRAMPOLINE,
+        str(cmd_r),
+        str(out_w),
+        chromium,
+        *_CHROMIUM_FLAGS,
+        f"--user-data-dir={profile}",
+        f"--window-size={width},{height}",
+        "about:blank",
+    ]
     try:
         with open(log_path, "wb") as log:
             proc: subprocess.Popen[bytes] = subprocess.Popen(
-                cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, pass_fds=(cmd_r, out_w),
-                env=_private_env(profile.parent), start_new_session=True,
+                cmd,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                pass_fds=(cmd_r, out_w),
+                env=_private_env(profile.parent),
+                start_new_session=True,
             )
     except OSError as exc:
         for fd in (cmd_r, cmd_w, out_r, out_w):
@@ -357,8 +383,9 @@ def _parse_at(at: str | None) -> tuple[str, int] | None:
     return timeline, int(value)
 
 
-def screenshot_native(rrd: str | Path, png: str | Path, *, at: str | None = None, settle_s: float = 4.0,
-                      timeout_s: float = 90.0) -> Path:
+def screenshot_native(
+    rrd: str | Path, png: str | Path, *, at: str | None = None, settle_s: float = 4.0, timeout_s: float = 90.0
+) -> Path:
     """Screenshot ``rrd`` as the *native* viewer shows it, run headless (``rerun --headless``, 1920x1080):
     the viewer listens on 127.0.0.1 only, opens the file, moves the time cursor to ``at``
     (``TIMELINE@INDEX``) and saves the whole window as a PNG. Needs a Vulkan driver (a GPU's, or Mesa's
@@ -383,11 +410,14 @@ def screenshot_native(rrd: str | Path, png: str | Path, *, at: str | None = None
     proc: subprocess.Popen[bytes] | None = None
     try:
         with open(log_path, "wb") as log:
-            proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env,
-                                    start_new_session=True)
+            proc = subprocess.Popen(
+                cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+            )
         while True:
             if proc.poll() is not None:
-                raise ScreenshotError(f"The headless viewer exited with code {proc.returncode}: {_log_tail(log_path, 300)}")
+                raise ScreenshotError(
+                    f"The headless viewer exited with code {proc.returncode}: {_log_tail(log_path, 300)}"
+                )
             try:
                 with socket.create_connection(("127.0.0.1", port), timeout=1):
                     break
@@ -418,8 +448,17 @@ def screenshot_native(rrd: str | Path, png: str | Path, *, at: str | None = None
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def screenshot_rrd(rrd: str | Path, png: str | Path, *, at: str | None = None, width: int = 1600, height: int = 1000,
-                   settle_s: float = 20.0, timeout_s: float = 120.0, backend: str = "auto") -> Path:
+def screenshot_rrd(
+    rrd: str | Path,
+    png: str | Path,
+    *,
+    at: str | None = None,
+    width: int = 1600,
+    height: int = 1000,
+    settle_s: float = 20.0,
+    timeout_s: float = 120.0,
+    backend: str = "auto",
+) -> Path:
     """Screenshot ``rrd``: ``backend="native"`` (headless native viewer, needs Vulkan), ``"web"`` (the web
     viewer in headless Chromium, width x height) or ``"auto"`` (native, then web if that fails)."""
     if backend not in ("auto", "native", "web"):
@@ -434,8 +473,16 @@ def screenshot_rrd(rrd: str | Path, png: str | Path, *, at: str | None = None, w
     return screenshot_web(rrd, png, at=at, width=width, height=height, settle_s=settle_s, timeout_s=timeout_s)
 
 
-def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, width: int = 1600, height: int = 1000,
-                   settle_s: float = 20.0, timeout_s: float = 120.0) -> Path:
+def screenshot_web(
+    rrd: str | Path,
+    png: str | Path,
+    *,
+    at: str | None = None,
+    width: int = 1600,
+    height: int = 1000,
+    settle_s: float = 20.0,
+    timeout_s: float = 120.0,
+) -> Path:
     """Serve `rrd` with the `rerun` executable shipped in the rerun-sdk wheel (web viewer bound to 127.0.0.1,
     free ports), open it in headless Chromium (the web viewer takes no time cursor from its page URL, so
     ``at`` is accepted for symmetry and not applied: the viewer follows the data to its last frame), wait until the viewer has rendered (settle_s after load), save a
@@ -461,8 +508,17 @@ def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, w
             if rerun_proc is not None and rerun_proc.poll() is not None:
                 raise ScreenshotError(f"The rerun server exited early with code {rerun_proc.returncode}.")
 
-        _capture(viewer_url, Path(png), workdir, width=width, height=height, settle_s=settle_s, deadline=deadline,
-                 what=rrd_path.name, alive=alive)
+        _capture(
+            viewer_url,
+            Path(png),
+            workdir,
+            width=width,
+            height=height,
+            settle_s=settle_s,
+            deadline=deadline,
+            what=rrd_path.name,
+            alive=alive,
+        )
         _raise_on_import_error(rrd_path, rerun_log)
         return Path(png)
     finally:
@@ -472,8 +528,9 @@ def screenshot_web(rrd: str | Path, png: str | Path, *, at: str | None = None, w
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def screenshot_url(url: str, png: str | Path, *, width: int = 1600, height: int = 1000, settle_s: float = 8.0,
-                   timeout_s: float = 90.0) -> Path:
+def screenshot_url(
+    url: str, png: str | Path, *, width: int = 1600, height: int = 1000, settle_s: float = 8.0, timeout_s: float = 90.0
+) -> Path:
     """Open ``url`` (a page served on this machine, e.g. ``geocon serve``) in headless Chromium, wait
     ``settle_s`` after it loads, and save a PNG of width x height to ``png``. Raises ScreenshotError
     with one clear sentence when Chromium is missing or the capture fails; cleans up after itself."""
@@ -498,8 +555,18 @@ def _check_capture(width: int, height: int, settle_s: float, timeout_s: float) -
         raise ScreenshotError("Chromium is not installed (apt-get install chromium, or set $CHROMIUM).")
 
 
-def _capture(url: str, png_path: Path, workdir: Path, *, width: int, height: int, settle_s: float, deadline: float, what: str,
-             alive: Any = None) -> None:
+def _capture(
+    url: str,
+    png_path: Path,
+    workdir: Path,
+    *,
+    width: int,
+    height: int,
+    settle_s: float,
+    deadline: float,
+    what: str,
+    alive: Any = None,
+) -> None:
     """Headless Chromium (profile inside ``workdir``) opens ``url``, waits ``settle_s`` after the
     load event (calling ``alive()`` to check a server it depends on), and writes ``png_path``."""
     chromium = find_chromium()
@@ -522,14 +589,17 @@ def _capture(url: str, png_path: Path, workdir: Path, *, width: int, height: int
             pipe.call("Browser.getVersion", timeout=min(30.0, left()))
         except ScreenshotError as exc:
             raise ScreenshotError(f"Chromium did not answer on the DevTools pipe: {_log_tail(chrome_log)}") from exc
-        target = pipe.call("Target.createTarget", {"url": "about:blank"},
-                           timeout=min(30.0, left()))["targetId"]
-        session = pipe.call("Target.attachToTarget", {"targetId": target, "flatten": True},
-                            timeout=min(30.0, left()))["sessionId"]
+        target = pipe.call("Target.createTarget", {"url": "about:blank"}, timeout=min(30.0, left()))["targetId"]
+        session = pipe.call("Target.attachToTarget", {"targetId": target, "flatten": True}, timeout=min(30.0, left()))[
+            "sessionId"
+        ]
         pipe.call("Page.enable", session=session, timeout=min(30.0, left()))
-        pipe.call("Emulation.setDeviceMetricsOverride",
-                  {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
-                  session=session, timeout=min(30.0, left()))
+        pipe.call(
+            "Emulation.setDeviceMetricsOverride",
+            {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
+            session=session,
+            timeout=min(30.0, left()),
+        )
         nav = pipe.call("Page.navigate", {"url": url}, session=session, timeout=min(30.0, left()))
         if nav.get("errorText"):
             raise ScreenshotError(f"Chromium could not open {url}: {nav['errorText']}.")
@@ -545,10 +615,16 @@ def _capture(url: str, png_path: Path, workdir: Path, *, width: int, height: int
             if chrome_proc.poll() is not None:
                 raise ScreenshotError(f"Chromium exited early with code {chrome_proc.returncode}.")
             time.sleep(min(0.5, max(0.0, end_settle - time.monotonic())))
-        shot = pipe.call("Page.captureScreenshot",
-                         {"format": "png", "fromSurface": True,
-                          "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}},
-                         session=session, timeout=min(60.0, left()))
+        shot = pipe.call(
+            "Page.captureScreenshot",
+            {
+                "format": "png",
+                "fromSurface": True,
+                "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1},
+            },
+            session=session,
+            timeout=min(60.0, left()),
+        )
         data = base64.b64decode(shot["data"])
         if not data.startswith(b"\x89PNG"):
             raise ScreenshotError("Chromium returned something that is not a PNG.")

@@ -19,7 +19,9 @@ __all__ = ["open_native", "serve_web"]
 def _binary() -> str:
     exe = find_rerun_binary()
     if exe is None:
-        raise RuntimeError("the rerun executable was not found: install the viewer extra (pip install 'geocon[viewer]')")
+        raise RuntimeError(
+            "the rerun executable was not found: install the viewer extra (pip install 'geocon[viewer]')"
+        )
     return exe
 
 
@@ -43,7 +45,9 @@ def open_native(rrd: Path, *, frame: int | None = None, timeout_s: float = 20.0)
         from rerun.experimental import ViewerClient
 
         time.sleep(1.0)
-        ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy").set_time("frame", sequence=int(frame), play_state="paused")
+        ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy").set_time(
+            "frame", sequence=int(frame), play_state="paused"
+        )
     return proc
 
 

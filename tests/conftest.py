@@ -24,7 +24,9 @@ def read_video(path: Path) -> list[np.ndarray]:
     return frames
 
 
-def sift_matches(img1: np.ndarray, img2: np.ndarray, *, ratio: float = 0.7, mask1: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def sift_matches(
+    img1: np.ndarray, img2: np.ndarray, *, ratio: float = 0.7, mask1: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Mutual nearest-neighbour SIFT matches passing Lowe's ratio test: (N, 2) pixel arrays."""
     sift = cv2.SIFT_create(nfeatures=4000)
     g1, g2 = (cv2.cvtColor(i, cv2.COLOR_RGB2GRAY) for i in (img1, img2))
@@ -34,7 +36,11 @@ def sift_matches(img1: np.ndarray, img2: np.ndarray, *, ratio: float = 0.7, mask
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     fwd = matcher.knnMatch(d1, d2, k=2)
     bwd = {m.queryIdx: m.trainIdx for m in matcher.match(d2, d1)}
-    pairs = [(m.queryIdx, m.trainIdx) for m, n in (p for p in fwd if len(p) == 2) if m.distance < ratio * n.distance and bwd.get(m.trainIdx) == m.queryIdx]
+    pairs = [
+        (m.queryIdx, m.trainIdx)
+        for m, n in (p for p in fwd if len(p) == 2)
+        if m.distance < ratio * n.distance and bwd.get(m.trainIdx) == m.queryIdx
+    ]
     x1 = np.array([k1[i].pt for i, _ in pairs], dtype=float).reshape(-1, 2)
     x2 = np.array([k2[j].pt for _, j in pairs], dtype=float).reshape(-1, 2)
     return x1, x2
@@ -47,8 +53,12 @@ def synth_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     out = tmp_path_factory.mktemp("synth")
     plans = [
-        ClipPlan("C1"), ClipPlan("C2"), ClipPlan("C3"), ClipPlan("C4"),
-        ClipPlan("C1", "breathing", 3.0), ClipPlan("C5", "letterbox", 0.1),
+        ClipPlan("C1"),
+        ClipPlan("C2"),
+        ClipPlan("C3"),
+        ClipPlan("C4"),
+        ClipPlan("C1", "breathing", 3.0),
+        ClipPlan("C5", "letterbox", 0.1),
     ]
     for plan in plans:
         write_clip(plan, out, seed=3, num_frames=24)

@@ -38,8 +38,19 @@ def _broken_clip(root: Path) -> None:
     for t in range(4):
         cv2.imwrite(str(folder / f"{t:03d}.png"), np.roll(img, t, axis=1))
     (folder / "002.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
-    meta = {"clip_id": "broken-c1", "prompt": "a corrupt upload", "model": "broken", "model_version": "1", "seed": 0,
-            "resolution": [160, 90], "fps": 24, "duration": 4 / 24, "masks_path": None, "category": "C1", "scene_id": "C1-seed0"}
+    meta = {
+        "clip_id": "broken-c1",
+        "prompt": "a corrupt upload",
+        "model": "broken",
+        "model_version": "1",
+        "seed": 0,
+        "resolution": [160, 90],
+        "fps": 24,
+        "duration": 4 / 24,
+        "masks_path": None,
+        "category": "C1",
+        "scene_id": "C1-seed0",
+    }
     (root / "broken" / "frames-c1.meta.json").write_text(json.dumps(meta))
 
 
@@ -77,7 +88,9 @@ def test_tables_hold_every_clip_and_count_the_failure(results):
     # pair and object tables agree with the records
     rec = json.loads((results / "clips" / "clean-c4_objects-s0" / "record.json").read_text())
     pairs = t["pairs"][t["pairs"]["clip_id"] == "clean-c4_objects-s0"]
-    assert len(pairs) == len(rec["pairs"]) and pairs["h_inliers"].tolist() == [p["h"]["n_inliers"] for p in rec["pairs"]]
+    assert len(pairs) == len(rec["pairs"]) and pairs["h_inliers"].tolist() == [
+        p["h"]["n_inliers"] for p in rec["pairs"]
+    ]
     objs = t["objects"][t["objects"]["clip_id"] == "clean-c4_objects-s0"]
     assert objs["adap90"].tolist() == [o["adap90"] for o in rec["objects"]]
     # the sensitivity scan at the recorded thresholds equals the clip's IR/GE exactly
@@ -137,8 +150,12 @@ def importlib_has_rerun() -> bool:
 
 def test_killed_run_resumes_without_losing_or_rescoring_a_clip(dataset, results, tmp_path):
     out = tmp_path / "r"
-    proc = subprocess.Popen([*GEOCON, "bench", str(dataset), "--out", str(out), *BENCH_ARGS],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen(
+        [*GEOCON, "bench", str(dataset), "--out", str(out), *BENCH_ARGS],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
     deadline = time.monotonic() + 300
     try:
         while time.monotonic() < deadline:
@@ -195,7 +212,17 @@ def test_report_is_self_contained_and_names_its_config(results, tmp_path):
     refs = re.findall(r'(?:src|href)="([^"]+)"', page)
     assert refs and not [r for r in refs if r.startswith(("http:", "https:", "//"))]  # opens offline
     assert page.count('src="data:image/png;base64,') >= 8
-    for name in ("tinf", "margins", "calibration", "net_benefit_bootstrap", "ridgelines", "effect_sizes", "adap90", "top_objects", "sensitivity"):
+    for name in (
+        "tinf",
+        "margins",
+        "calibration",
+        "net_benefit_bootstrap",
+        "ridgelines",
+        "effect_sizes",
+        "adap90",
+        "top_objects",
+        "sensitivity",
+    ):
         assert (out / "figures" / f"{name}.png").is_file() and (out / "figures" / f"{name}.svg").is_file()
         assert bench["config_hash"] in (out / "figures" / f"{name}.svg").read_text()  # every figure names its config
     assert "broken-c1" in page and "002.png" in page  # the failed clip is listed with its reason
@@ -204,7 +231,9 @@ def test_report_is_self_contained_and_names_its_config(results, tmp_path):
         assert (out / href).resolve().is_file()
     # the scene-balanced table holds the statistics module's numbers
     ok = read_tables(results)["clips"].query("status == 'ok'")
-    ge_breathing = scene_balanced_median(ok[ok["model"] == "breathing"]["ge"], ok[ok["model"] == "breathing"]["scene_id"])
+    ge_breathing = scene_balanced_median(
+        ok[ok["model"] == "breathing"]["ge"], ok[ok["model"] == "breathing"]["scene_id"]
+    )
     assert f"{ge_breathing:.4g}" in page
     # degenerate input: one platform without objects still gives a report, naming what it skipped
     one = tmp_path / "one"

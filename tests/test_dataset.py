@@ -15,7 +15,9 @@ from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
 @pytest.fixture(scope="module")
 def tiny_dataset(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("dataset")
-    write_benchmark(root, plan_benchmark(families=("C1", "C4"), scenes=1, platforms=("clean",)), width=96, height=64, num_frames=4)
+    write_benchmark(
+        root, plan_benchmark(families=("C1", "C4"), scenes=1, platforms=("clean",)), width=96, height=64, num_frames=4
+    )
     return root
 
 
@@ -88,5 +90,15 @@ def test_empty_or_missing_dataset(tmp_path):
 
 def test_required_fields_follow_the_spec():
     assert set(REQUIRED_FIELDS) == {
-        "prompt", "model", "model_version", "seed", "resolution", "fps", "duration", "clip_id", "masks_path", "category", "scene_id",
+        "prompt",
+        "model",
+        "model_version",
+        "seed",
+        "resolution",
+        "fps",
+        "duration",
+        "clip_id",
+        "masks_path",
+        "category",
+        "scene_id",
     }

@@ -23,7 +23,9 @@ def _texture(seed: int = 0, h: int = H, w: int = W) -> np.ndarray:
 
 def _warp(img: np.ndarray, M: np.ndarray) -> np.ndarray:
     """I1 with I1(M x) = I0(x): the forward flow of pixel x is M x - x."""
-    return cv2.warpAffine(img, M, (img.shape[1], img.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT_101)
+    return cv2.warpAffine(
+        img, M, (img.shape[1], img.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT_101
+    )
 
 
 def _true_flow(M: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -66,7 +68,9 @@ def test_affine_warp_is_recovered() -> None:
     assert np.abs(truth).max() > 4.0  # the warp moves pixels by several px
     err = np.linalg.norm(_inner(field.flow) - _inner(truth), axis=2)
     rel = _inner(field.reliable)
-    print(f"affine: median error {np.median(err):.3f} px (reliable: {np.median(err[rel]):.3f}), reliable {rel.mean():.1%}")
+    print(
+        f"affine: median error {np.median(err):.3f} px (reliable: {np.median(err[rel]):.3f}), reliable {rel.mean():.1%}"
+    )
     assert np.median(err) < 0.15
     assert np.median(err[rel]) < 0.15
     assert rel.mean() > 0.85
@@ -86,7 +90,9 @@ def test_occluded_region_is_unreliable() -> None:
     far_bg[BORDER:-BORDER, BORDER:-BORDER] = True
     far_bg[y - 30 : y + 110, x - 30 : x + 80 + d + 30] = False
     inside = field.reliable[y + 12 : y + 68, x + 12 : x + 68]
-    print(f"reliable: covered strip {covered.mean():.1%}, far background {field.reliable[far_bg].mean():.1%}, patch {inside.mean():.1%}")
+    print(
+        f"reliable: covered strip {covered.mean():.1%}, far background {field.reliable[far_bg].mean():.1%}, patch {inside.mean():.1%}"
+    )
     assert covered.mean() < 0.2
     assert field.reliable[far_bg].mean() > 0.95
     assert inside.mean() > 0.9
@@ -118,7 +124,9 @@ def test_box_crop_matches_the_full_computation() -> None:
     assert part.flow.shape == (y1 - y0, x1 - x0, 2)
     diff = np.linalg.norm(part.flow - full.flow[y0:y1, x0:x1], axis=2)
     err = np.linalg.norm(part.flow - _true_flow(M, H, W)[y0:y1, x0:x1], axis=2)
-    print(f"box vs full: median {np.median(diff):.3f} px, p95 {np.percentile(diff, 95):.3f} px; box vs truth {np.median(err):.3f} px")
+    print(
+        f"box vs full: median {np.median(diff):.3f} px, p95 {np.percentile(diff, 95):.3f} px; box vs truth {np.median(err):.3f} px"
+    )
     assert np.median(diff) < 0.1
     assert np.percentile(diff, 95) < 0.5
     assert np.median(err) < 0.15
@@ -159,7 +167,9 @@ def test_deterministic_across_instances_calls_and_threads() -> None:
     serial = [backend.compute(g0, g1, box) for box in boxes]
     with ThreadPoolExecutor(max_workers=4) as pool:  # the scorer computes object flow in threads
         parallel = list(pool.map(lambda box: backend.compute(g0, g1, box), boxes))
-    assert all(np.array_equal(s.flow, p.flow) and np.array_equal(s.reliable, p.reliable) for s, p in zip(serial, parallel))
+    assert all(
+        np.array_equal(s.flow, p.flow) and np.array_equal(s.reliable, p.reliable) for s, p in zip(serial, parallel)
+    )
 
 
 def test_registry_and_errors() -> None:

@@ -88,7 +88,15 @@ def test_pose_helpers():
 
 @pytest.mark.parametrize(
     "t_inf, hyst, binary",
-    [(0.0, "H", "H"), (0.03, "H", "H"), (0.0301, "U", "H"), (0.04, "U", "H"), (0.0401, "U", "F"), (0.05, "F", "F"), (0.3, "F", "F")],
+    [
+        (0.0, "H", "H"),
+        (0.03, "H", "H"),
+        (0.0301, "U", "H"),
+        (0.04, "U", "H"),
+        (0.0401, "U", "F"),
+        (0.05, "F", "F"),
+        (0.3, "F", "F"),
+    ],
 )
 def test_gate_thresholds(t_inf, hyst, binary):
     assert hysteresis_gate(t_inf) == hyst

@@ -134,7 +134,9 @@ def test_external_label_images_map_into_the_canvas(small_c4) -> None:
         share = masked_share(lab, info.content_mask)
         assert share == pytest.approx(gt.masked_share[t], rel=0.02)
         assert src.coverage[t] == share
-    print(f"external (a): masked share {[round(src.coverage[t], 4) for t in range(8)]} vs truth {np.round(gt.masked_share, 4).tolist()}")
+    print(
+        f"external (a): masked share {[round(src.coverage[t], 4) for t in range(8)]} vs truth {np.round(gt.masked_share, 4).tolist()}"
+    )
     assert src.warnings == []
 
 
@@ -192,7 +194,10 @@ def test_external_errors(small_c4, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="00005.png: mask is 100x50"):
         src.labels(5)
     colour = copy("colour")
-    cv2.imwrite(str(colour / "00002.png"), np.dstack([np.zeros((180, 320), np.uint8), np.ones((180, 320), np.uint8), np.zeros((180, 320), np.uint8)]))
+    cv2.imwrite(
+        str(colour / "00002.png"),
+        np.dstack([np.zeros((180, 320), np.uint8), np.ones((180, 320), np.uint8), np.zeros((180, 320), np.uint8)]),
+    )
     with pytest.raises(ValueError, match="colour image"):
         ExternalMasks(colour, info).labels(2)
     big = copy("big")
@@ -259,8 +264,18 @@ def test_masked_share_and_canvas_mapping() -> None:
     lab[1, 1:3] = 2
     assert masked_share(lab, content) == 0.25
     assert masked_share(lab, np.zeros((4, 6), bool)) == 0.0
-    info = ClipInfo(path="x", kind="images", source_size=(4, 2), fps=24.0, num_frames=2, working_size=(8, 8),
-                    scale=2.0, offset=(0, 2), bars=(0, 0, 0, 0), content_box=(0, 2, 8, 6))
+    info = ClipInfo(
+        path="x",
+        kind="images",
+        source_size=(4, 2),
+        fps=24.0,
+        num_frames=2,
+        working_size=(8, 8),
+        scale=2.0,
+        offset=(0, 2),
+        bars=(0, 0, 0, 0),
+        content_box=(0, 2, 8, 6),
+    )
     canvas = labels_to_canvas(np.array([[1, 0, 0, 2], [0, 0, 3, 0]], np.uint8), info)
     expect = np.zeros((8, 8), np.uint8)
     expect[2:4, 0:2], expect[2:4, 6:8], expect[4:6, 4:6] = 1, 2, 3
@@ -298,9 +313,13 @@ def test_motion_finds_the_two_objects_of_c4_with_stable_ids(synth) -> None:
     true_shares = np.array([masked_share(g, content) for g in truth])
     for k, s in stats.items():
         ious = np.array(s["iou"])
-        print(f"C4 object {k}: predicted ids {dict(Counter(s['ids']))}, IoU median {np.median(ious):.2f} min {ious.min():.2f}")
-    print(f"C4 masked share: predicted median {np.median(shares):.3f}, truth {np.median(true_shares):.3f}; "
-          f"regimes {dict(Counter(seg.regimes.values()))}; {ms:.0f} ms/frame incl. decoding at {info.content_box}")
+        print(
+            f"C4 object {k}: predicted ids {dict(Counter(s['ids']))}, IoU median {np.median(ious):.2f} min {ious.min():.2f}"
+        )
+    print(
+        f"C4 masked share: predicted median {np.median(shares):.3f}, truth {np.median(true_shares):.3f}; "
+        f"regimes {dict(Counter(seg.regimes.values()))}; {ms:.0f} ms/frame incl. decoding at {info.content_box}"
+    )
     assert sorted(stats) == [1, 2]
     mapped = []
     for k, s in stats.items():
@@ -325,8 +344,10 @@ def test_motion_finds_no_objects_in_a_rigid_or_failing_background(synth, family,
     seg = MotionSegmenter(info)
     pred = run_source(seg, info)
     shares = np.array([masked_share(p, info.content_mask) for p in pred])
-    print(f"{path.name}: frames with objects {np.count_nonzero(shares)}/{len(shares)}, max share {shares.max():.4f}, "
-          f"regimes {dict(Counter(seg.regimes.values()))}")
+    print(
+        f"{path.name}: frames with objects {np.count_nonzero(shares)}/{len(shares)}, max share {shares.max():.4f}, "
+        f"regimes {dict(Counter(seg.regimes.values()))}"
+    )
     assert np.count_nonzero(shares > 0.002) <= 1
     assert shares.max() < 0.02
 
@@ -340,9 +361,11 @@ def test_motion_on_the_stress_scene_finds_the_disc(synth) -> None:
     s = match_objects(pred, truth)[1]
     ious = np.array(s["iou"])
     shares = np.array([masked_share(p, info.content_mask) for p in pred])
-    print(f"C6 disc: found (IoU >= 0.5) in {np.mean(ious >= 0.5):.0%} of frames, IoU median {np.median(ious):.2f}, "
-          f"ids {dict(Counter(s['ids']))}; masked share max {shares.max():.3f} (truth max {gt.masked_share.max():.3f}); "
-          f"regimes {dict(Counter(seg.regimes.values()))}")
+    print(
+        f"C6 disc: found (IoU >= 0.5) in {np.mean(ious >= 0.5):.0%} of frames, IoU median {np.median(ious):.2f}, "
+        f"ids {dict(Counter(s['ids']))}; masked share max {shares.max():.3f} (truth max {gt.masked_share.max():.3f}); "
+        f"regimes {dict(Counter(seg.regimes.values()))}"
+    )
     assert np.mean(ious >= 0.5) >= 0.25
     assert shares.max() < 0.15  # thin poles and the occluder's parallax do not become objects
 
@@ -362,9 +385,11 @@ def test_motion_on_real_static_camera_footage(rel: str) -> None:
     ms = 1000 * (time.perf_counter() - start) / len(pred)
     shares = np.array([masked_share(p, info.content_mask) for p in pred])
     counts = np.array([len(np.unique(p)) - 1 for p in pred])
-    print(f"{rel}: {len(pred)} frames, objects in {np.mean(counts > 0):.0%} (median {np.median(counts):.0f} per frame), "
-          f"masked share median {np.median(shares):.3f} max {shares.max():.3f}, ids used {int(max(p.max() for p in pred))}, "
-          f"regimes {dict(Counter(seg.regimes.values()))}, {ms:.0f} ms/frame incl. decoding at {info.content_box}")
+    print(
+        f"{rel}: {len(pred)} frames, objects in {np.mean(counts > 0):.0%} (median {np.median(counts):.0f} per frame), "
+        f"masked share median {np.median(shares):.3f} max {shares.max():.3f}, ids used {int(max(p.max() for p in pred))}, "
+        f"regimes {dict(Counter(seg.regimes.values()))}, {ms:.0f} ms/frame incl. decoding at {info.content_box}"
+    )
     assert np.mean(counts > 0) >= 0.8
     assert shares.max() < 0.3
     assert seg.warnings == []

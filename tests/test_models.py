@@ -6,8 +6,22 @@ import numpy as np
 import pytest
 
 from geocon_core import geometry
-from geocon_core.geometry import fundamental_from_pose, homography_from_plane, intrinsics_from_fov, make_pose, rotation_xyz, sampson_distance
-from geocon_core.models import fit_fundamental, fit_homography, hartley_normalisation, inlier_stats, segment_inlier_stats, segment_order
+from geocon_core.geometry import (
+    fundamental_from_pose,
+    homography_from_plane,
+    intrinsics_from_fov,
+    make_pose,
+    rotation_xyz,
+    sampson_distance,
+)
+from geocon_core.models import (
+    fit_fundamental,
+    fit_homography,
+    hartley_normalisation,
+    inlier_stats,
+    segment_inlier_stats,
+    segment_order,
+)
 
 K = intrinsics_from_fov(1024, 576, 60.0)
 
@@ -103,8 +117,8 @@ def test_segment_inlier_stats_equals_the_per_pair_rule_bit_for_bit():
     counts = np.array([0, 1, 2, 3, 8, 9, 0, 40, 5, 120])
     offsets = np.concatenate([[0], np.cumsum(counts)])
     res = rng.gamma(1.5, 1.2, offsets[-1]).astype(np.float32)
-    res[offsets[4]:offsets[5]] = np.float32(0.5)  # all tied
-    res[offsets[8]:offsets[9]] = np.inf  # a pair without inliers
+    res[offsets[4] : offsets[5]] = np.float32(0.5)  # all tied
+    res[offsets[8] : offsets[9]] = np.inf  # a pair without inliers
     px = (res * rng.uniform(0.5, 3.0, res.shape)).astype(np.float32)
     px[offsets[7] + 3] = np.nan  # a NaN among inliers poisons that pair's median, as np.median does
     res[offsets[7] + 3] = 0.0

@@ -21,7 +21,14 @@ SIZE = dict(width=640, height=360, num_frames=16)
 @pytest.fixture(scope="module")
 def synth(tmp_path_factory):
     out = tmp_path_factory.mktemp("objects")
-    plans = [ClipPlan("C4"), ClipPlan("C1"), ClipPlan("C2"), ClipPlan("C3"), ClipPlan("C5"), ClipPlan("C4", "breathing", 3.0)]
+    plans = [
+        ClipPlan("C4"),
+        ClipPlan("C1"),
+        ClipPlan("C2"),
+        ClipPlan("C3"),
+        ClipPlan("C5"),
+        ClipPlan("C4", "breathing", 3.0),
+    ]
     plans += [ClipPlan("C4", "elastic", s) for s in (2.0, 4.0, 8.0)]
     for plan in plans:
         write_clip(plan, out, seed=5, **SIZE)
@@ -31,8 +38,6 @@ def synth(tmp_path_factory):
 @pytest.fixture(scope="module")
 def c4(synth):
     return score_clip(synth / "c4_objects.mp4", FAST)
-
-
 
 
 def test_rigid_objects_are_found_with_stable_ids(synth, c4):
@@ -55,6 +60,7 @@ def test_rigid_objects_are_found_with_stable_ids(synth, c4):
 def test_elastic_object_scores_much_higher_and_monotonically(synth):
     """Ground-truth masks isolate rigidity from segmentation. D_t grows with the square of the
     non-affine amplitude: monotone over 2, 4, 8 px, and >= 5x the rigid score at 8 px."""
+
     def scores(cid):
         gt = load_ground_truth(synth / f"{cid}.gt.json")
         rec = score_clip(synth / gt.video_path, FAST, masks=synth / gt.masks_path)
@@ -98,7 +104,18 @@ def test_categories_of_the_synthetic_families(synth, c4):
 def test_external_masks_and_json_objects(synth, tmp_path):
     gt = load_ground_truth(synth / "c4_objects.gt.json")
     runner = CliRunner()
-    res = runner.invoke(app, ["score", str(synth / "c4_objects.mp4"), "--masks", str(synth / gt.masks_path), "--json", "--out", str(tmp_path)])
+    res = runner.invoke(
+        app,
+        [
+            "score",
+            str(synth / "c4_objects.mp4"),
+            "--masks",
+            str(synth / gt.masks_path),
+            "--json",
+            "--out",
+            str(tmp_path),
+        ],
+    )
     assert res.exit_code == 0, res.output
     s = json.loads(res.stdout)
     assert [o["id"] for o in s["objects"]] == [1, 2] and s["category"] == "C4"

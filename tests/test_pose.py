@@ -92,15 +92,29 @@ def sweep() -> list[dict]:
             est = {60.0: backend.estimate(x0, x1, scene.K, seed=0)}
             for fov in FOVS:
                 est[fov] = backend.estimate(x0, x1, default_intrinsics((0, 0, W, H), fov), seed=0)
-            cases.append(dict(motion=name, truth=truth, rot=rotation_angle_deg(T_0T[:3, :3]), T=T_0T,
-                              x0=x0, x1=x1, K=scene.K, est=est))
+            cases.append(
+                dict(
+                    motion=name,
+                    truth=truth,
+                    rot=rotation_angle_deg(T_0T[:3, :3]),
+                    T=T_0T,
+                    x0=x0,
+                    x1=x1,
+                    K=scene.K,
+                    est=est,
+                )
+            )
     print("\ntranslation sweep (C3 layout, 640x360, SIFT): true t_inf vs estimate (true K, fov 48, fov 72)")
-    print(f"{'motion':12s} {'truth':>7s} {'est':>7s} {'method':9s} {'inl':>4s} {'par_px':>6s} {'rot':>6s} {'rot_true':>8s} {'fov48':>7s} {'fov72':>7s}")
+    print(
+        f"{'motion':12s} {'truth':>7s} {'est':>7s} {'method':9s} {'inl':>4s} {'par_px':>6s} {'rot':>6s} {'rot_true':>8s} {'fov48':>7s} {'fov72':>7s}"
+    )
     for c in cases:
         e = c["est"][60.0]
-        print(f"{c['motion']:12s} {c['truth']:7.4f} {fmt(e.t_inf)} {e.method:9s} {e.n_inliers:4d} "
-              f"{e.parallax_px or 0:6.2f} {e.rotation_deg or 0:6.3f} {c['rot']:8.3f} "
-              f"{fmt(c['est'][48.0].t_inf)} {fmt(c['est'][72.0].t_inf)}")
+        print(
+            f"{c['motion']:12s} {c['truth']:7.4f} {fmt(e.t_inf)} {e.method:9s} {e.n_inliers:4d} "
+            f"{e.parallax_px or 0:6.2f} {e.rotation_deg or 0:6.3f} {c['rot']:8.3f} "
+            f"{fmt(c['est'][48.0].t_inf)} {fmt(c['est'][72.0].t_inf)}"
+        )
     return cases
 
 
@@ -126,9 +140,11 @@ def rotations() -> list[dict]:
     print("\npure rotation (C2 layout): rotation angle and t_inf (true K, fov 48, fov 72)")
     for c in cases:
         e = c["est"][60.0]
-        print(f"seed {c['seed']} rot_true {c['rot']:7.3f} rot_est {e.rotation_deg:7.3f} t_inf {e.t_inf:.5f} "
-              f"{e.method} par {e.parallax_px:.2f} px | fov48 {c['est'][48.0].method} {c['est'][48.0].t_inf:.5f} "
-              f"| fov72 {c['est'][72.0].method} {c['est'][72.0].t_inf:.5f}")
+        print(
+            f"seed {c['seed']} rot_true {c['rot']:7.3f} rot_est {e.rotation_deg:7.3f} t_inf {e.t_inf:.5f} "
+            f"{e.method} par {e.parallax_px:.2f} px | fov48 {c['est'][48.0].method} {c['est'][48.0].t_inf:.5f} "
+            f"| fov72 {c['est'][72.0].method} {c['est'][72.0].t_inf:.5f}"
+        )
     return cases
 
 
@@ -238,7 +254,11 @@ def test_estimate_is_deterministic(sweep):
 
 
 def test_pose_estimate_round_trips_through_json(sweep):
-    for e in (sweep[5]["est"][60.0], sweep[0]["est"][48.0], ClassicalPose().estimate(np.zeros((3, 2)), np.zeros((3, 2)), np.eye(3))):
+    for e in (
+        sweep[5]["est"][60.0],
+        sweep[0]["est"][48.0],
+        ClassicalPose().estimate(np.zeros((3, 2)), np.zeros((3, 2)), np.eye(3)),
+    ):
         d = json.loads(json.dumps(e.to_dict()))
         back = PoseEstimate.from_dict(d)
         assert back.to_dict() == e.to_dict()
@@ -256,7 +276,9 @@ def write_log(path: Path, **fields) -> Path:
 
 def test_pose_log_unit_scale_round_trip(tmp_path):
     T = make_pose(rotation_xyz(5.0, 2.0, -1.0), (0.03, -0.01, 0.02))
-    log = load_pose_log(write_log(tmp_path / "p.json", T_cam0_camT=T.tolist(), scale="unit_mean_distance", source="dust3r ViTLarge_512"))
+    log = load_pose_log(
+        write_log(tmp_path / "p.json", T_cam0_camT=T.tolist(), scale="unit_mean_distance", source="dust3r ViTLarge_512")
+    )
     e = log.estimate(np.zeros((0, 2)), np.zeros((0, 2)), intrinsics_from_fov(W, H, 60.0))
     assert e.pose_present and e.method == "log" and e.reason is None
     assert e.t_inf == 0.03 and np.array_equal(e.T_cam0_camT, T)
@@ -266,8 +288,9 @@ def test_pose_log_unit_scale_round_trip(tmp_path):
 
 def test_pose_log_metric_scale_is_divided(tmp_path):
     T = make_pose(np.eye(3), (0.6, 0.0, -0.3))
-    e = PoseLog(write_log(tmp_path / "m.json", T_cam0_camT=T.tolist(), scale="metric", mean_scene_distance=6.0)).estimate(
-        np.zeros((5, 2)), np.zeros((5, 2)), np.eye(3))
+    e = PoseLog(
+        write_log(tmp_path / "m.json", T_cam0_camT=T.tolist(), scale="metric", mean_scene_distance=6.0)
+    ).estimate(np.zeros((5, 2)), np.zeros((5, 2)), np.eye(3))
     assert e.t_inf == pytest.approx(0.1, rel=1e-12)
     assert np.allclose(e.T_cam0_camT[:3, 3], [0.1, 0.0, -0.05])
     with pytest.raises(ValueError, match="mean_scene_distance"):
@@ -398,8 +421,18 @@ def real_clip_table(video: Path, pose_file: Path) -> list[dict]:
                 depth0[key] = (float(np.linalg.norm(X[i])), float(angle[i]))
         shift = float(np.abs(invert_pose(T_k_0)[:3, 3]).max())
         t_pair = shift / float(np.linalg.norm(X[ok], axis=1).mean()) if ok.sum() >= 8 else None
-        rows.append(dict(clip=video.stem, k=k, n=len(x0), n_ok=int(ok.sum()), shift=shift, t_pair=t_pair,
-                         rot=rotation_angle_deg(T_k_0[:3, :3]), est=backend.estimate(x0, xk, K)))
+        rows.append(
+            dict(
+                clip=video.stem,
+                k=k,
+                n=len(x0),
+                n_ok=int(ok.sum()),
+                shift=shift,
+                t_pair=t_pair,
+                rot=rotation_angle_deg(T_k_0[:3, :3]),
+                est=backend.estimate(x0, xk, K),
+            )
+        )
     mean0 = float(np.mean([v[0] for v in depth0.values()]))
     for r in rows:
         r["t_frame0"] = r["shift"] / mean0
@@ -409,12 +442,16 @@ def real_clip_table(video: Path, pose_file: Path) -> list[dict]:
 
 def print_real_table(title: str, rows: list[dict]) -> None:
     print(f"\n{title}")
-    print(f"{'clip':28s} {'k':>2s} {'n':>4s} {'t_pair':>7s} {'t_frame0':>8s} {'estimate':>8s} {'method':9s} {'reason':16s} "
-          f"{'rot':>6s} {'rot_est':>7s} truth->est")
+    print(
+        f"{'clip':28s} {'k':>2s} {'n':>4s} {'t_pair':>7s} {'t_frame0':>8s} {'estimate':>8s} {'method':9s} {'reason':16s} "
+        f"{'rot':>6s} {'rot_est':>7s} truth->est"
+    )
     for r in rows:
         e = r["est"]
-        print(f"{r['clip']:28s} {r['k']:2d} {r['n']:4d} {fmt(r['t_pair'])} {r['t_frame0']:8.4f} {fmt(e.t_inf):>8s} "
-              f"{e.method:9s} {e.reason or '':16s} {r['rot']:6.2f} {fmt(e.rotation_deg)} {gate(r['truth'])}->{gate(e.t_inf)}")
+        print(
+            f"{r['clip']:28s} {r['k']:2d} {r['n']:4d} {fmt(r['t_pair'])} {r['t_frame0']:8.4f} {fmt(e.t_inf):>8s} "
+            f"{e.method:9s} {e.reason or '':16s} {r['rot']:6.2f} {fmt(e.rotation_deg)} {gate(r['truth'])}->{gate(e.t_inf)}"
+        )
 
 
 def check_real_rows(rows: list[dict], *, min_agreement: float) -> None:
@@ -427,7 +464,8 @@ def check_real_rows(rows: list[dict], *, min_agreement: float) -> None:
     msg = "\n".join(
         f"{r['clip']} 0->{r['k']}: true t_inf {r['truth']:.4f} ({gate(r['truth'])}), estimate "
         f"{fmt(r['est'].t_inf)} ({gate(r['est'].t_inf)}, {r['est'].method}, {r['est'].reason})"
-        for r in clear if gate(r["est"].t_inf) != gate(r["truth"])
+        for r in clear
+        if gate(r["est"].t_inf) != gate(r["truth"])
     )
     assert not flips, "H/F decision flipped:\n" + msg
     assert len(agree) >= min_agreement * len(clear), f"{len(agree)}/{len(clear)} decisions agree:\n{msg}"

@@ -239,7 +239,9 @@ def test_animatediff_gif():
     assert len(frames) == 16 and frames[0].rgb.shape == (720, 1024, 3)
 
 
-@pytest.mark.parametrize("name", ["svdxt_mountain_lake_0f47577ab3441480.gif", "svdxt_rocky_coastline_0bf152ef84195293.gif"])
+@pytest.mark.parametrize(
+    "name", ["svdxt_mountain_lake_0f47577ab3441480.gif", "svdxt_rocky_coastline_0bf152ef84195293.gif"]
+)
 def test_svd_gifs_repeat_a_frame(name):
     # The data README says these GIFs repeat their first frame. Decoded, it is the final frame
     # (25) that repeats frame 24 exactly; frame 0 differs from frame 1 and from frame 25.
@@ -343,7 +345,13 @@ def test_clip_info_round_trips_and_is_deterministic(clips):
 
 def test_clip_info_checks_its_fields(clips):
     d = probe_clip(clips["C2"]).to_dict()
-    for bad in ({"cuts": [0]}, {"duplicates": [8]}, {"num_frames": 1}, {"kind": "film"}, {"content_box": [0, 0, 2000, 10]}):
+    for bad in (
+        {"cuts": [0]},
+        {"duplicates": [8]},
+        {"num_frames": 1},
+        {"kind": "film"},
+        {"content_box": [0, 0, 2000, 10]},
+    ):
         with pytest.raises(ValueError):
             ClipInfo.from_dict({**d, **bad})
 

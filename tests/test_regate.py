@@ -27,7 +27,9 @@ def test_scan_at_recorded_thresholds_equals_the_record_exactly(record):
         r = regate_family(record, family, tau)
         assert r.ir == fams[family].ir and r.ge == fams[family].ge  # exact, not approximate
         assert r.valid_pairs == fams[family].valid_pairs
-        assert [(g.gap, g.ir, g.ge, g.valid_pairs) for g in r.per_gap] == [(g.gap, g.ir, g.ge, g.valid_pairs) for g in fams[family].per_gap]
+        assert [(g.gap, g.ir, g.ge, g.valid_pairs) for g in r.per_gap] == [
+            (g.gap, g.ir, g.ge, g.valid_pairs) for g in fams[family].per_gap
+        ]
     scan = sensitivity_scan(record)
     defaults = [r for r in scan if r.tau == (record.config.tau_h if r.family == "H" else record.config.tau_f)]
     assert {r.family for r in defaults} == {"H", "F"}
@@ -59,7 +61,6 @@ def test_bad_family_is_rejected(record):
         regate_family(record, "E", 1.0)  # type: ignore[arg-type]
 
 
-
 def test_whole_clip_regating_at_recorded_thresholds_is_the_record(record, tmp_path):
     """:func:`regate_clip` (from the record, and from the slim residuals read off disk) gives the
     recorded gate label, model, IR, GE and verdict exactly."""
@@ -89,7 +90,9 @@ def test_moving_thresholds_changes_the_verdict_as_the_rules_say(record):
     assert as_h.label == "H" and as_h.model == "H" and as_h.margin == pytest.approx(0.01)
     assert as_h.ir == regate_family(record, "H", th.tau_h).ir
     assert (as_h.ge, as_h.ge_f) == (regate_family(record, "H", th.tau_h).ge, base.ge) and as_h.ge > base.ge
-    between = Thresholds(**{**th.__dict__, "tau_t_low": t + 0.01, "tau_t_high": t + 0.02, "ge_gate": (base.ge + as_h.ge) / 2})
+    between = Thresholds(
+        **{**th.__dict__, "tau_t_low": t + 0.01, "tau_t_high": t + 0.02, "ge_gate": (base.ge + as_h.ge) / 2}
+    )
     assert regate_clip(record, between).consistent is False and regate_clip(record, between).report_margin < 0
     assert regate_clip(record, Thresholds(**{**th.__dict__, "ge_gate": (base.ge + as_h.ge) / 2})).consistent is True
     at = Thresholds(**{**th.__dict__, "ir_gate": base.ir})

@@ -73,12 +73,30 @@ def test_entity_paths_present(objects_run):
     record, _, rows = objects_run
     ids = [o.object_id for o in record.objects]
     assert ids, "the C4 clip has objects"
-    expected = [
-        "/frame/image", "/frame/content", "/frame/objects", "/frame/flow", "/frame/matches/inliers", "/frame/matches/outliers",
-        "/frame/matches/lines", "/frame/residual_map", "/series/background/ir/gap1/scale1", "/series/background/ge/gap1/scale1",
-        "/series/background/ir/gate", "/series/background/ge/gate", "/series/gate/t_inf", "/series/gate/low", "/series/gate/high",
-        "/world/cam_first", "/audit",
-    ] + [f"/frame/cells/{i}/observed" for i in ids] + [f"/frame/cells/{i}/predicted" for i in ids] + [f"/series/objects/{i}" for i in ids]
+    expected = (
+        [
+            "/frame/image",
+            "/frame/content",
+            "/frame/objects",
+            "/frame/flow",
+            "/frame/matches/inliers",
+            "/frame/matches/outliers",
+            "/frame/matches/lines",
+            "/frame/residual_map",
+            "/series/background/ir/gap1/scale1",
+            "/series/background/ge/gap1/scale1",
+            "/series/background/ir/gate",
+            "/series/background/ge/gate",
+            "/series/gate/t_inf",
+            "/series/gate/low",
+            "/series/gate/high",
+            "/world/cam_first",
+            "/audit",
+        ]
+        + [f"/frame/cells/{i}/observed" for i in ids]
+        + [f"/frame/cells/{i}/predicted" for i in ids]
+        + [f"/series/objects/{i}" for i in ids]
+    )
     missing = [p for p in expected if p not in rows]
     assert not missing, missing
 
@@ -122,13 +140,27 @@ def test_ir_series_equals_record(objects_run):
     record, _, rows = objects_run
     fam = record.background.model
     for s in record.config.scales:
-        expect = {p.t0: p.fit(fam).ir for p in record.pairs if p.gap == 1 and p.scale == s and p.skip is None and p.fit(fam).valid}
-        logged = {r["frame"]: r["Scalars:scalars"][0] for r in rows[f"/series/background/ir/gap1/scale{s:g}"] if r.get("frame") is not None}
+        expect = {
+            p.t0: p.fit(fam).ir
+            for p in record.pairs
+            if p.gap == 1 and p.scale == s and p.skip is None and p.fit(fam).valid
+        }
+        logged = {
+            r["frame"]: r["Scalars:scalars"][0]
+            for r in rows[f"/series/background/ir/gap1/scale{s:g}"]
+            if r.get("frame") is not None
+        }
         assert logged == pytest.approx(expect, abs=0), s
     # AdaDFRC per object equals the record's D_t
     for o in record.objects:
-        expect = {e.t0: e.d_t for e in record.object_entries if e.object_id == o.object_id and e.scale == 1.0 and e.valid}
-        logged = {r["frame"]: r["Scalars:scalars"][0] for r in rows[f"/series/objects/{o.object_id}"] if r.get("frame") is not None}
+        expect = {
+            e.t0: e.d_t for e in record.object_entries if e.object_id == o.object_id and e.scale == 1.0 and e.valid
+        }
+        logged = {
+            r["frame"]: r["Scalars:scalars"][0]
+            for r in rows[f"/series/objects/{o.object_id}"]
+            if r.get("frame") is not None
+        }
         assert logged == pytest.approx(expect)
 
 
@@ -154,7 +186,9 @@ def test_point_cloud_and_cameras(parallax_run):
         K = np.array(row["Pinhole:image_from_camera"][0]).reshape(3, 3).T  # stored column-major
         assert np.allclose(K[:2, 2], np.asarray(record.intrinsics)[:2, 2])
     T = np.asarray(record.gate.pose["T_cam0_camT"])
-    tr = next(r for r in rows["/world/cam_last"] if r.get("Transform3D:translation") is not None)["Transform3D:translation"]
+    tr = next(r for r in rows["/world/cam_last"] if r.get("Transform3D:translation") is not None)[
+        "Transform3D:translation"
+    ]
     assert np.allclose(tr[0] if np.ndim(tr[0]) else tr, T[:3, 3], atol=1e-5)
 
 
@@ -171,8 +205,22 @@ def test_view_rerenders_from_saved_record(objects_run, tmp_path):
     record, folder, live = objects_run
     again = _rows(write_rrd(folder / "record", tmp_path / "again.rrd"))
     for path in ("/frame/matches/inliers", "/series/background/ir/gap1/scale1", "/frame/objects"):
-        a = [(r["frame"], len(next(v for k, v in r.items() if k.endswith(("positions", "scalars", "buffer")) and v is not None))) for r in live[path] if r.get("frame") is not None]
-        b = [(r["frame"], len(next(v for k, v in r.items() if k.endswith(("positions", "scalars", "buffer")) and v is not None))) for r in again[path] if r.get("frame") is not None]
+        a = [
+            (
+                r["frame"],
+                len(next(v for k, v in r.items() if k.endswith(("positions", "scalars", "buffer")) and v is not None)),
+            )
+            for r in live[path]
+            if r.get("frame") is not None
+        ]
+        b = [
+            (
+                r["frame"],
+                len(next(v for k, v in r.items() if k.endswith(("positions", "scalars", "buffer")) and v is not None)),
+            )
+            for r in again[path]
+            if r.get("frame") is not None
+        ]
         assert a == b, path
     assert read_overlays(folder / "record").labels(0) is not None
 
@@ -201,15 +249,36 @@ def test_cli_score_rrd_and_view(synth_dir, tmp_path):
     """`geocon score --rrd` writes a recording; `geocon view --headless` re-renders it."""
     geocon = Path(sys.executable).parent / "geocon"
     clip = synth_dir / "c1_static.mp4"
-    res = subprocess.run([str(geocon), "score", str(clip), "--no-masks", "--out", str(tmp_path / "rec"), "--rrd", str(tmp_path / "a.rrd"), "--json"],
-                         capture_output=True, text=True, timeout=600)
+    res = subprocess.run(
+        [
+            str(geocon),
+            "score",
+            str(clip),
+            "--no-masks",
+            "--out",
+            str(tmp_path / "rec"),
+            "--rrd",
+            str(tmp_path / "a.rrd"),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["config_hash"] == read_record(tmp_path / "rec").config_hash
     assert (tmp_path / "a.rrd").stat().st_size > 10_000
-    res = subprocess.run([str(geocon), "view", str(tmp_path / "rec"), "--headless", "--save", str(tmp_path / "b.rrd")], capture_output=True, text=True, timeout=600)
+    res = subprocess.run(
+        [str(geocon), "view", str(tmp_path / "rec"), "--headless", "--save", str(tmp_path / "b.rrd")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert res.returncode == 0, res.stderr
     assert "/frame/matches/inliers" in _rows(tmp_path / "b.rrd")
-    res = subprocess.run([str(geocon), "view", str(tmp_path / "nothing-here"), "--headless"], capture_output=True, text=True, timeout=60)
+    res = subprocess.run(
+        [str(geocon), "view", str(tmp_path / "nothing-here"), "--headless"], capture_output=True, text=True, timeout=60
+    )
     assert res.returncode == 2 and "does not exist" in res.stderr
 
 

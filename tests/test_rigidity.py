@@ -65,7 +65,9 @@ def brute_w2(pred: np.ndarray, obs: np.ndarray, counts: np.ndarray) -> float:
     return float(cost[r, c].sum() / reps.sum())
 
 
-def check_cell_structure(res: RigidityResult, flow: np.ndarray, mask: np.ndarray, reliable: np.ndarray | None, grid: int, origin=(0.0, 0.0)):
+def check_cell_structure(
+    res: RigidityResult, flow: np.ndarray, mask: np.ndarray, reliable: np.ndarray | None, grid: int, origin=(0.0, 0.0)
+):
     """Cells/positions/observed/weights follow the documented grid and medoid rules."""
     use = mask.copy() if reliable is None else mask & reliable
     use &= np.isfinite(flow).all(axis=2)
@@ -139,7 +141,9 @@ def test_componentwise_median_at_centroid_would_not_be_exact():
         vec.append(np.median(flow[ys[sel], xs[sel]], axis=0))
         wts.append(sel.sum())
     pos, vec, wts = np.array(pos), np.array(vec), np.array(wts, float)
-    naive = weighted_mse(pos @ weighted_affine_fit(pos, vec, wts)[:, :2].T + weighted_affine_fit(pos, vec, wts)[:, 2], vec, wts)
+    naive = weighted_mse(
+        pos @ weighted_affine_fit(pos, vec, wts)[:, :2].T + weighted_affine_fit(pos, vec, wts)[:, 2], vec, wts
+    )
     assert naive > 1e-6
     assert adadfrc_pair(flow, mask, grid=grid).d_t < 1e-20
 
@@ -165,7 +169,9 @@ def test_checkerboard_offset_gives_delta_squared(grid, s):
     mask = np.ones((size, size), bool)
     res = adadfrc_pair(flow, mask, grid=grid, origin=origin)
     assert res.valid and res.cells.num_cells == grid * grid
-    centres = np.array([[j * s + s // 2 + origin[0], i * s + s // 2 + origin[1]] for i in range(grid) for j in range(grid)])
+    centres = np.array(
+        [[j * s + s // 2 + origin[0], i * s + s // 2 + origin[1]] for i in range(grid) for j in range(grid)]
+    )
     assert np.array_equal(res.cells.positions, centres)
     assert np.array_equal(res.cells.cells, np.array(list(itertools.product(range(grid), range(grid)))))
     assert np.all(res.cells.weights == s * s)

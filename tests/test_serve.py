@@ -70,6 +70,7 @@ def _local_listeners(port: int) -> list[str]:
 
 # --- live re-gating ------------------------------------------------------------------------------
 
+
 def test_tau_h_from_the_scan_gives_exactly_the_scans_ir(app, results):
     sens = read_tables(results)["sensitivity"]
     h = sens[(sens["family"] == "H") & ~sens["is_default"]]
@@ -137,7 +138,9 @@ def test_triage_filters_and_severity_order(app, results):
     # the elastic clips break the background: they are the most severe passing/failing clips
     app.category.value = "C3"
     assert app.rows and all(r.clip.category == "C3" for r in app.rows)
-    assert app.clip.options == tuple(r.clip_id for r in app.rows) or list(app.clip.options) == [r.clip_id for r in app.rows]
+    assert app.clip.options == tuple(r.clip_id for r in app.rows) or list(app.clip.options) == [
+        r.clip_id for r in app.rows
+    ]
     assert app.view is not None and app.view.clip_id == app.rows[0].clip_id
     app.category.value = "any"
     app.state.value = "error"
@@ -151,6 +154,7 @@ def test_triage_filters_and_severity_order(app, results):
 
 
 # --- the selected clip ------------------------------------------------------------------------------
+
 
 def test_selecting_a_clip_loads_its_point_cloud_and_frames(app, results):
     for clip_id in ("clean-c3_translation-s0", "elastic-c3_translation-s0"):
@@ -221,6 +225,7 @@ def test_rrd_button_writes_the_recording(app, results):
 
 # --- the server ---------------------------------------------------------------------------------
 
+
 def test_binds_to_localhost_only_and_frees_its_port(results):
     audit = AuditApp(results, port=0, preload=True)
     port = audit.port
@@ -246,7 +251,9 @@ def test_binds_to_localhost_only_and_frees_its_port(results):
 def test_cli_serves_until_ctrl_c_then_frees_its_port(results, sig):
     import signal
 
-    proc = subprocess.Popen([*GEOCON, "serve", str(results), "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [*GEOCON, "serve", str(results), "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         line = ""
         while "GeoCon audit app:" not in line:
@@ -302,11 +309,14 @@ def test_bad_results_folders_are_refused(tmp_path):
     (record / "record.json").write_text("{not json")
     with pytest.raises(ResultsError, match="not a readable GeoCon record"):
         ResultsIndex.open(record)
-    proc = subprocess.run([*GEOCON, "serve", str(tmp_path / "nowhere"), "--port", "0"], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [*GEOCON, "serve", str(tmp_path / "nowhere"), "--port", "0"], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode != 0 and "does not exist" in proc.stderr
 
 
 # --- in a browser ---------------------------------------------------------------------------------
+
 
 def test_headless_chromium_shows_the_list_scene_and_plots(results, tmp_path):
     from geocon_viewer.screenshot import find_chromium
@@ -316,8 +326,22 @@ def test_headless_chromium_shows_the_list_scene_and_plots(results, tmp_path):
     import cv2
 
     png = tmp_path / "serve.png"
-    proc = subprocess.run([*GEOCON, "serve", str(results), "--port", "0", "--clip", "elastic-c3_translation-s0", "--screenshot", str(png)],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            *GEOCON,
+            "serve",
+            str(results),
+            "--port",
+            "0",
+            "--clip",
+            "elastic-c3_translation-s0",
+            "--screenshot",
+            str(png),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "GeoCon audit app: http://127.0.0.1:" in proc.stdout
     img = cv2.imread(str(png))

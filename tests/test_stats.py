@@ -48,7 +48,10 @@ def test_bootstrap_ci_properties():
     a = stats.bootstrap_median_ci(v, s, B=2000, seed=1)
     assert a.low <= a.estimate <= a.high and a.n == 40
     assert a == stats.bootstrap_median_ci(v, s, B=2000, seed=1)
-    assert (a.low, a.high) != (stats.bootstrap_median_ci(v, s, B=2000, seed=2).low, stats.bootstrap_median_ci(v, s, B=2000, seed=2).high)
+    assert (a.low, a.high) != (
+        stats.bootstrap_median_ci(v, s, B=2000, seed=2).low,
+        stats.bootstrap_median_ci(v, s, B=2000, seed=2).high,
+    )
     flat = stats.bootstrap_median_ci([3.0] * 6, list("abcdef"), B=500)
     assert (flat.estimate, flat.low, flat.high) == (3.0, 3.0, 3.0)
     one = stats.bootstrap_median_ci([1.0, 5.0], ["x", "x"], B=500)

@@ -86,7 +86,9 @@ def test_static_camera_frames_agree_outside_objects(synth_dir):
     gt = load_ground_truth(synth_dir / "c4_objects.gt.json")
     assert gt.t_inf == 0.0 and gt.expected_gate == "H"
     frames = read_video(synth_dir / gt.video_path)
-    masks = [cv2.imread(str(synth_dir / gt.masks_path / f"{t:05d}.png"), cv2.IMREAD_UNCHANGED) for t in range(gt.num_frames)]
+    masks = [
+        cv2.imread(str(synth_dir / gt.masks_path / f"{t:05d}.png"), cv2.IMREAD_UNCHANGED) for t in range(gt.num_frames)
+    ]
     static = (masks[0] == 0) & (masks[-1] == 0)
     diff = np.abs(frames[0].astype(int) - frames[-1].astype(int)).max(axis=2)
     assert np.median(diff[static]) <= 2  # compression noise only
@@ -181,8 +183,16 @@ def test_elastic_warp_moves_object_content_by_the_field():
     assert np.median(np.linalg.norm((x2 - x1) - predicted, axis=1)) < 0.5
     # densely: the elastic frame is the rigid frame re-sampled at x - d(x) inside the object
     gy, gx = np.mgrid[0 : scene.height, 0 : scene.width].astype(np.float32)
-    resampled = cv2.remap(rigid.rgb, gx - field[..., 0].astype(np.float32), gy - field[..., 1].astype(np.float32), cv2.INTER_LINEAR)
-    inner = cv2.erode(((rigid.labels == failure.object_id) & (elastic.labels == failure.object_id)).astype(np.uint8), np.ones((11, 11))) > 0
+    resampled = cv2.remap(
+        rigid.rgb, gx - field[..., 0].astype(np.float32), gy - field[..., 1].astype(np.float32), cv2.INTER_LINEAR
+    )
+    inner = (
+        cv2.erode(
+            ((rigid.labels == failure.object_id) & (elastic.labels == failure.object_id)).astype(np.uint8),
+            np.ones((11, 11)),
+        )
+        > 0
+    )
     warped_err = np.abs(resampled.astype(int) - elastic.rgb.astype(int))[inner].mean()
     unwarped_err = np.abs(rigid.rgb.astype(int) - elastic.rgb.astype(int))[inner].mean()
     assert warped_err < 2.0 and unwarped_err > 4 * warped_err, (warped_err, unwarped_err)
@@ -223,7 +233,19 @@ def test_ground_truth_round_trips_and_sidecar_has_spec_fields(synth_dir, tmp_pat
     np.testing.assert_array_equal(again.K, gt.K)
     assert again.t_inf == gt.t_inf and again.objects == gt.objects and again.failure == gt.failure
     meta = json.loads((synth_dir / "c3_translation.meta.json").read_text())
-    for key in ("prompt", "model", "model_version", "seed", "resolution", "fps", "duration", "clip_id", "masks_path", "category", "scene_id"):
+    for key in (
+        "prompt",
+        "model",
+        "model_version",
+        "seed",
+        "resolution",
+        "fps",
+        "duration",
+        "clip_id",
+        "masks_path",
+        "category",
+        "scene_id",
+    ):
         assert key in meta, key
     assert meta["category"] == "C3" and meta["resolution"] == [640, 360] and meta["duration"] == pytest.approx(1.0)
     assert (synth_dir / meta["masks_path"]).is_dir()

@@ -46,8 +46,13 @@ class BenchClip:
 
 
 def plan_benchmark(
-    *, families: Sequence[str] = ("C1", "C2", "C3", "C4", "C5"), scenes: int = 3, platforms: Sequence[str] = PLATFORMS,
-    breathing_px: float = 3.0, elastic_px: float = 8.0, first_seed: int = 0,
+    *,
+    families: Sequence[str] = ("C1", "C2", "C3", "C4", "C5"),
+    scenes: int = 3,
+    platforms: Sequence[str] = PLATFORMS,
+    breathing_px: float = 3.0,
+    elastic_px: float = 8.0,
+    first_seed: int = 0,
 ) -> list[BenchClip]:
     """Every (platform, family, scene) clip of the benchmark."""
     unknown = [p for p in platforms if p not in PLATFORMS]
@@ -71,7 +76,13 @@ def plan_benchmark(
 
 
 def write_benchmark(
-    out_dir: str | Path, clips: Sequence[BenchClip], *, width: int = 320, height: int = 180, num_frames: int = 24, fps: float = 24.0,
+    out_dir: str | Path,
+    clips: Sequence[BenchClip],
+    *,
+    width: int = 320,
+    height: int = 180,
+    num_frames: int = 24,
+    fps: float = 24.0,
     on_frame: Callable[[int], None] | None = None,
 ) -> list[Path]:
     """Render ``clips`` into ``out_dir/<platform>/<scene_id>/`` and rewrite each sidecar with the
@@ -80,7 +91,16 @@ def write_benchmark(
     sidecars = []
     for clip in clips:
         folder = root / clip.platform / clip.scene_id
-        gt = write_clip(clip.plan, folder, seed=clip.seed, width=width, height=height, num_frames=num_frames, fps=fps, on_frame=on_frame)
+        gt = write_clip(
+            clip.plan,
+            folder,
+            seed=clip.seed,
+            width=width,
+            height=height,
+            num_frames=num_frames,
+            fps=fps,
+            on_frame=on_frame,
+        )
         sidecar = folder / f"{gt.clip_id}.meta.json"
         meta = json.loads(sidecar.read_text())
         meta.update(clip_id=clip.clip_id, model=clip.platform, scene_id=clip.scene_id)

@@ -145,7 +145,11 @@ class Slide(Failure):
         return _with_offset(view, np.broadcast_to(self.shift(t), self._shape))
 
     def params(self) -> dict:
-        return {"layer": self.layer, "direction": self.direction.tolist(), "formula": "shift_t = severity * t / (T-1) * direction"}
+        return {
+            "layer": self.layer,
+            "direction": self.direction.tolist(),
+            "formula": "shift_t = severity * t / (T-1) * direction",
+        }
 
 
 class MissingParallax(Failure):
@@ -185,7 +189,10 @@ class MissingParallax(Failure):
         )
 
     def params(self) -> dict:
-        return {"reference_depth": self.z_ref, "formula": "m_p <- (1 - severity) m_p + severity [0, 0, 1/reference_depth]"}
+        return {
+            "reference_depth": self.z_ref,
+            "formula": "m_p <- (1 - severity) m_p + severity [0, 0, 1/reference_depth]",
+        }
 
 
 class Elastic(Failure):
@@ -264,7 +271,9 @@ class Boiling(Failure):
         x1, y1 = np.clip(np.ceil(np.nanmax(tex, axis=0)).astype(int) + 1, 1, [tw, th])
         self.texel_box = (int(x0), int(y0), int(x1), int(y1))
         # the region actually re-synthesised, as seen in frame 0 (bounding box, pixels)
-        img = apply_homography(np.linalg.inv(H_tex_img), _box_corners(np.array(self.texel_box, float) - [0.5, 0.5, 0.5, 0.5]))
+        img = apply_homography(
+            np.linalg.inv(H_tex_img), _box_corners(np.array(self.texel_box, float) - [0.5, 0.5, 0.5, 0.5])
+        )
         self.image_box0 = [float(v) for v in (*np.nanmin(img, axis=0), *np.nanmax(img, axis=0))]
         self._texture = plane.texture
 
@@ -321,7 +330,9 @@ class FailureSpec:
 
     def check(self, severity: float) -> float:
         if not (self.low < severity <= self.high):
-            raise ValueError(f"severity for {self.kind!r} must be in ({self.low:g}, {self.high:g}] {self.unit}, got {severity:g}")
+            raise ValueError(
+                f"severity for {self.kind!r} must be in ({self.low:g}, {self.high:g}] {self.unit}, got {severity:g}"
+            )
         return float(severity)
 
 
@@ -330,9 +341,21 @@ FAILURES: dict[str, FailureSpec] = {
     for s in (
         FailureSpec("breathing", "px (peak displacement)", 3.0, 0.0, 50.0, "background rubber-sheet warp", Breathing),
         FailureSpec("slide", "px (drift at the last frame)", 8.0, 0.0, 200.0, "one depth layer slides", Slide),
-        FailureSpec("missing_parallax", "fraction of parallax removed", 1.0, 0.0, 1.0, "translating camera, flat scene", MissingParallax),
-        FailureSpec("elastic", "px (peak non-affine displacement)", 4.0, 0.0, 50.0, "object deforms non-rigidly", Elastic),
-        FailureSpec("boiling", "blend weight of fresh texture", 0.8, 0.0, 1.0, "texture re-synthesised per frame", Boiling),
+        FailureSpec(
+            "missing_parallax",
+            "fraction of parallax removed",
+            1.0,
+            0.0,
+            1.0,
+            "translating camera, flat scene",
+            MissingParallax,
+        ),
+        FailureSpec(
+            "elastic", "px (peak non-affine displacement)", 4.0, 0.0, 50.0, "object deforms non-rigidly", Elastic
+        ),
+        FailureSpec(
+            "boiling", "blend weight of fresh texture", 0.8, 0.0, 1.0, "texture re-synthesised per frame", Boiling
+        ),
         FailureSpec("letterbox", "fraction of height per bar", 0.12, 0.0, 0.4, "black bars burned in", Letterbox),
     )
 }

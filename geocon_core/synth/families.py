@@ -54,7 +54,16 @@ def _panel(
     return TexturedPlane(name=name, origin=origin, axis_u=u, axis_v=v, texture=texture, alpha=alpha)
 
 
-def _wall(rng: np.random.Generator, K: np.ndarray, W: int, H: int, z: float, extra_deg: float, reach: float, contrast: float = 1.0) -> TexturedPlane:
+def _wall(
+    rng: np.random.Generator,
+    K: np.ndarray,
+    W: int,
+    H: int,
+    z: float,
+    extra_deg: float,
+    reach: float,
+    contrast: float = 1.0,
+) -> TexturedPlane:
     """Back wall at depth z wide enough to fill the view for view directions up to
     ``extra_deg`` beyond the field of view and camera shifts up to ``reach``."""
     half_x = math.atan((W / 2) / K[0, 0])
@@ -84,25 +93,66 @@ def _moving_cams(n: int, end_center: np.ndarray, end_angles: tuple[float, float,
     return np.stack(poses)
 
 
-def _layers_far(rng: np.random.Generator, K: np.ndarray, W: int, H: int, extra_deg: float, reach: float) -> list[TexturedPlane]:
+def _layers_far(
+    rng: np.random.Generator, K: np.ndarray, W: int, H: int, extra_deg: float, reach: float
+) -> list[TexturedPlane]:
     """Wall plus a mid and a near panel at moderate depths (C1, C2, C4)."""
     return [
         _wall(rng, K, W, H, 11.0 + _jit(rng, 1.0), extra_deg, reach),
-        _panel(rng, "panel_mid", K, (-1.3 + _jit(rng, 0.3), -0.2 + _jit(rng, 0.2), 6.0 + _jit(rng, 0.5)), (3.2, 2.4), yaw=18 + _jit(rng, 5)),
-        _panel(rng, "panel_near", K, (1.1 + _jit(rng, 0.2), 0.5 + _jit(rng, 0.15), 3.6 + _jit(rng, 0.3)), (1.5, 1.2), yaw=-25 + _jit(rng, 5)),
+        _panel(
+            rng,
+            "panel_mid",
+            K,
+            (-1.3 + _jit(rng, 0.3), -0.2 + _jit(rng, 0.2), 6.0 + _jit(rng, 0.5)),
+            (3.2, 2.4),
+            yaw=18 + _jit(rng, 5),
+        ),
+        _panel(
+            rng,
+            "panel_near",
+            K,
+            (1.1 + _jit(rng, 0.2), 0.5 + _jit(rng, 0.15), 3.6 + _jit(rng, 0.3)),
+            (1.5, 1.2),
+            yaw=-25 + _jit(rng, 5),
+        ),
     ]
 
 
-def _layers_parallax(rng: np.random.Generator, K: np.ndarray, W: int, H: int, extra_deg: float, reach: float) -> list[TexturedPlane]:
+def _layers_parallax(
+    rng: np.random.Generator, K: np.ndarray, W: int, H: int, extra_deg: float, reach: float
+) -> list[TexturedPlane]:
     """Wall plus panels close to the camera, for strong parallax (C3, C5)."""
     return [
         _wall(rng, K, W, H, 10.0 + _jit(rng, 1.0), extra_deg, reach),
-        _panel(rng, "panel_mid", K, (0.9 + _jit(rng, 0.2), -0.3 + _jit(rng, 0.2), 4.8 + _jit(rng, 0.4)), (2.4, 2.0), yaw=-15 + _jit(rng, 5)),
-        _panel(rng, "panel_near", K, (-0.2 + _jit(rng, 0.15), 0.35 + _jit(rng, 0.1), 2.3 + _jit(rng, 0.2)), (1.0, 0.9), yaw=20 + _jit(rng, 5)),
+        _panel(
+            rng,
+            "panel_mid",
+            K,
+            (0.9 + _jit(rng, 0.2), -0.3 + _jit(rng, 0.2), 4.8 + _jit(rng, 0.4)),
+            (2.4, 2.0),
+            yaw=-15 + _jit(rng, 5),
+        ),
+        _panel(
+            rng,
+            "panel_near",
+            K,
+            (-0.2 + _jit(rng, 0.15), 0.35 + _jit(rng, 0.1), 2.3 + _jit(rng, 0.2)),
+            (1.0, 0.9),
+            yaw=20 + _jit(rng, 5),
+        ),
     ]
 
 
-def _object(rng: np.random.Generator, K: np.ndarray, object_id: int, name: str, size: tuple[float, float], depth: float, shape: str, poses: list[np.ndarray]) -> ObjectTrack:
+def _object(
+    rng: np.random.Generator,
+    K: np.ndarray,
+    object_id: int,
+    name: str,
+    size: tuple[float, float],
+    depth: float,
+    shape: str,
+    poses: list[np.ndarray],
+) -> ObjectTrack:
     plane = _panel(rng, name, K, (0.0, 0.0, depth), size, shape=shape, parent_center=True)
     return ObjectTrack(object_id=object_id, name=name, plane=plane, T_world_obj=np.stack(poses))
 
@@ -112,7 +162,9 @@ def _objects(rng: np.random.Generator, K: np.ndarray, n: int) -> tuple[ObjectTra
     diagonally, receding and turning (both rigid)."""
     us = [i / max(1, n - 1) for i in range(n)]
     y1, z1, spin = 0.25 + _jit(rng, 0.1), 3.0 + _jit(rng, 0.2), 40 + _jit(rng, 10)
-    disc = [make_pose(rotation_xyz(roll_deg=spin * u), (-1.1 + 2.2 * u, y1 + 0.1 * math.sin(math.pi * u), z1)) for u in us]
+    disc = [
+        make_pose(rotation_xyz(roll_deg=spin * u), (-1.1 + 2.2 * u, y1 + 0.1 * math.sin(math.pi * u), z1)) for u in us
+    ]
     x2, y2, turn = 0.9 + _jit(rng, 0.1), -0.55 + _jit(rng, 0.1), 25 + _jit(rng, 8)
     card = [make_pose(rotation_xyz(yaw_deg=turn * u), (x2 - 1.3 * u, y2 + 0.7 * u, 4.2 + 0.4 * u)) for u in us]
     return (
@@ -149,7 +201,11 @@ def _c6(rng, K, W, H, n):
     """Stress: a low-texture wall, thin poles, a near occluder and an object passing behind it."""
     end = np.array([0.7 + _jit(rng, 0.1), _jit(rng, 0.05), 0.15 + _jit(rng, 0.05)])
     planes = [_wall(rng, K, W, H, 9.0 + _jit(rng, 0.8), 5, 1.0, contrast=0.06)]
-    planes.append(_panel(rng, "panel_mid", K, (-1.6 + _jit(rng, 0.2), 0.2, 5.5 + _jit(rng, 0.3)), (1.6, 1.4), yaw=15, contrast=0.3))
+    planes.append(
+        _panel(
+            rng, "panel_mid", K, (-1.6 + _jit(rng, 0.2), 0.2, 5.5 + _jit(rng, 0.3)), (1.6, 1.4), yaw=15, contrast=0.3
+        )
+    )
     for i, x in enumerate(np.linspace(-1.4, 1.6, 5) + rng.uniform(-0.1, 0.1, 5)):
         planes.append(_panel(rng, f"pole_{i}", K, (float(x), 0.0, 2.4 + 0.4 * i + _jit(rng, 0.1)), (0.05, 3.0)))
     planes.append(_panel(rng, "occluder", K, (0.9 + _jit(rng, 0.1), 0.55, 1.9 + _jit(rng, 0.1)), (0.9, 1.0), yaw=-10))

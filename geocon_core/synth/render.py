@@ -59,9 +59,7 @@ def _pixel_rays(K: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tuple[np.ndarr
     return rx, ry, rz
 
 
-def render_frame(
-    scene: Scene, t: int, failure: "Failure | None" = None, *, with_objects: bool = True
-) -> RenderedFrame:
+def render_frame(scene: Scene, t: int, failure: "Failure | None" = None, *, with_objects: bool = True) -> RenderedFrame:
     """Render frame ``t`` of ``scene``, with ``failure`` injected if given."""
     if not 0 <= t < scene.num_frames:
         raise IndexError(f"frame {t} out of range 0..{scene.num_frames - 1}")

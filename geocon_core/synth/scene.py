@@ -124,7 +124,9 @@ class Scene:
             raise ValueError(f"T_cam_world must be (T, 4, 4), got {self.T_cam_world.shape}")
         for obj in self.objects:
             if obj.T_world_obj.shape[0] != self.num_frames:
-                raise ValueError(f"object {obj.name!r} has {obj.T_world_obj.shape[0]} poses, expected {self.num_frames}")
+                raise ValueError(
+                    f"object {obj.name!r} has {obj.T_world_obj.shape[0]} poses, expected {self.num_frames}"
+                )
         ids = [o.object_id for o in self.objects]
         if len(set(ids)) != len(ids):
             raise ValueError(f"object ids must be unique, got {ids}")
@@ -160,9 +162,7 @@ class SurfaceView:
     query_offset: np.ndarray | None = None
 
 
-def plane_view(
-    plane: TexturedPlane, T_cam_world: np.ndarray, *, role: Role, object_id: int = 0
-) -> SurfaceView | None:
+def plane_view(plane: TexturedPlane, T_cam_world: np.ndarray, *, role: Role, object_id: int = 0) -> SurfaceView | None:
     """The :class:`SurfaceView` of a world plane from a camera; None when the plane passes
     through the camera centre (it is then seen edge-on and covers no pixel)."""
     R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]

@@ -20,9 +20,7 @@ def _value_noise(rng: np.random.Generator, height: int, width: int, cells: int) 
     return cv2.resize(grid, (width, height), interpolation=cv2.INTER_CUBIC)
 
 
-def procedural_texture(
-    rng: np.random.Generator, height: int, width: int, *, contrast: float = 1.0
-) -> np.ndarray:
+def procedural_texture(rng: np.random.Generator, height: int, width: int, *, contrast: float = 1.0) -> np.ndarray:
     """A textured RGB image, (height, width, 3) uint8.
 
     ``contrast`` scales the deviation from the mean colour: 1 is a richly textured surface,
@@ -75,7 +73,9 @@ def shape_alpha(height: int, width: int, shape: str) -> np.ndarray:
     if shape == "rect":
         alpha[:] = 255
     elif shape == "disc":
-        cv2.ellipse(alpha, (width // 2, height // 2), (width // 2 - 1, height // 2 - 1), 0, 0, 360, 255, -1, cv2.LINE_AA)
+        cv2.ellipse(
+            alpha, (width // 2, height // 2), (width // 2 - 1, height // 2 - 1), 0, 0, 360, 255, -1, cv2.LINE_AA
+        )
     elif shape == "card":
         r = max(2, min(height, width) // 5)
         cv2.rectangle(alpha, (r, 0), (width - 1 - r, height - 1), 255, -1)

@@ -125,7 +125,12 @@ def write_clip(
     scene = build_scene(plan.family, seed=seed, width=width, height=height, num_frames=num_frames, fps=fps)
     failure = make_failure(plan.failure, scene, plan.severity) if plan.failure else None
     cid = plan.clip_id
-    video, masks, gt_path, meta_path = out / f"{cid}.mp4", out / f"{cid}.masks", out / f"{cid}.gt.json", out / f"{cid}.meta.json"
+    video, masks, gt_path, meta_path = (
+        out / f"{cid}.mp4",
+        out / f"{cid}.masks",
+        out / f"{cid}.gt.json",
+        out / f"{cid}.meta.json",
+    )
     tmp_video, tmp_masks = out / f".{cid}.mp4.part", out / f".{cid}.masks.part"
     shutil.rmtree(tmp_masks, ignore_errors=True)
     tmp_masks.mkdir()
@@ -174,18 +179,27 @@ def _add_noise(rgb: np.ndarray, sigma: float, seed: int, t: int) -> np.ndarray:
     return np.clip(noisy + 0.5, 0, 255).astype(np.uint8)
 
 
-def _ground_truth(scene: Scene, plan: ClipPlan, failure, first_depth, masked_share, visible, content, video_name, masks_name, noise) -> GroundTruth:
+def _ground_truth(
+    scene: Scene, plan: ClipPlan, failure, first_depth, masked_share, visible, content, video_name, masks_name, noise
+) -> GroundTruth:
     T_0T = relative_pose(scene.T_cam_world[0], scene.T_cam_world[-1])
     dist = mean_scene_distance(first_depth, scene.K)
     t_inf = t_inf_from_pose(T_0T, dist)
     non_rigid = failure.non_rigid_object_ids() if failure else frozenset()
     objects = tuple(
-        ObjectTruth(object_id=o.object_id, name=o.name, rigid=o.object_id not in non_rigid, visible_frames=tuple(visible[o.object_id]))
+        ObjectTruth(
+            object_id=o.object_id,
+            name=o.name,
+            rigid=o.object_id not in non_rigid,
+            visible_frames=tuple(visible[o.object_id]),
+        )
         for o in scene.objects
     )
     fail = None
     if failure is not None:
-        fail = FailureTruth(kind=failure.kind, severity=failure.severity, unit=FAILURES[failure.kind].unit, params=failure.params())
+        fail = FailureTruth(
+            kind=failure.kind, severity=failure.severity, unit=FAILURES[failure.kind].unit, params=failure.params()
+        )
     return GroundTruth(
         clip_id=plan.clip_id,
         family=scene.family,
