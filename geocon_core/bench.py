@@ -37,7 +37,6 @@ __all__ = [
     "BenchError",
     "BenchSummary",
     "clip_dir",
-    "is_flagged",
     "run_bench",
     "read_status",
     "score_to_folder",
@@ -91,14 +90,15 @@ def _write_json(path: Path, payload: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
-def is_flagged(summary: dict[str, Any], expected_model: str | None) -> bool:
-    """A clip worth auditing: it fails the report gate (or cannot be judged), has no pose, or its
-    gate disagrees with the expected model of its category."""
-    bg, gate = summary["background"], summary["gate"]
-    return (
-        bg["consistent"] is not True
-        or not gate["pose_present"]
-        or (expected_model is not None and gate["model"] != expected_model)
+def _flagged(record: Any, expected_model: str | None) -> bool:
+    """Whether a scored clip gets an audit recording (:func:`geocon_core.verdict.is_flagged`)."""
+    from .verdict import is_flagged
+
+    return is_flagged(
+        consistent=record.background.consistent,
+        pose_present=record.gate.pose_present,
+        gate_model=record.gate.model,
+        expected_model=expected_model,
     )
 
 
@@ -171,7 +171,7 @@ def _score_one(
     try:
         record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
         render = _load_renderer(renderer)
-        if render is not None and is_flagged(record.summary(), EXPECTED_MODEL.get(entry.category)):
+        if render is not None and _flagged(record, EXPECTED_MODEL.get(entry.category)):
             render(out, out / RRD_NAME)
             status["rrd"] = RRD_NAME
     except Exception as exc:  # every failure is recorded with its reason, never dropped
@@ -228,8 +228,8 @@ def run_bench(
     """Score every clip of ``dataset`` into ``results`` with ``workers`` processes.
 
     ``rrd_renderer`` (``"module:function"``, called as ``f(record_dir, rrd_path)``) writes a Rerun
-    recording for flagged clips (:func:`is_flagged`). ``on_start(to_score, skipped)`` is called once;
-    ``on_clip(status, done, total, failed)`` after each clip. Raises
+    recording for flagged clips (:func:`geocon_core.verdict.is_flagged`). ``on_start(to_score,
+    skipped)`` is called once; ``on_clip(status, done, total, failed)`` after each clip. Raises
     :class:`~geocon_core.dataset.DatasetError` or :class:`BenchError` before scoring anything."""
     cfg = config or ScoreConfig()
     if workers < 1:

@@ -22,10 +22,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from .record import Category
+import numpy as np
+
+from .record import Category, ClipRecord
 
 __all__ = [
     "categorize",
+    "categorize_record",
     "STATIC_MOTION_PX",
     "STATIC_ROTATION_DEG",
     "COMPLEX_ROTATION_DEG",
@@ -87,3 +90,31 @@ def categorize(
     if rot >= COMPLEX_ROTATION_DEG:
         return Category("C5", f"translation with rotation >= {COMPLEX_ROTATION_DEG} deg", inputs)
     return Category("C3", "translation-dominant camera", inputs)
+
+
+def categorize_record(record: ClipRecord, object_frames: list[int]) -> Category:
+    """:func:`categorize` with its inputs measured from a scored record: the gate and first-last
+    pose, the background's valid share and IR, and over the valid gap-1 pairs of the largest scale
+    the median displacement of the H inliers (``background_motion_px``) and the median number of
+    matches; ``object_frames`` is the number of frames each object was seen."""
+    s_max = max(record.config.scales)
+    motions, matches = [], []
+    for p in record.pairs:
+        if p.gap != 1 or p.scale != s_max or p.skip is not None or p.h is None or not p.h.valid:
+            continue
+        arr = record.matches.pair(p.index)
+        inl = arr["h_inl"]
+        motions.append(float(np.median(np.linalg.norm(arr["x2"][inl] - arr["x1"][inl], axis=1))))
+        matches.append(p.n_matches)
+    bg = record.background
+    return categorize(
+        gate_model=record.gate.model,
+        pose_present=record.gate.pose_present,
+        t_inf=record.gate.t_inf,
+        rotation_deg=record.gate.pose.get("rotation_deg"),
+        background_motion_px=float(np.median(motions)) if motions else None,
+        valid_share=bg.valid_pairs / bg.total_pairs if bg.total_pairs else 0.0,
+        median_matches=float(np.median(matches)) if matches else None,
+        background_ir=bg.ir,
+        object_frames=object_frames,
+    )

@@ -186,7 +186,10 @@ class Overlays:
         e = self._frames.get(str(t))
         out = []
         for f in [] if e is None else e["flows"]:
-            img = cv2.cvtColor(cv2.imread(str(self.folder / f["file"]), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
+            raw = cv2.imread(str(self.folder / f["file"]), cv2.IMREAD_UNCHANGED)
+            if raw is None:
+                raise OSError(f"cannot read the flow image {self.folder / f['file']}")
+            img = cv2.cvtColor(raw, cv2.COLOR_BGRA2RGBA)
             out.append(FlowSlice(f["object_id"], f["t0"], f["t1"], tuple(f["box"]), f["max_magnitude"], img))
         return out
 

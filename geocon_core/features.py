@@ -131,6 +131,7 @@ class _DescriptorMatcher:
     def match(self, a: FeatureSet, b: FeatureSet) -> tuple[np.ndarray, np.ndarray]:
         if len(a) < 2 or len(b) < 2:
             return np.zeros((0, 2)), np.zeros((0, 2))
+        assert a.desc is not None and b.desc is not None, "descriptor features carry descriptors"
         i, j = mutual_ratio_matches(self._squared_distances(a.desc, b.desc), self.ratio)
         return a.xy[i].astype(np.float64), b.xy[j].astype(np.float64)
 
@@ -142,7 +143,7 @@ class SiftMatcher(_DescriptorMatcher):
     name = "sift"
 
     def _detector(self, n: int):
-        return cv2.SIFT_create(nfeatures=n)
+        return cv2.SIFT_create(nfeatures=n)  # type: ignore[attr-defined]  # in cv2, missing from its stubs
 
     def _squared_distances(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         a, b = a.astype(np.float32), b.astype(np.float32)
@@ -160,7 +161,7 @@ class OrbMatcher(_DescriptorMatcher):
     name = "orb"
 
     def _detector(self, n: int):
-        return cv2.ORB_create(nfeatures=n)
+        return cv2.ORB_create(nfeatures=n)  # type: ignore[attr-defined]  # in cv2, missing from its stubs
 
     def _squared_distances(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         bits_a = np.unpackbits(a, axis=1).astype(np.float32)
@@ -192,6 +193,7 @@ class KltMatcher:
         params = dict(
             winSize=(21, 21), maxLevel=4, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
         )
+        assert a.image is not None and b.image is not None, "KLT features keep their image"
         p0 = a.xy.reshape(-1, 1, 2)
         p1, st1, _ = cv2.calcOpticalFlowPyrLK(a.image, b.image, p0, None, **params)
         p0b, st2, _ = cv2.calcOpticalFlowPyrLK(b.image, a.image, p1, None, **params)

@@ -40,6 +40,7 @@ __all__ = [
     "scale_intrinsics",
     "project",
     "triangulate_two_view",
+    "two_view_cloud",
 ]
 
 
@@ -199,3 +200,31 @@ def triangulate_two_view(
     e1 = np.linalg.norm(project(K, T_1_0, X) - x1, axis=1)
     ok = finite & (z0 > 0) & (z1 > 0) & (e0 <= max_reproj_px) & (e1 <= max_reproj_px)
     return X, ok
+
+
+def two_view_cloud(
+    K: np.ndarray,
+    T_cam0_camT: np.ndarray,
+    x0: np.ndarray,
+    x1: np.ndarray,
+    rgb0: np.ndarray,
+    scale: float,
+    *,
+    focal_scale: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The coloured point cloud of a two-view pose: (N, 2) matches ``x0``/``x1`` in pixels of
+    ``scale`` triangulated (:func:`triangulate_two_view`) with intrinsics K (of that scale, focal
+    lengths times ``focal_scale``) and the pose ``T_cam0_camT``. Returns the kept points (M, 3)
+    float32 in first-camera coordinates and their (M, 3) uint8 colours, sampled from the first
+    frame ``rgb0`` (H, W, 3) at working resolution (pixels of the scale mapped back by
+    ``1 / scale``)."""
+    T = np.asarray(T_cam0_camT, dtype=float)
+    Ks = K.copy()
+    Ks[0, 0] *= focal_scale
+    Ks[1, 1] *= focal_scale
+    X, ok = triangulate_two_view(Ks, T, x0, x1)
+    X, px = X[ok], x0[ok]
+    h, w = rgb0.shape[:2]
+    u = np.clip(np.round((px[:, 0] + 0.5) / scale - 0.5).astype(int), 0, w - 1)
+    v = np.clip(np.round((px[:, 1] + 0.5) / scale - 0.5).astype(int), 0, h - 1)
+    return X.astype(np.float32), rgb0[v, u].astype(np.uint8)

@@ -11,7 +11,7 @@ from them, so re-gating the stored residuals reproduces IR and GE exactly.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Callable, Literal
 
 import cv2
 import numpy as np
@@ -28,6 +28,10 @@ __all__ = [
     "inlier_stats",
     "segment_order",
     "segment_inlier_stats",
+    "FamilySpec",
+    "FAMILIES",
+    "family_spec",
+    "PairFits",
 ]
 
 Family = Literal["H", "F"]
@@ -88,7 +92,7 @@ def segment_order(residuals_px: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """The permutation that sorts each pair's rows (``offsets[i]:offsets[i + 1]``) by
     ``residuals_px``, pairs kept in place (NaN last within a pair). Compute it once per clip and
     pass it to :func:`segment_inlier_stats` to re-gate at many thresholds."""
-    n = np.diff(np.asarray(offsets, dtype=np.int64))
+    n: np.ndarray = np.diff(np.asarray(offsets, dtype=np.int64))
     return np.lexsort((residuals_px, np.repeat(np.arange(len(n)), n)))
 
 
@@ -249,6 +253,7 @@ def fit_fundamental(
     confidence: float = 0.9999,
     refine_steps: int = 3,
     proposal_px: float = 1.0,
+    seed: int = 0,
 ) -> ModelFit:
     """Robust fundamental matrix ``F_21`` from (N, 2) pixel correspondences. Each image's points
     are Hartley-normalised; inliers have normalised Sampson distance <= ``tau``; GE is the
@@ -256,7 +261,8 @@ def fit_fundamental(
     the model in pixels with threshold ``proposal_px``, using OpenCV's 8-point preset: its
     random state is fixed inside OpenCV (so results are reproducible without a seed), and
     unlike the 7-point configuration it does not stall for seconds on degenerate pairs (a
-    static background, where every match lies on one homography)."""
+    static background, where every match lies on one homography). ``seed`` is accepted so both
+    families' fitters share one signature (:data:`FAMILIES`) and is unused."""
     n = x1.shape[0]
     if n < max(8, min_inliers):
         return _failed("F", "too_few_matches", n, tau)
@@ -289,3 +295,57 @@ def fit_fundamental(
     res_px = sampson_distance(F, x1, x2).astype(np.float32)
     tau_px = tau / float(np.sqrt(T1[0, 0] * T2[0, 0]))
     return _finish("F", F, best, res_px, tau, tau_px, min_inliers)
+
+
+@dataclass(frozen=True)
+class FamilySpec:
+    """Where one background family's rule lives: ``threshold`` names its inlier threshold in
+    :class:`~geocon_core.config.ScoreConfig` (and re-gating ``Thresholds``), ``fit`` is its robust
+    fitter, ``residual`` / ``residual_px`` / ``inliers`` name its columns of the record's
+    ``MatchArrays`` (the inlier rule's residual, the residual in pixels, the fit's inlier mask),
+    and ``attr`` names its fit on a pair (``PairRecord.h`` / ``.f``, :attr:`PairFits.h` / ``.f``)."""
+
+    name: Family
+    threshold: str
+    fit: Callable[..., ModelFit]
+    residual: str
+    residual_px: str
+    inliers: str
+    attr: str
+
+
+FAMILIES: dict[str, FamilySpec] = {
+    "H": FamilySpec("H", "tau_h", fit_homography, "h_res", "h_res", "h_inl", "h"),
+    "F": FamilySpec("F", "tau_f", fit_fundamental, "f_res", "f_res_px", "f_inl", "f"),
+}
+"""The background families, in scoring order."""
+
+
+def family_spec(family: str) -> FamilySpec:
+    """The :class:`FamilySpec` of ``family``; raises ValueError naming the valid families."""
+    try:
+        return FAMILIES[family]
+    except (KeyError, TypeError):
+        raise ValueError(f"family must be one of {', '.join(FAMILIES)}, got {family!r}") from None
+
+
+@dataclass(frozen=True, eq=False)
+class PairFits:
+    """Both families' fits on one frame pair ``(t0, t1)`` at one scale: ``x1``/``x2`` are the (N, 2)
+    float32 matches (pixels of the scale); ``skip`` is why the pair was not scored (a cut, a
+    duplicated frame), and then there are no matches and ``h``/``f`` are None."""
+
+    t0: int
+    t1: int
+    gap: int
+    scale: float
+    skip: str | None
+    x1: np.ndarray
+    x2: np.ndarray
+    h: ModelFit | None
+    f: ModelFit | None
+
+    def fit(self, family: str) -> ModelFit | None:
+        """This pair's fit of ``family`` (None when the pair was skipped)."""
+        fit: ModelFit | None = getattr(self, family_spec(family).attr)
+        return fit

@@ -30,6 +30,7 @@ import pandas as pd
 
 from . import stats
 from .tables import read_tables
+from .verdict import flag_reasons
 
 __all__ = ["ReportResult", "build_report"]
 
@@ -398,22 +399,29 @@ def _html_table(df: pd.DataFrame, floats: str = "{:.4g}") -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
-def _flag(v: Any) -> bool | None:
-    """A nullable boolean cell as True / False / None."""
-    return None if v is None or v is pd.NA or (isinstance(v, float) and np.isnan(v)) else bool(v)
+def _flag(v: Any) -> Any:
+    """A nullable table cell as its value, None when missing (``pd.NA`` or NaN); booleans as bool."""
+    if v is None or v is pd.NA or (isinstance(v, float) and np.isnan(v)):
+        return None
+    return bool(v) if isinstance(v, (bool, np.bool_)) else v
+
+
+_FLAG_TEXT = {"fails": "fails the report gate", "not_judged": "background not judged", "no_pose": "no pose (gated F)"}
 
 
 def _flagged(ok: pd.DataFrame, top: list[dict[str, Any]], rel: str) -> str:
     reasons: dict[str, list[str]] = {}
     for r in ok.itertuples():
-        why = []
-        consistent, pose = _flag(r.consistent), _flag(r.pose_present)
-        if consistent is not True:
-            why.append("fails the report gate" if consistent is False else "background not judged")
-        if pose is not True:
-            why.append("no pose (gated F)")
-        elif r.gate_model != r.expected_model:
-            why.append(f"gated {r.gate_model}, {r.category} expects {r.expected_model}")
+        codes = flag_reasons(
+            consistent=_flag(r.consistent),
+            pose_present=_flag(r.pose_present) is True,
+            gate_model=_flag(r.gate_model),
+            expected_model=_flag(r.expected_model),
+        )
+        why = [
+            f"gated {r.gate_model}, {r.category} expects {r.expected_model}" if c == "gate_mismatch" else _FLAG_TEXT[c]
+            for c in codes
+        ]
         if why:
             reasons[r.clip_id] = why
     for t in top[:5]:

@@ -23,7 +23,8 @@ from typing import Any, Callable, Iterable
 from .bench import BENCH_FORMAT, CLIPS_DIR, read_status
 from .config import ScoreConfig
 from .dataset import EXPECTED_MODEL
-from .regate import ClipVerdict, Residuals, Thresholds, clip_verdict, load_residuals, regate_family
+from .regate import Residuals, load_residuals, regate_family
+from .verdict import ClipVerdict, Thresholds, clip_verdict, is_flagged
 
 __all__ = ["ResultClip", "TriageRow", "ResultsIndex", "ResultsError", "VERDICTS", "severity_key"]
 
@@ -84,6 +85,18 @@ class TriageRow:
             self.verdict is not None
             and self.clip.expected_model is not None
             and self.verdict.model != self.clip.expected_model
+        )
+
+    @property
+    def flagged(self) -> bool:
+        """Worth an audit under the thresholds of the moment (:func:`~geocon_core.verdict.is_flagged`;
+        a clip that failed to score is flagged)."""
+        v = self.verdict
+        return is_flagged(
+            consistent=None if v is None else v.consistent,
+            pose_present=self.clip.pose_present,
+            gate_model=None if v is None else v.model,
+            expected_model=self.clip.expected_model,
         )
 
 
@@ -373,8 +386,8 @@ class ResultsIndex:
     ) -> list[TriageRow]:
         """The clips passing the filters (None = any), most severe first (:func:`severity_key`).
         ``gate_label`` filters on the hysteresis label (H/F/U) at ``thresholds``; ``state`` on the
-        verdict name (:data:`VERDICTS`); ``flagged_only`` keeps clips that are not passing or whose
-        gate disagrees with their category."""
+        verdict name (:data:`VERDICTS`); ``flagged_only`` keeps the clips worth an audit
+        (:attr:`TriageRow.flagged`)."""
         th = thresholds or self.recorded
         rows = []
         for c in self.clips:
@@ -385,7 +398,7 @@ class ResultsIndex:
                 continue
             if state is not None and row.state != state:
                 continue
-            if flagged_only and row.state == "passes" and not row.gate_mismatch:
+            if flagged_only and not row.flagged:
                 continue
             rows.append(row)
         rows.sort(key=severity_key)

@@ -51,6 +51,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .record import ObjectEntry, ObjectScaleSummary, ObjectSummary
+
 __all__ = [
     "CellVectors",
     "RigidityResult",
@@ -59,10 +61,9 @@ __all__ = [
     "weighted_mse",
     "w2_cost",
     "object_scores",
-    "REASONS",
+    "ObjectPairScore",
+    "object_summaries",
 ]
-
-REASONS = ("empty_mask", "too_few_cells", "degenerate_fit")
 
 # HiGHS dual simplex without presolve (about 1.6x faster on these small dense transportation
 # problems, same optimum), tight tolerances: marginals are normalised to sum 1 and costs to max 1.
@@ -181,7 +182,7 @@ def _cell_arrays(
     w = np.asarray(weights, np.float64)
     if w.ndim != 1 or len(w) == 0:
         raise ValueError(f"weights must be a non-empty 1-D array, got shape {w.shape}")
-    for name, arr in zip(names, (a, b)):
+    for name, arr in zip(names, (a, b), strict=True):
         if arr.shape != (len(w), 2):
             raise ValueError(f"{name} must have shape ({len(w)}, 2), got {arr.shape}")
     if not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
@@ -333,7 +334,7 @@ def adadfrc_pair(
 
     pick = np.empty(n_cells, np.int64)  # position in idx / f of each cell's medoid
     with np.errstate(over="ignore", invalid="ignore"):  # absurd flows overflow here; caught below
-        for k, (s, n) in enumerate(zip(starts, counts)):
+        for k, (s, n) in enumerate(zip(starts, counts, strict=True)):
             members = order[s : s + n]
             fk = f[members]
             med = np.median(fk, axis=0)
@@ -372,3 +373,68 @@ def object_scores(d_ts: Sequence[float]) -> tuple[float, float]:
     if not np.all(np.isfinite(d)):
         raise ValueError("object_scores got a non-finite D_t; pass only valid pairs' scores")
     return float(d.mean()), float(np.quantile(d, 0.9))
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectPairScore:
+    """AdaDFRC of object ``object_id`` of frame ``t0`` on the pair ``(t0, t1)`` at one scale: the
+    :class:`RigidityResult` when the pair was scored, else ``skip``, why it was not (the pair
+    crosses a cut, the object's mask is empty at this scale)."""
+
+    object_id: int
+    t0: int
+    t1: int
+    scale: float
+    result: RigidityResult | None
+    skip: str | None = None
+
+    @property
+    def key(self) -> tuple[int, int, float]:
+        """The record's order of object entries: object, then frame, then scale."""
+        return (self.object_id, self.t0, self.scale)
+
+
+def _scale_summary(mine: list[ObjectEntry], s: float) -> ObjectScaleSummary:
+    valid = [e for e in mine if e.scale == s and e.valid]
+    skipped: dict[str, int] = {}
+    for e in mine:
+        if e.scale == s and not e.valid:
+            skipped[e.reason or "invalid"] = skipped.get(e.reason or "invalid", 0) + 1
+    S: float | None = None
+    p90: float | None = None
+    w2: float | None = None
+    if valid:
+        S, p90 = object_scores([e.d_t for e in valid if e.d_t is not None])
+        w2 = float(np.mean([e.w2 for e in valid]))
+    return ObjectScaleSummary(s, S, w2, p90, len(valid), dict(sorted(skipped.items())))
+
+
+def object_summaries(
+    entries: Sequence[ObjectEntry], scales: Sequence[float], object_share: dict[int, dict[int, float]]
+) -> list[ObjectSummary]:
+    """Per object (in id order): frames seen, mean masked share (``object_share[t][id]``, a share
+    of the content area), and per scale ``S`` (mean ``D_t``), mean W2 and AdaP90
+    (:func:`object_scores`) over its valid pairs; the headline values are those of the largest
+    scale."""
+    summaries = []
+    s_max = max(scales)
+    for oid in sorted({e.object_id for e in entries}):
+        mine = [e for e in entries if e.object_id == oid]
+        frames = sorted({e.t0 for e in mine})
+        per_scale = [_scale_summary(mine, s) for s in scales]
+        head = next(p for p in per_scale if p.scale == s_max)
+        shares = [object_share.get(t, {}).get(oid, 0.0) for t in frames]
+        summaries.append(
+            ObjectSummary(
+                object_id=oid,
+                frames=len(frames),
+                first_frame=frames[0],
+                last_frame=frames[-1],
+                masked_share=float(np.mean(shares)) if shares else 0.0,
+                adadfrc=head.adadfrc,
+                adadfrc_w2=head.adadfrc_w2,
+                adap90=head.adap90,
+                per_scale=tuple(per_scale),
+            )
+        )
+    return summaries

@@ -36,8 +36,9 @@ import viser.uplot as uplot
 
 from geocon_core.diagnostics import Overlays, read_overlays
 from geocon_core.record import ClipRecord, read_record
-from geocon_core.regate import ClipVerdict, Thresholds, pair_inliers, regate_pairs
+from geocon_core.regate import pair_inliers, regate_pairs
 from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
+from geocon_core.verdict import ClipVerdict, Thresholds
 
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geocon_core.gate import binary_gate, hysteresis_gate
+from geocon_core.verdict import binary_gate, hysteresis_gate
 from geocon_core.geometry import (
     apply_homography,
     fundamental_from_pose,

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.gate import hysteresis_gate
+from geocon_core.verdict import hysteresis_gate
 from geocon_core.geometry import (
     fundamental_from_pose,
     intrinsics_from_fov,

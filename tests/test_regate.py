@@ -64,7 +64,8 @@ def test_bad_family_is_rejected(record):
 def test_whole_clip_regating_at_recorded_thresholds_is_the_record(record, tmp_path):
     """:func:`regate_clip` (from the record, and from the slim residuals read off disk) gives the
     recorded gate label, model, IR, GE and verdict exactly."""
-    from geocon_core.regate import Thresholds, load_residuals, regate_clip
+    from geocon_core.regate import load_residuals, regate_clip
+    from geocon_core.verdict import Thresholds
 
     write_record(record, tmp_path)
     th = Thresholds.of(record.config)
@@ -80,7 +81,8 @@ def test_moving_thresholds_changes_the_verdict_as_the_rules_say(record):
     """C3 (translation): t_inf is above 0.05, so raising the gate's thresholds past it turns the
     clip into an H clip scored by the homography, whose residuals are larger (parallax); the
     report gates flip the verdict exactly at the clip's own IR and GE."""
-    from geocon_core.regate import Thresholds, regate_clip
+    from geocon_core.regate import regate_clip
+    from geocon_core.verdict import Thresholds
 
     th = Thresholds.of(record.config)
     base = regate_clip(record, th)
@@ -105,7 +107,7 @@ def test_moving_thresholds_changes_the_verdict_as_the_rules_say(record):
 
 
 def test_choose_model_and_report_rules():
-    from geocon_core.regate import choose_model, report_margin, report_verdict
+    from geocon_core.verdict import choose_model, report_margin, report_verdict
 
     assert choose_model("U", True, 0.9, 0.95) == "F" and choose_model("U", True, 0.95, 0.95) == "H"
     assert choose_model("U", True, None, 0.5) == "F" and choose_model("H", False, 1.0, 0.0) == "F"

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..gate import GateLabel
+from ..verdict import GateLabel
 
 __all__ = ["ObjectTruth", "FailureTruth", "GroundTruth", "load_ground_truth", "GT_FORMAT"]
 

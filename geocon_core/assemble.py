@@ -1,0 +1,253 @@
+"""From the stages' results to a :class:`~geocon_core.record.ClipRecord`: the background
+(both families, the verdict, the gate and its timeline), the pairs with their per-match arrays,
+then the objects, the masked share and the category."""
+
+from __future__ import annotations
+
+import platform
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+from ._version import __version__
+from .category import categorize_record
+from .config import ScoreConfig, config_hash
+from .masks import MaskSource
+from .models import FAMILIES, ModelFit, PairFits
+from .pose import PoseEstimate
+from .reader import ClipInfo
+from .record import (
+    BackgroundSummary,
+    CellArrays,
+    ClipRecord,
+    FamilySummary,
+    FitSummary,
+    GateRecord,
+    GateWindow,
+    MatchArrays,
+    ObjectEntry,
+    PairRecord,
+)
+from .rigidity import ObjectPairScore, object_summaries
+from .verdict import ClipVerdict, Thresholds, clip_verdict, gate_decision, summarize_family
+
+__all__ = ["software_versions", "fit_summary", "assemble_record", "add_objects", "object_entries"]
+
+
+def software_versions() -> dict[str, str]:
+    versions = {
+        "geocon": __version__,
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "opencv": cv2.__version__,
+    }
+    return versions
+
+
+def fit_summary(fit: ModelFit) -> FitSummary:
+    model = None if fit.model is None else [[float(v) for v in row] for row in fit.model]
+    return FitSummary(
+        valid=fit.valid,
+        reason=fit.reason,
+        ir=fit.ir,
+        ge=fit.ge,
+        n_inliers=fit.n_inliers,
+        tau=fit.tau,
+        tau_px=fit.tau_px,
+        model=model,
+    )
+
+
+def _gate_record(
+    cfg: ScoreConfig, v: ClipVerdict, backend: str, pose: PoseEstimate, windows, timeline_poses, n: int
+) -> GateRecord:
+    def label(est: PoseEstimate) -> str | None:
+        if not est.pose_present:
+            return None
+        return gate_decision(est.t_inf, pose_present=True, tau_t=cfg.tau_t, low=cfg.tau_t_low, high=cfg.tau_t_high)[0]
+
+    timeline = [
+        GateWindow(start=s, end=e, t_inf=est.t_inf, label=label(est), pose_present=est.pose_present)
+        for (s, e), est in timeline_poses
+    ]
+    if (0, n - 1) in windows:
+        timeline.append(GateWindow(0, n - 1, pose.t_inf, v.label if pose.pose_present else None, pose.pose_present))
+    return GateRecord(
+        label=v.label,
+        binary_label=v.binary_label,
+        model=v.model,
+        t_inf=pose.t_inf,
+        pose_present=pose.pose_present,
+        margin=v.margin,
+        backend=backend,
+        thresholds={"tau_t": cfg.tau_t, "low": cfg.tau_t_low, "high": cfg.tau_t_high},
+        pose=pose.to_dict(),
+        timeline=tuple(timeline),
+    )
+
+
+def _background(
+    cfg: ScoreConfig, v: ClipVerdict, fam: dict[str, FamilySummary], pose: PoseEstimate
+) -> BackgroundSummary:
+    if not pose.pose_present:
+        note = f"no pose ({pose.reason}): gated F by the fail->F policy"
+    elif v.label == "U":
+        note = f"gray zone: both families fitted, kept {v.model} (IR H {fam['H'].ir}, IR F {fam['F'].ir})"
+    else:
+        note = f"t_inf {pose.t_inf:.4f} -> {v.label}"
+    chosen = fam[v.model]
+    other = next(f for name, f in fam.items() if name != v.model)
+    return BackgroundSummary(
+        model=v.model,
+        ir=chosen.ir,
+        ge=chosen.ge,
+        valid_pairs=chosen.valid_pairs,
+        total_pairs=chosen.total_pairs,
+        consistent=v.consistent,
+        tau_f_px=fam["F"].per_scale[list(cfg.scales).index(max(cfg.scales))].tau_f_px,
+        chosen=chosen,
+        other=other,
+        choice_note=note,
+    )
+
+
+def _pair_record(i: int, r: PairFits) -> tuple[PairRecord, dict[str, np.ndarray]]:
+    """A scored pair's record entry and its per-match arrays (zeros where a family has no fit)."""
+    m = len(r.x1)
+    arrays = {"x1": r.x1, "x2": r.x2}
+    for name, spec in FAMILIES.items():
+        fit = r.fit(name)
+        arrays[spec.inliers] = np.zeros(m, bool) if fit is None else fit.inliers
+        arrays[spec.residual_px] = np.zeros(m, np.float32) if fit is None else fit.residuals_px
+        arrays[spec.residual] = np.zeros(m, np.float32) if fit is None else fit.residuals  # H: the same column
+    h, f = r.fit("H"), r.fit("F")
+    pair = PairRecord(
+        index=i,
+        t0=r.t0,
+        t1=r.t1,
+        gap=r.gap,
+        scale=r.scale,
+        n_matches=m,
+        skip=r.skip,
+        h=None if h is None else fit_summary(h),
+        f=None if f is None else fit_summary(f),
+    )
+    return pair, arrays
+
+
+def assemble_record(
+    clip: str,
+    info: ClipInfo,
+    cfg: ScoreConfig,
+    K: np.ndarray,
+    backend: str,
+    pose: PoseEstimate,
+    timeline_poses: list[tuple[tuple[int, int], PoseEstimate]],
+    windows: list[tuple[int, int]],
+    scored: list[PairFits],
+) -> ClipRecord:
+    """The record of a clip's background: both families summarised over ``scored`` (sorted by
+    gap, frame, scale), the verdict (:func:`~geocon_core.verdict.clip_verdict`), the gate with
+    its timeline (``timeline_poses`` of the ``windows``; the whole-clip window uses ``pose``), the
+    pairs and their per-match arrays, and the warnings; no objects or category yet."""
+    fam = {name: summarize_family(name, scored, cfg) for name in FAMILIES}
+    verdict = clip_verdict(
+        t_inf=pose.t_inf,
+        pose_present=pose.pose_present,
+        ir_h=fam["H"].ir,
+        ge_h=fam["H"].ge,
+        ir_f=fam["F"].ir,
+        ge_f=fam["F"].ge,
+        thresholds=Thresholds.of(cfg),
+        tau_t=cfg.tau_t,
+    )
+    warnings: list[str] = []
+    if not pose.pose_present:
+        warnings.append(f"the first-last pose could not be recovered ({pose.reason}); the clip is gated F")
+    if fam[verdict.model].valid_pairs == 0:
+        warnings.append("no valid pair: the background could not be judged")
+    if info.duplicates:
+        warnings.append(f"{len(info.duplicates)} duplicated frame(s): pairs across them are not scored")
+    if info.cuts:
+        warnings.append(f"{len(info.cuts)} hard cut(s) at frame(s) {list(info.cuts)}: pairs across them are not scored")
+    pairs, arrays = zip(*(_pair_record(i, r) for i, r in enumerate(scored)), strict=True) if scored else ((), ())
+    return ClipRecord(
+        clip=clip,
+        video=info.to_dict(),
+        config=cfg,
+        config_hash=config_hash(cfg),
+        versions=software_versions(),
+        gate=_gate_record(cfg, verdict, backend, pose, windows, timeline_poses, info.num_frames),
+        background=_background(cfg, verdict, fam, pose),
+        pairs=tuple(pairs),
+        matches=MatchArrays.concatenate(list(arrays)),
+        intrinsics=[[float(v) for v in row] for row in K],
+        category=None,
+        warnings=tuple(warnings),
+    )
+
+
+def object_entries(scores: Sequence[ObjectPairScore]) -> tuple[list[ObjectEntry], list[dict[str, Any] | None]]:
+    """The record's object entries (indexed in order) and each entry's cell arrays (None when the
+    pair has none)."""
+    entries: list[ObjectEntry] = []
+    cells: list[dict[str, Any] | None] = []
+    for sc in scores:
+        i, res = len(entries), sc.result
+        if res is None:
+            entries.append(ObjectEntry(i, sc.object_id, sc.t0, sc.t1, sc.scale, False, sc.skip, None, None, 0, None))
+            cells.append(None)
+            continue
+        affine = None if res.affine is None else [[float(v) for v in row] for row in res.affine]
+        entries.append(
+            ObjectEntry(
+                i, sc.object_id, sc.t0, sc.t1, sc.scale, res.valid, res.reason, res.d_t, res.w2, res.n_pixels, affine
+            )
+        )
+        c = res.cells
+        cells.append(
+            None
+            if c is None
+            else {
+                "cells": c.cells,
+                "positions": c.positions,
+                "observed": c.observed,
+                "predicted": c.predicted,
+                "weights": c.weights,
+            }
+        )
+    return entries, cells
+
+
+def add_objects(
+    record: ClipRecord,
+    scores: list[ObjectPairScore],
+    *,
+    scales: Sequence[float],
+    masked_share: np.ndarray,
+    object_share: dict[int, dict[int, float]],
+    mask_source: MaskSource | None,
+    masks_path: str | Path | None,
+) -> ClipRecord:
+    """Add object entries (``scores`` sorted by object, frame, scale), per-object summaries
+    (:func:`~geocon_core.rigidity.object_summaries`), the masked share per frame, the mask
+    source's warnings and the category (:func:`~geocon_core.category.categorize_record`)."""
+    entries, cells = object_entries(scores)
+    summaries = object_summaries(entries, scales, object_share)
+    warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
+    source = (
+        "none" if mask_source is None else (f"external:{masks_path}" if masks_path is not None else mask_source.name)
+    )
+    return replace(
+        record,
+        masks_source=source,
+        masked_share=tuple(float(v) for v in masked_share),
+        objects=tuple(summaries),
+        object_entries=tuple(entries),
+        cells=CellArrays.concatenate(cells),
+        warnings=tuple(warnings),
+        category=categorize_record(record, [o.frames for o in summaries]),
+    )

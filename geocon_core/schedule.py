@@ -1,0 +1,239 @@
+"""The streaming schedule of one clip's work: which stage runs on which frames, when, and what
+is kept in memory meanwhile.
+
+:class:`StreamSchedule` reads frames once, in order, and drives a :class:`Stages` object (the
+scorer's stages, or fakes in tests). For each frame ``t`` it
+
+1. gives the frame to the mask stage (:meth:`Stages.push`) as soon as it is decoded;
+2. once the mask stage has seen ``lookahead`` frames past ``t`` (or the clip ended), takes the
+   final labels of ``t`` (:meth:`Stages.labels`; None without masks), then, in this order:
+
+   - waits while more than ``workers`` feature extractions are in flight, or ``2 * workers``
+     pair fits (bounded read-ahead: memory stays flat however fast frames decode);
+   - submits the features of ``t`` (:meth:`Stages.extract`);
+   - for each gap ``g``, the pair ``(t - g, t)``: :meth:`Stages.score_pair` on the worker pool, or
+     :meth:`Stages.skip_pair` at once when ``skip_reason(t - g, t)`` names a reason (cut,
+     duplicate);
+   - with labels, the objects of ``t - 1`` on the pair ``(t - 1, t)`` (:meth:`Stages.score_objects`);
+   - for each pose window ``(s, t)`` ending at ``t``, its pose (:meth:`Stages.pose`), and at the
+     last frame the first-last pose, which also receives frame 0;
+   - evicts what no later work needs, tells the mask stage it may drop ``t - 1``
+     (:meth:`Stages.release`), and reports ``progress(t + 1, n)``.
+
+Guarantees: ``on_frame(frame, labels, flows)`` is called exactly once per frame, in frame order,
+on the calling thread, with the object flows of the pair ``(t, t + 1)`` (empty when there are
+none); the features of frame ``k`` are kept while a pair may still need them
+(``k >= t - max(gaps)``), while a pose window starting at ``k`` has not ended, and for frame 0
+until the first-last pose; decoded frames and labels are kept for two frames (and frame 0 until
+the first-last pose). Results are
+returned in submission order (pairs by frame then gap, skipped pairs separately); every random
+choice belongs to the stages, which seed it from the pair's identity, so the outcome does not
+depend on thread timing.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from concurrent.futures import Executor, Future
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Protocol, Sequence
+
+import numpy as np
+
+from .reader import Frame
+
+__all__ = ["Stages", "StreamSchedule", "ScheduleResult", "gate_windows"]
+
+
+def gate_windows(n: int, window: int, stride: int) -> list[tuple[int, int]]:
+    """The gate timeline's windows ``(start, end)`` over ``n`` frames: every ``stride`` frames a
+    window of ``window`` frames, or the whole clip when it is not longer than one window."""
+    if n - 1 <= window:
+        return [(0, n - 1)]
+    return [(s, s + window) for s in range(0, n - 1 - window + 1, stride)]
+
+
+class Stages(Protocol):
+    """The work the schedule drives. ``push``, ``labels``, ``release`` and ``finish`` run on the
+    calling thread; the others run on the worker pool and receive the features of a frame as the
+    :class:`~concurrent.futures.Future` returned by its ``extract``."""
+
+    lookahead: int
+    """How many frames past ``t`` the mask stage must have seen before ``labels(t)`` is final."""
+
+    def push(self, frame: Frame) -> None: ...
+
+    def finish(self) -> None: ...
+
+    def labels(self, t: int) -> np.ndarray | None: ...
+
+    def release(self, t: int) -> None: ...
+
+    def extract(self, frame: Frame, labels: np.ndarray | None) -> Any: ...
+
+    def score_pair(self, a: Future, b: Future, t0: int, t1: int, gap: int) -> list[Any]: ...
+
+    def skip_pair(self, t0: int, t1: int, gap: int, reason: str) -> list[Any]: ...
+
+    def score_objects(
+        self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None
+    ) -> tuple[list[Any], Sequence[Any]]: ...
+
+    def pose(self, a: Future, b: Future, t0: int, t1: int, first: Frame | None) -> Any: ...
+
+
+@dataclass
+class ScheduleResult:
+    """What a run produced, as the stages returned it: ``pairs`` (scored, then skipped),
+    ``windows`` ``[((start, end), pose)]`` in window order, ``first_last`` the first-last pose and
+    ``objects`` every object pair score."""
+
+    pairs: list[Any]
+    windows: list[tuple[tuple[int, int], Any]]
+    first_last: Any
+    objects: list[Any]
+
+
+@dataclass
+class _Pending:
+    """A frame waiting for its object flows before it is emitted."""
+
+    frame: Frame
+    labels: np.ndarray | None
+    objects: Future | None = None
+    ready: bool = False
+
+
+@dataclass
+class StreamSchedule:
+    """Runs the :class:`Stages` over a clip of ``num_frames`` frames (see the module docstring).
+    ``windows`` are the pose windows to estimate besides the first-last pose; ``skip_reason(t0,
+    t1)`` says why a pair must not be scored (None to score it)."""
+
+    stages: Stages
+    pool: Executor
+    num_frames: int
+    gaps: Sequence[int]
+    windows: Sequence[tuple[int, int]]
+    skip_reason: Callable[[int, int], str | None]
+    workers: int
+    on_frame: Callable[[Frame, np.ndarray | None, tuple], None] | None = None
+    progress: Callable[[int, int], None] | None = None
+    features: dict[int, Future] = field(default_factory=dict)
+    """Features of the frames still needed (frame index -> future), for inspection."""
+
+    def __post_init__(self) -> None:
+        self._inflight: deque[Future] = deque()
+        self._pairs: list[Future] = []
+        self._skipped: list[Any] = []
+        self._objects: list[Future] = []
+        self._windows: list[tuple[tuple[int, int], Future]] = []
+        self._first_last: Future | None = None
+        self._frames: dict[int, Frame] = {}
+        self._labels: dict[int, np.ndarray] = {}
+        self._pending: deque[_Pending] = deque()
+        self._ends: dict[int, list[tuple[int, int]]] = {}
+        for w in self.windows:
+            self._ends.setdefault(w[1], []).append(w)
+        self._max_gap = max(self.gaps)
+
+    def run(self, frames: Iterable[Frame]) -> ScheduleResult:
+        """Consume ``frames`` (in order) and return every stage's results once all have finished."""
+        stages, n, next_t = self.stages, self.num_frames, 0
+        for frame in frames:
+            self._frames[frame.index] = frame
+            stages.push(frame)
+            while next_t <= frame.index - stages.lookahead:
+                self._step(next_t)
+                next_t += 1
+        stages.finish()
+        while next_t < n:
+            self._step(next_t)
+            next_t += 1
+        self._emit(final=True)
+        assert self._first_last is not None, "the clip had no frame"
+        return ScheduleResult(
+            pairs=[r for f in self._pairs for r in f.result()] + self._skipped,
+            windows=[(w, f.result()) for w, f in self._windows],
+            first_last=self._first_last.result(),
+            objects=[r for f in self._objects for r in f.result()[0]],
+        )
+
+    # --- one frame ---------------------------------------------------------------------------
+    def _step(self, t: int) -> None:
+        """Everything that needs frame t and its labels; runs once labels(t) are final."""
+        frame, stages = self._frames[t], self.stages
+        labels = stages.labels(t)
+        if labels is not None:
+            self._labels[t] = labels
+        self._wait_for_room()
+        self.features[t] = self.pool.submit(stages.extract, frame, labels)
+        self._inflight.append(self.features[t])
+        self._submit_pairs(t)
+        if labels is not None and t >= 1 and (t - 1) in self._labels:
+            skip = self.skip_reason(t - 1, t)
+            self._objects.append(
+                self.pool.submit(stages.score_objects, self._frames[t - 1], frame, self._labels[t - 1], skip)
+            )
+            if self._pending and self._pending[-1].frame.index == t - 1:
+                self._pending[-1].objects = self._objects[-1]  # frame t-1 is complete once its flows are
+        if self.on_frame is not None:
+            if self._pending:
+                self._pending[-1].ready = True
+            self._pending.append(_Pending(frame, labels))
+            self._emit(final=False)
+        for w in self._ends.get(t, []):
+            self._windows.append((w, self.pool.submit(stages.pose, self.features[w[0]], self.features[t], *w, None)))
+        if t == self.num_frames - 1:
+            self._first_last = self.pool.submit(stages.pose, self.features[0], self.features[t], 0, t, self._frames[0])
+        self._evict(t)
+        stages.release(t - 1)
+        if self.progress is not None:
+            self.progress(t + 1, self.num_frames)
+
+    def _wait_for_room(self) -> None:
+        """Bounded read-ahead: a few frames wait for features, a few pairs for fitting."""
+        while len(self._inflight) > self.workers:
+            self._inflight.popleft().result()
+        while sum(not f.done() for f in self._pairs[-4 * self.workers :]) >= 2 * self.workers:
+            next(f for f in self._pairs if not f.done()).result()
+
+    def _submit_pairs(self, t: int) -> None:
+        for gap in self.gaps:
+            t0 = t - gap
+            if t0 < 0:
+                continue
+            reason = self.skip_reason(t0, t)
+            if reason is not None:
+                self._skipped.extend(self.stages.skip_pair(t0, t, gap, reason))
+            else:
+                self._pairs.append(
+                    self.pool.submit(self.stages.score_pair, self.features[t0], self.features[t], t0, t, gap)
+                )
+
+    def _needed(self, k: int, t: int) -> bool:
+        """Whether the features of frame k are still needed after step t."""
+        return k == 0 or k >= t - self._max_gap or any(s == k and e > t for s, e in self.windows)
+
+    def _evict(self, t: int) -> None:
+        for k in [k for k in self.features if not self._needed(k, t)]:
+            del self.features[k]
+        for k in [k for k in self._frames if k < t - 1 and k != 0]:  # frame 0 serves the first-last pose
+            del self._frames[k]
+        for k in [k for k in self._labels if k < t - 1]:
+            del self._labels[k]
+
+    def _emit(self, final: bool) -> None:
+        """Hand finished frames to ``on_frame`` in order. Before the end, a frame waits for its
+        object flows unless more than ``2 * workers + 2`` frames are waiting."""
+        if self.on_frame is None:
+            return
+        pending = self._pending
+        while pending and (final or pending[0].ready):
+            head = pending[0]
+            fut = head.objects
+            if not final and fut is not None and not fut.done() and len(pending) <= 2 * self.workers + 2:
+                break
+            pending.popleft()
+            flows = () if fut is None else tuple(fut.result()[1])
+            self.on_frame(head.frame, head.labels, flows)
