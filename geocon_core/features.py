@@ -8,7 +8,7 @@ working frame (pixel centres at integers).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Any, Callable, Protocol
 
 import cv2
 import numpy as np
@@ -171,6 +171,16 @@ class OrbMatcher(_DescriptorMatcher):
         return ham * ham
 
 
+def _pyramid_lk(prev: np.ndarray, nxt: np.ndarray, pts: np.ndarray) -> tuple[Any, Any]:
+    """Pyramidal Lucas-Kanade tracks of ``pts`` (N, 1, 2) from ``prev`` to ``nxt``: (points, status)."""
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    # nextPts=None (let OpenCV allocate) is valid, but missing from OpenCV's type stubs
+    p, st, _ = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
+        prev, nxt, pts, None, winSize=(21, 21), maxLevel=4, criteria=criteria
+    )
+    return p, st
+
+
 class KltMatcher:
     """Shi-Tomasi corners tracked with pyramidal Lucas-Kanade; a track is kept when tracking
     back lands within ``fb_px`` of its start (forward-backward check)."""
@@ -190,13 +200,10 @@ class KltMatcher:
     def match(self, a: FeatureSet, b: FeatureSet) -> tuple[np.ndarray, np.ndarray]:
         if len(a) == 0:
             return np.zeros((0, 2)), np.zeros((0, 2))
-        params = dict(
-            winSize=(21, 21), maxLevel=4, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
-        )
         assert a.image is not None and b.image is not None, "KLT features keep their image"
         p0 = a.xy.reshape(-1, 1, 2)
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(a.image, b.image, p0, None, **params)
-        p0b, st2, _ = cv2.calcOpticalFlowPyrLK(b.image, a.image, p1, None, **params)
+        p1, st1 = _pyramid_lk(a.image, b.image, p0)
+        p0b, st2 = _pyramid_lk(b.image, a.image, p1)
         p1, p0b = p1.reshape(-1, 2), p0b.reshape(-1, 2)
         ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(p0b - a.xy, axis=1) <= self.fb_px)
         ok &= _inside(b.mask, p1)

@@ -5,6 +5,11 @@ while a pair, the first-last pose or a gate window still needs them, so memory d
 with clip length beyond the per-match arrays of the record itself. Work runs on a small thread
 pool (OpenCV releases the GIL); every random choice is seeded from the config seed and the
 pair's identity, so results do not depend on scheduling.
+
+:func:`score_clip` composes the stages: the clip is probed, the stages of :class:`_Pipeline`
+(masks, features, pair fits, object rigidity, poses) run under the streaming schedule of
+:mod:`geocon_core.schedule`, and :mod:`geocon_core.assemble` turns their results into the record
+through the verdict rules of :mod:`geocon_core.verdict`.
 """
 
 from __future__ import annotations
