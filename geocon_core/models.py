@@ -326,7 +326,8 @@ def family_spec(family: str) -> FamilySpec:
     try:
         return FAMILIES[family]
     except (KeyError, TypeError):
-        raise ValueError(f"family must be one of {', '.join(FAMILIES)}, got {family!r}") from None
+        valid = " or ".join(repr(name) for name in FAMILIES)
+        raise ValueError(f"family must be {valid}, got {family!r}") from None
 
 
 @dataclass(frozen=True, eq=False)

@@ -170,5 +170,5 @@ def test_the_scorer_and_regating_compose_one_verdict():
 
 def test_family_table_names_the_valid_families():
     assert list(FAMILIES) == ["H", "F"]
-    with pytest.raises(ValueError, match="H, F"):
+    with pytest.raises(ValueError, match="family must be 'H' or 'F', got 'E'"):
         family_spec("E")
