@@ -273,15 +273,15 @@ def score_clip(
     info = probe_clip(path, cfg)
     start = timer.add("probe", start)
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio)
-    backend: PoseBackend = load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend)
+    backend: PoseBackend = load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
     mask_source = None
-    flow = make_flow_backend(cfg.flow) if cfg.masks != "none" else None  # shared: thread-safe per instance
+    flow = make_flow_backend(cfg.flow, cfg.flow_params) if cfg.masks != "none" else None  # shared: thread-safe per instance
     if cfg.masks == "external":
         if masks is None:
             raise ValueError("config.masks is 'external' but no masks path was given")
         mask_source = make_mask_source("external", info, path=masks)
     elif cfg.masks == "motion":
-        mask_source = make_mask_source("motion", info, flow=flow, seed=cfg.seed)
+        mask_source = make_mask_source("motion", info, cfg.motion, flow=flow, seed=cfg.seed)
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
     K_pose = scale_intrinsics(K, max(cfg.scales))
     n = info.num_frames
@@ -676,4 +676,5 @@ def _categorize(record: ClipRecord, cfg: ScoreConfig, object_frames: list[int]):
         median_matches=float(np.median(matches)) if matches else None,
         background_ir=bg.ir,
         object_frames=object_frames,
+        config=cfg.category,
     )
