@@ -104,6 +104,12 @@ class MotionConfig:
     """Spacing (reduced px) of the grid of flow vectors that the background models are fitted to."""
     fit_tau_px: float = 1.0
     """Inlier tolerance (px) of the background model fits."""
+    fit_min_inliers: int = 30
+    """Least reliable grid vectors for a background fit, and least inliers of a valid fit."""
+    fit_iters: int = 1000
+    """RANSAC iteration budget of each background fit."""
+    f_fit_tau: float = 0.1
+    """Inlier threshold (normalised Sampson distance) of the fundamental-matrix fit."""
     static_px: float = 0.5
     """The background is static when the homography moves 95 % of the grid vectors by at most this (px)."""
     f_gain: float = 0.05
@@ -149,8 +155,10 @@ class MotionConfig:
             raise ValueError(f"min_track must be at least 1, got {self.min_track}")
         if not 1.0 < self.fov_deg < 179.0:
             raise ValueError(f"fov_deg must be in (1, 179), got {self.fov_deg}")
-        if self.fit_step < 1 or self.f_fit_points < 1 or self.halo_px < 0:
-            raise ValueError("fit_step and f_fit_points must be positive and halo_px non-negative")
+        if min(self.fit_step, self.f_fit_points, self.fit_iters, self.fit_min_inliers) < 1 or self.halo_px < 0:
+            raise ValueError(
+                "fit_step, f_fit_points, fit_iters, fit_min_inliers must be positive, halo_px non-negative"
+            )
 
 
 @dataclass(frozen=True)

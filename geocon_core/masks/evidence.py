@@ -65,13 +65,13 @@ class Evidence:
         st = cfg.fit_step
         ys, xs = np.mgrid[st // 2 : h : st, st // 2 : w : st]
         ok = rel[ys, xs]
-        if np.count_nonzero(ok) < 30:
+        if np.count_nonzero(ok) < cfg.fit_min_inliers:
             return None
         p1 = np.stack([xs[ok], ys[ok]], axis=1).astype(np.float64)
         p2 = p1 + flow[ys[ok], xs[ok]].astype(np.float64)
         tau = cfg.fit_tau_px * self._s
         seed &= 0x7FFFFFFF
-        fh = fit_homography(p1, p2, tau=tau, min_inliers=30, seed=seed, iters=1000)
+        fh = fit_homography(p1, p2, tau=tau, min_inliers=cfg.fit_min_inliers, seed=seed, iters=cfg.fit_iters)
         if fh.model is None or not fh.valid:
             return None
         Hm = fh.model
@@ -84,7 +84,14 @@ class Evidence:
         Fm = None
         if not static and n - n_h >= cfg.f_gain * n:
             sub = slice(None, None, max(1, n // cfg.f_fit_points))  # every k-th vector: F fits are costly
-            ff = fit_fundamental(p1[sub], p2[sub], tau=0.1, min_inliers=30, iters=1000, proposal_px=tau)
+            ff = fit_fundamental(
+                p1[sub],
+                p2[sub],
+                tau=cfg.f_fit_tau,
+                min_inliers=cfg.fit_min_inliers,
+                iters=cfg.fit_iters,
+                proposal_px=tau,
+            )
             if ff.model is not None:
                 d = epipolar_line_distance(ff.model, p1, p2)
                 n_f = int(np.count_nonzero(d <= tau))
