@@ -273,9 +273,13 @@ def score_clip(
     info = probe_clip(path, cfg)
     start = timer.add("probe", start)
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio)
-    backend: PoseBackend = load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
+    backend: PoseBackend = (
+        load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
+    )
     mask_source = None
-    flow = make_flow_backend(cfg.flow, cfg.flow_params) if cfg.masks != "none" else None  # shared: thread-safe per instance
+    flow = (
+        make_flow_backend(cfg.flow, cfg.flow_params) if cfg.masks != "none" else None
+    )  # shared: thread-safe per instance
     if cfg.masks == "external":
         if masks is None:
             raise ValueError("config.masks is 'external' but no masks path was given")
