@@ -135,14 +135,14 @@ def _fig_tinf(b: _Builder, ok: pd.DataFrame, gate_lines: tuple[float, float, flo
     ):
         if sel.any():
             ax[0, 0].hist(t[sel], edges, alpha=0.55, color=col, label=f"{label}, n={int(sel.sum())}")
-    for x, ls in zip(gate_lines, (":", "--", ":")):
+    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
         ax[0, 0].axvline(x, color="k", ls=ls, lw=1)
     lines = " / ".join(f"{x:g}" for x in gate_lines)
     ax[0, 0].set(xlabel="t_inf", ylabel="clips", title=f"t_inf by expected class (gate lines {lines})")
     ax[0, 0].legend(fontsize=7)
     cats = sorted(ok["category"].dropna().unique())
     _violins(ax[0, 1], [(c, ok.loc[ok["category"] == c, "t_inf"].to_numpy(float)) for c in cats])
-    for x, ls in zip(gate_lines, (":", "--", ":")):
+    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
         ax[0, 1].axhline(x, color="k", ls=ls, lw=1)
     ax[0, 1].set(ylabel="t_inf", title="t_inf per family")
     b.save(
@@ -186,7 +186,7 @@ def _fig_calibration(
     a = ax[0, 0]
     a.fill_between(bins["t_mid"], bins["low"], bins["high"], color=_color(0), alpha=0.25, label="Wilson 95%")
     a.plot(bins["t_mid"], bins["p"], "o-", color=_color(0), label="P(F | t_inf), 12 equal-count bins")
-    for x, ls in zip(gate_lines, (":", "--", ":")):
+    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
         a.axvline(x, color="k", ls=ls, lw=1)
     a.set(xlabel="t_inf (bin median)", ylabel="share expected F", ylim=(-0.02, 1.02), title="Gate calibration")
     a.legend(fontsize=7)
