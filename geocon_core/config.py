@@ -168,6 +168,7 @@ class ScoreConfig:
         return cls(**kw)
 
     def with_(self, **changes: Any) -> "ScoreConfig":
+        """A copy with the given top-level fields replaced (sub-configurations as whole values)."""
         return replace(self, **changes)
 
 
