@@ -3,17 +3,20 @@
 The rule, in order (the first that fires wins):
 
 1. **C6 stress** when the geometry cannot be measured well: no first-last pose, fewer than
-   half of the background (pair, scale) entries valid, fewer than ``MIN_MATCHES`` background
-   correspondences per valid pair at the largest scale (low texture), or a translating camera
-   whose background IR stays below ``STRESS_IR`` (thin structures and occlusions defeat every
-   single model).
+   ``min_valid_share`` of the background (pair, scale) entries valid, fewer than ``min_matches``
+   background correspondences per valid pair at the largest scale (low texture), or a
+   translating camera whose background IR stays below ``stress_ir`` (thin structures and
+   occlusions defeat every single model).
 2. **Static camera** when the gate is H, the median background motion between adjacent frames
-   is below ``STATIC_MOTION_PX`` and the first-last rotation below ``STATIC_ROTATION_DEG``:
-   **C4** if a moving object was tracked for at least ``MIN_OBJECT_FRAMES`` frames, else **C1**.
+   is below ``static_motion_px`` and the first-last rotation below ``static_rotation_deg``:
+   **C4** if a moving object was tracked for at least ``min_object_frames`` frames, else **C1**.
 3. **C2 rotation-dominant** when the gate is H (or U resolved to H).
 4. **C5 complex** when the gate is F and the camera also rotates by at least
-   ``COMPLEX_ROTATION_DEG`` between the first and last frame; otherwise **C3
+   ``complex_rotation_deg`` between the first and last frame; otherwise **C3
    translation-dominant**.
+
+The thresholds are the fields of :class:`~geocon_core.stage_configs.CategoryConfig`
+(``ScoreConfig.category``).
 
 Every input is logged with the label so that the decision can be audited and re-derived.
 """
@@ -25,26 +28,9 @@ from typing import Any
 import numpy as np
 
 from .record import Category, ClipRecord
+from .stage_configs import CategoryConfig
 
-__all__ = [
-    "categorize",
-    "categorize_record",
-    "STATIC_MOTION_PX",
-    "STATIC_ROTATION_DEG",
-    "COMPLEX_ROTATION_DEG",
-    "MIN_OBJECT_FRAMES",
-    "MIN_MATCHES",
-    "STRESS_IR",
-]
-
-STATIC_MOTION_PX = 0.5
-"""Median background displacement between adjacent frames (working px, scale 1) below which
-the camera counts as static."""
-STATIC_ROTATION_DEG = 1.0
-COMPLEX_ROTATION_DEG = 3.0
-MIN_OBJECT_FRAMES = 3
-MIN_MATCHES = 50
-STRESS_IR = 0.8
+__all__ = ["categorize", "categorize_record"]
 
 
 def categorize(
@@ -58,8 +44,11 @@ def categorize(
     median_matches: float | None,
     background_ir: float | None,
     object_frames: list[int],
+    config: CategoryConfig | None = None,
 ) -> Category:
-    """The category with its inputs and the rule that fired (see the module docstring)."""
+    """The category with its inputs and the rule that fired (see the module docstring);
+    ``config`` holds the thresholds (defaults when None)."""
+    c = config or CategoryConfig()
     inputs: dict[str, Any] = {
         "gate_model": gate_model,
         "pose_present": pose_present,
@@ -74,21 +63,22 @@ def categorize(
     rot = rotation_deg or 0.0
     if not pose_present:
         return Category("C6", "stress: no first-last pose", inputs)
-    if valid_share < 0.5:
-        return Category("C6", "stress: fewer than half of the background pairs are valid", inputs)
-    if median_matches is not None and median_matches < MIN_MATCHES:
-        return Category("C6", f"stress: fewer than {MIN_MATCHES} background matches per pair (low texture)", inputs)
-    if gate_model == "F" and background_ir is not None and background_ir < STRESS_IR:
-        return Category("C6", f"stress: translating camera and background IR below {STRESS_IR}", inputs)
-    has_objects = any(n >= MIN_OBJECT_FRAMES for n in object_frames)
-    if gate_model == "H" and (background_motion_px or 0.0) < STATIC_MOTION_PX and rot < STATIC_ROTATION_DEG:
+    if valid_share < c.min_valid_share:
+        share = "half" if c.min_valid_share == 0.5 else f"{c.min_valid_share:.0%}"
+        return Category("C6", f"stress: fewer than {share} of the background pairs are valid", inputs)
+    if median_matches is not None and median_matches < c.min_matches:
+        return Category("C6", f"stress: fewer than {c.min_matches} background matches per pair (low texture)", inputs)
+    if gate_model == "F" and background_ir is not None and background_ir < c.stress_ir:
+        return Category("C6", f"stress: translating camera and background IR below {c.stress_ir}", inputs)
+    has_objects = any(n >= c.min_object_frames for n in object_frames)
+    if gate_model == "H" and (background_motion_px or 0.0) < c.static_motion_px and rot < c.static_rotation_deg:
         if has_objects:
             return Category("C4", "static camera with moving objects", inputs)
         return Category("C1", "static camera, no moving objects", inputs)
     if gate_model == "H":
         return Category("C2", "rotation-dominant camera (H gate, moving background)", inputs)
-    if rot >= COMPLEX_ROTATION_DEG:
-        return Category("C5", f"translation with rotation >= {COMPLEX_ROTATION_DEG} deg", inputs)
+    if rot >= c.complex_rotation_deg:
+        return Category("C5", f"translation with rotation >= {c.complex_rotation_deg} deg", inputs)
     return Category("C3", "translation-dominant camera", inputs)
 
 
@@ -117,4 +107,5 @@ def categorize_record(record: ClipRecord, object_frames: list[int]) -> Category:
         median_matches=float(np.median(matches)) if matches else None,
         background_ir=bg.ir,
         object_frames=object_frames,
+        config=record.config.category,
     )

@@ -652,15 +652,15 @@ def report(
 
 @app.command()
 def presets() -> None:
-    """List the named scoring presets and their settings."""
-    from .config import PRESETS, config_hash
+    """List the named scoring presets and every setting, stage settings as dotted names (``motion.min_area``)."""
+    from .config import PRESETS, config_hash, config_items
 
     for name, (text, cfg) in PRESETS.items():
         table = Table(title=f"{name}: {text} (hash {config_hash(cfg)})", title_justify="left", show_header=False)
-        table.add_column(style="bold")
+        table.add_column(style="bold", no_wrap=True)
         table.add_column()
-        for key, value in cfg.to_dict().items():
-            table.add_row(key, str(value))
+        for key, value in config_items(cfg):
+            table.add_row(key, str(list(value) if isinstance(value, tuple) else value))
         out.print(table)
 
 

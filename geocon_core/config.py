@@ -1,16 +1,45 @@
 """Scoring configuration: one frozen dataclass, named presets, and a stable hash.
 
-Every number a record reports names the hash of the full configuration it came from.
+Every number a record reports names the hash of the full configuration it came from. The
+top-level fields are the paper's protocol; the settings of each stage sit in frozen
+sub-configurations (:mod:`geocon_core.stage_configs`) that the stage receives, e.g.
+``config.motion`` for the motion segmentation. :func:`config_hash` covers all of them.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
-__all__ = ["ScoreConfig", "PRESETS", "preset", "config_hash"]
+from .stage_configs import BarConfig, CategoryConfig, CutConfig, FlowConfig, MotionConfig, PoseConfig, ScanConfig
+
+__all__ = [
+    "ScoreConfig",
+    "PRESETS",
+    "preset",
+    "config_hash",
+    "config_items",
+    "BarConfig",
+    "CutConfig",
+    "FlowConfig",
+    "MotionConfig",
+    "PoseConfig",
+    "CategoryConfig",
+    "ScanConfig",
+]
+
+SUB_CONFIGS: dict[str, type] = {
+    "bars": BarConfig,
+    "cuts": CutConfig,
+    "flow_params": FlowConfig,
+    "motion": MotionConfig,
+    "pose": PoseConfig,
+    "category": CategoryConfig,
+    "scans": ScanConfig,
+}
+"""The nested sub-configurations of :class:`ScoreConfig` by field name."""
 
 
 @dataclass(frozen=True)
@@ -19,23 +48,28 @@ class ScoreConfig:
     scale being evaluated (SPEC section 0)."""
 
     preset: str = "paper"
+    """Name of the preset this configuration started from (informative)."""
     # reading
     working_size: tuple[int, int] = (1024, 720)
-    """Frames are resized to fit inside (width, height), aspect kept, and letterboxed."""
+    """Frames are resized to fit inside (width, height), px, aspect kept, and letterboxed."""
     bar_luma: float = 16.0
-    """A border row/column whose mean luma never exceeds this in any frame is a burned-in bar."""
+    """A border row/column whose mean luma (grey levels) never exceeds this in any frame is a burned-in bar."""
     duplicate_mad: float = 0.05
-    """Consecutive frames whose mean absolute grey difference is at most this are duplicates."""
+    """Consecutive frames whose mean absolute grey difference (grey levels) is at most this are duplicates."""
     # correspondences
     matcher: str = "sift"
+    """Feature matcher by name (:func:`geocon_core.features.make_matcher`)."""
     scales: tuple[float, ...] = (0.25, 0.5, 1.0)
+    """Scales (shares of the working resolution, in (0, 1]) every pair is scored at."""
     gaps: tuple[int, ...] = (1,)
+    """Frame gaps of the scored pairs (t, t + gap)."""
     aggregation: str = "median"
     """How pair scores become the clip's IR/GE. ``median`` (the paper): per gap, the median over
     valid (pair, scale); ``worst``: per gap and scale, the median over pairs, and the clip takes
     the worst cell, so a failure visible only at full resolution or long gaps is not averaged away.
     With several gaps the headline is the worst gap in both modes."""
     ratio: float = 0.8
+    """Lowe ratio of the mutual nearest-neighbour matching."""
     max_features: int = 2000
     """Features per frame at scale 1; ``max_features * scale`` at smaller scales."""
     # mask-first separation and object rigidity (SPEC sections 2, 4)
@@ -43,28 +77,60 @@ class ScoreConfig:
     """Where object masks come from: ``motion`` (built-in segmentation, no weights) or ``none``;
     external masks are given as a path (``geocon score --masks DIR``)."""
     flow: str = "dis"
+    """Dense flow backend by name (:func:`geocon_core.flow.make_flow_backend`); its settings are
+    :attr:`flow_params`."""
     grid: int = 8
     """AdaDFRC grid: N x N cells on each object's box."""
     min_cells: int = 3
+    """Least valid AdaDFRC cells for an object pair to be scored."""
     # background models (SPEC section 3)
     tau_h: float = 2.0
+    """Homography inlier threshold: symmetric transfer error, px."""
     tau_f: float = 0.1
+    """Fundamental-matrix inlier threshold: normalised Sampson distance."""
     min_inliers: int = 30
+    """Least inliers of a valid background model."""
     ir_gate: float = 0.97
+    """Report gate: a clip passes with an inlier ratio of at least this (0..1)..."""
     ge_gate: float = 3.5
+    """...and a geometric error (px) of at most this."""
     ransac_iters: int = 2000
+    """Iteration budget of the background RANSAC fits."""
     ransac_confidence: float = 0.9999
+    """Confidence (0..1) of the background RANSAC fits."""
     # translation gate (SPEC section 1)
     pose_backend: str = "classical"
+    """Pose backend by name (:func:`geocon_core.pose.make_pose_backend`); its settings are :attr:`pose`."""
     fov_x_deg: float = 60.0
-    """Horizontal field of view assumed when intrinsics are unknown (principal point at the
+    """Horizontal field of view (degrees) assumed when intrinsics are unknown (principal point at the
     centre of the content)."""
     tau_t: float = 0.04
+    """Binary translation gate: F when ``t_inf`` exceeds this (unit mean scene distance)."""
     tau_t_low: float = 0.03
+    """Hysteresis gate: H when ``t_inf`` is at most this."""
     tau_t_high: float = 0.05
+    """Hysteresis gate: F when ``t_inf`` is at least this; U in between."""
     gate_window: int = 16
+    """Frames between the two ends of a windowed gate estimate."""
     gate_stride: int = 8
+    """Frames between the starts of consecutive gate windows."""
     seed: int = 0
+    """Seed of every random choice (RANSAC, sampling)."""
+    # settings of the stages
+    bars: BarConfig = field(default_factory=BarConfig)
+    """Burned-in bars and the content box (reader)."""
+    cuts: CutConfig = field(default_factory=CutConfig)
+    """Hard-cut detection (reader)."""
+    flow_params: FlowConfig = field(default_factory=FlowConfig)
+    """Settings of the dense flow backend."""
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    """Settings of the built-in motion segmentation."""
+    pose: PoseConfig = field(default_factory=PoseConfig)
+    """Settings of the classical pose backend."""
+    category: CategoryConfig = field(default_factory=CategoryConfig)
+    """Thresholds of the scene family rule."""
+    scans: ScanConfig = field(default_factory=ScanConfig)
+    """Grids of the threshold-sensitivity scan."""
 
     def __post_init__(self) -> None:
         if not self.scales or any(not 0 < s <= 1 for s in self.scales):
@@ -85,21 +151,24 @@ class ScoreConfig:
             raise ValueError(f"working_size too small: {self.working_size}")
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        for k, v in d.items():
-            if isinstance(v, tuple):
-                d[k] = list(v)
-        return d
+        """JSON-able nested dict (tuples become lists); :meth:`from_dict` inverts it exactly."""
+        return _lists(asdict(self))
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ScoreConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown config keys: {', '.join(sorted(unknown))}")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        """The configuration of a :meth:`to_dict` dict. A dict of the earlier flat layout (no
+        sub-configurations) gives their defaults; an unknown key raises ValueError."""
+        kw: dict[str, Any] = _fields_of(cls, d, "config")
+        for name, sub in SUB_CONFIGS.items():
+            if name in kw:
+                value = kw[name]
+                if not isinstance(value, dict):
+                    raise ValueError(f"config key {name!r} must be a mapping of {sub.__name__} fields, got {value!r}")
+                kw[name] = sub(**_fields_of(sub, value, f"config.{name}"))
+        return cls(**kw)
 
     def with_(self, **changes: Any) -> "ScoreConfig":
+        """A copy with the given top-level fields replaced (sub-configurations as whole values)."""
         return replace(self, **changes)
 
 
@@ -119,6 +188,36 @@ def preset(name: str) -> ScoreConfig:
         return PRESETS[name][1]
     except KeyError:
         raise ValueError(f"unknown preset {name!r}; valid: {', '.join(PRESETS)}") from None
+
+
+def config_items(config: ScoreConfig) -> list[tuple[str, Any]]:
+    """Every setting as (dotted name, value), sub-configurations expanded (``motion.min_area``)."""
+    out: list[tuple[str, Any]] = []
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if is_dataclass(value):
+            out.extend((f"{f.name}.{g.name}", getattr(value, g.name)) for g in fields(value))
+        else:
+            out.append((f.name, value))
+    return out
+
+
+def _lists(value: Any) -> Any:
+    """Tuples -> lists, recursively through dicts (the JSON form)."""
+    if isinstance(value, dict):
+        return {k: _lists(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return [_lists(v) for v in value]
+    return value
+
+
+def _fields_of(cls: type, d: dict[str, Any], where: str) -> dict[str, Any]:
+    """Keyword arguments of ``cls`` from the JSON dict ``d`` (lists -> tuples); unknown keys raise."""
+    names = {f.name for f in fields(cls)}
+    unknown = set(d) - names
+    if unknown:
+        raise ValueError(f"unknown {where} keys: {', '.join(sorted(unknown))}")
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
 
 
 def config_hash(config: ScoreConfig) -> str:

@@ -31,13 +31,14 @@ Backends
 ``dis`` (:class:`DisFlow`, default, no weights)
     OpenCV's Dense Inverse Search (Kroeger et al. 2016) with the ``MEDIUM`` preset (8 px
     patches every 3 px down to 1/2 resolution, 25 gradient-descent iterations, variational
-    refinement; ``FAST`` stops at 1/4 resolution with patches every 4 px): on translated or affinely warped textures the median error is 0.02-0.08 px
-    (tests: < 0.1 px); about 6 ms per direction at 512x288 and 23 ms at 1024x576 on an idle
-    2-core machine (``FAST``: 1.4 / 5 ms, similar error on strong texture, worse on weak).
-    Forward-backward threshold ``fb_abs = 0.5`` px plus ``fb_rel = 5 %`` of the flow length
-    (flow errors grow with the displacement). DIS is deterministic (also across thread
-    counts, and an instance's earlier calls do not change its results); each thread gets its
-    own OpenCV instance, so :meth:`DisFlow.compute` is thread-safe.
+    refinement; ``FAST`` stops at 1/4 resolution with patches every 4 px): on translated or
+    affinely warped textures the median error is 0.02-0.08 px (tests: < 0.1 px); about 6 ms
+    per direction at 512x288 and 23 ms at 1024x576 on an idle 2-core machine (``FAST``: 1.4 /
+    5 ms, similar error on strong texture, worse on weak). Forward-backward threshold
+    ``fb_abs`` px plus ``fb_rel`` of the flow length (flow errors grow with the displacement;
+    settings in :class:`~geocon_core.stage_configs.FlowConfig`). DIS is deterministic (also
+    across thread counts, and an instance's earlier calls do not change its results); each
+    thread gets its own OpenCV instance, so :meth:`DisFlow.compute` is thread-safe.
 ``raft``
     Not available in this build: RAFT needs torch and a trained checkpoint, and
     :func:`make_flow_backend` says so instead of pretending.
@@ -47,11 +48,13 @@ from __future__ import annotations
 
 import importlib.util
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import cv2
 import numpy as np
+
+from .stage_configs import FlowConfig
 
 __all__ = [
     "FlowField",
@@ -71,10 +74,6 @@ DIS_PRESETS: dict[str, int] = {
     "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
 }
 """OpenCV DIS presets by name."""
-
-MIN_DIS_SIDE = 16
-"""Regions narrower or lower than this (px) are padded (edge pixels repeated) before DIS,
-which needs at least one patch (12 px with the medium preset)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,7 +99,8 @@ class FlowField:
         shape = (y1 - y0, x1 - x0)
         if self.flow.shape != (*shape, 2) or self.reliable.shape != shape or self.fb_error.shape != shape:
             raise ValueError(
-                f"FlowField arrays {self.flow.shape}, {self.reliable.shape}, {self.fb_error.shape} do not match box {self.box}"
+                f"FlowField arrays {self.flow.shape}, {self.reliable.shape}, {self.fb_error.shape} "
+                f"do not match box {self.box}"
             )
 
 
@@ -135,7 +135,8 @@ def _check_images(gray0: np.ndarray, gray1: np.ndarray) -> None:
     for name, g in (("gray0", gray0), ("gray1", gray1)):
         if not isinstance(g, np.ndarray) or g.ndim != 2 or g.dtype != np.uint8:
             raise ValueError(
-                f"{name} must be an (h, w) uint8 grey image, got {getattr(g, 'shape', None)} {getattr(g, 'dtype', type(g))}"
+                f"{name} must be an (h, w) uint8 grey image, "
+                f"got {getattr(g, 'shape', None)} {getattr(g, 'dtype', type(g))}"
             )
     if gray0.shape != gray1.shape:
         raise ValueError(f"gray0 and gray1 differ in size: {gray0.shape} vs {gray1.shape}")
@@ -159,39 +160,52 @@ class DisFlow:
     """OpenCV DIS optical flow (``name = "dis"``); see the module docstring for the preset and
     the reliability rule.
 
-    preset: ``"medium"`` (default), ``"fast"`` or ``"ultrafast"``.
-    fb_abs, fb_rel: forward-backward threshold ``fb_abs + fb_rel * |F|`` (px).
-    margin: context (px) computed around a ``box`` on every side.
+    config: the settings (:class:`~geocon_core.stage_configs.FlowConfig`): DIS preset, the
+        forward-backward threshold ``fb_abs + fb_rel * |F|`` (px), the context ``margin`` (px)
+        computed around a ``box`` on every side, and ``min_side`` (px): smaller regions are padded
+        (edge pixels repeated) because DIS needs at least one patch (12 px with the medium preset).
+        Keyword arguments override single fields (``DisFlow(preset="fast")``).
     """
 
     name = "dis"
 
-    def __init__(self, *, preset: str = "medium", fb_abs: float = 0.5, fb_rel: float = 0.05, margin: int = 16) -> None:
-        key = str(preset).strip().lower()
-        if key not in DIS_PRESETS:
-            raise ValueError(f"unknown DIS preset {preset!r}; valid: {', '.join(DIS_PRESETS)}")
-        if not (fb_abs >= 0 and fb_rel >= 0):
-            raise ValueError(f"fb_abs and fb_rel must be non-negative, got {fb_abs}, {fb_rel}")
-        if int(margin) < 0:
-            raise ValueError(f"margin must be non-negative, got {margin}")
-        self.preset = key
-        self.fb_abs = float(fb_abs)
-        self.fb_rel = float(fb_rel)
-        self.margin = int(margin)
+    def __init__(self, config: FlowConfig | None = None, **overrides: Any) -> None:
+        if "preset" in overrides:
+            overrides["preset"] = str(overrides["preset"]).strip().lower()
+        self.config = replace(config or FlowConfig(), **overrides)
         self._local = threading.local()
+
+    @property
+    def preset(self) -> str:
+        return self.config.preset
+
+    @property
+    def fb_abs(self) -> float:
+        return self.config.fb_abs
+
+    @property
+    def fb_rel(self) -> float:
+        return self.config.fb_rel
+
+    @property
+    def margin(self) -> int:
+        return self.config.margin
 
     def __repr__(self) -> str:
         return f"DisFlow(preset={self.preset!r}, fb_abs={self.fb_abs}, fb_rel={self.fb_rel}, margin={self.margin})"
 
     def _calc(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         h, w = a.shape
-        ph, pw = max(0, MIN_DIS_SIDE - h), max(0, MIN_DIS_SIDE - w)
+        side = self.config.min_side
+        ph, pw = max(0, side - h), max(0, side - w)
         if ph or pw:  # DIS needs a side of at least one patch: pad tiny regions, crop back
             a = cv2.copyMakeBorder(a, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
             b = cv2.copyMakeBorder(b, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
         dis = getattr(self._local, "dis", None)
         if dis is None:  # one OpenCV instance per thread: thread-safe, and reuse saves ~3 ms a call
-            dis = self._local.dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.preset])
+            dis = self._local.dis = cv2.DISOpticalFlow_create(  # type: ignore[attr-defined]  # missing from the cv2 stubs
+                DIS_PRESETS[self.preset]
+            )
         return np.ascontiguousarray(dis.calc(a, b, None)[:h, :w])
 
     def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:
@@ -238,8 +252,9 @@ def _raft_missing() -> str:
     )
 
 
-def make_flow_backend(name: str, **kwargs: Any) -> FlowBackend:
-    """The flow backend called ``name`` (case-insensitive), built with ``kwargs``. Raises
+def make_flow_backend(name: str, config: FlowConfig | None = None, **kwargs: Any) -> FlowBackend:
+    """The flow backend called ``name`` (case-insensitive), built with its settings ``config``
+    (defaults when None) and single-field overrides ``kwargs``. Raises
     ValueError for unknown names (listing the valid ones) and for ``raft``, which this build
     cannot run."""
     key = str(name).strip().lower()
@@ -249,4 +264,4 @@ def make_flow_backend(name: str, **kwargs: Any) -> FlowBackend:
         raise ValueError(
             f"unknown flow backend {name!r}; valid: {', '.join(FLOW_BACKENDS)} (raft needs torch and a checkpoint)"
         )
-    return FLOW_BACKENDS[key](**kwargs)
+    return FLOW_BACKENDS[key](config, **kwargs)

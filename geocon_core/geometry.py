@@ -17,6 +17,7 @@ Conventions (used everywhere in GeoCon):
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -29,6 +30,7 @@ __all__ = [
     "relative_pose",
     "rotation_angle_deg",
     "skew",
+    "rotation_from_axis_angle",
     "homography_from_rotation",
     "homography_from_plane",
     "fundamental_from_pose",
@@ -36,15 +38,21 @@ __all__ = [
     "apply_homography",
     "symmetric_transfer_error",
     "sampson_distance",
+    "epipolar_line_distance",
     "t_inf_from_pose",
     "scale_intrinsics",
     "project",
     "triangulate_two_view",
     "two_view_cloud",
+    "triangulate_dlt",
+    "triangulate_normalised",
+    "in_front_triangulated",
+    "in_front_least_squares",
+    "cheirality_pose",
 ]
 
 
-def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray:
+def intrinsics_from_fov(width: float, height: float, fov_x_deg: float) -> np.ndarray:
     """Pinhole matrix ``K`` (3x3) with square pixels, principal point at the image centre
     (``((W-1)/2, (H-1)/2)`` in the integer-pixel-centre convention) and the focal length
     that gives a horizontal field of view of ``fov_x_deg`` degrees."""
@@ -96,6 +104,16 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def rotation_from_axis_angle(w: np.ndarray) -> np.ndarray:
+    """Rotation (3x3) of the axis-angle vector ``w`` (3,) (Rodrigues' formula; angle ``|w|`` in
+    radians); first order ``I + [w]_x`` below an angle of 1e-12."""
+    th = float(np.linalg.norm(w))
+    if th < 1e-12:
+        return np.eye(3) + skew(w)
+    Kx = skew(w / th)
+    return np.eye(3) + math.sin(th) * Kx + (1 - math.cos(th)) * (Kx @ Kx)
+
+
 def homography_from_rotation(K: np.ndarray, R_2from1: np.ndarray) -> np.ndarray:
     """``H_2from1 = K R K^-1`` for a camera that only rotates (``X_2 = R_2from1 X_1``)."""
     return K @ R_2from1 @ np.linalg.inv(K)
@@ -122,12 +140,14 @@ def to_homogeneous(x: np.ndarray) -> np.ndarray:
     return np.concatenate([x, np.ones((x.shape[0], 1))], axis=1)
 
 
-def apply_homography(H: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Map (N, 2) pixels through a 3x3 homography; points mapped to infinity become NaN."""
+def apply_homography(H: np.ndarray, x: np.ndarray, *, at_infinity: float = np.nan) -> np.ndarray:
+    """Map (N, 2) pixels through a 3x3 homography; points mapped to infinity (a non-finite
+    coordinate) become ``at_infinity`` (NaN by default; ``inf`` keeps them out of percentiles
+    and medians as the largest values)."""
     y = to_homogeneous(x) @ np.asarray(H, dtype=float).T
     with np.errstate(divide="ignore", invalid="ignore"):
         out = y[:, :2] / y[:, 2:3]
-    out[~np.isfinite(out).all(axis=1)] = np.nan
+    out[~np.isfinite(out).all(axis=1)] = at_infinity
     return out
 
 
@@ -139,17 +159,29 @@ def symmetric_transfer_error(H_2from1: np.ndarray, x1: np.ndarray, x2: np.ndarra
     return 0.5 * fwd + 0.5 * bwd
 
 
-def sampson_distance(F_21: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+def sampson_distance(F_21: np.ndarray, x1: np.ndarray, x2: np.ndarray, *, signed: bool = False) -> np.ndarray:
     """First-order geometric (Sampson) distance of each match to the epipolar geometry, shape
     (N,), in the units of the coordinates given (NOT squared):
-    ``|x2^T F x1| / sqrt((F x1)_1^2 + (F x1)_2^2 + (F^T x2)_1^2 + (F^T x2)_2^2)``."""
+    ``|x2^T F x1| / sqrt((F x1)_1^2 + (F x1)_2^2 + (F^T x2)_1^2 + (F^T x2)_2^2)``; ``inf`` where
+    the denominator vanishes. With ``signed`` the sign of ``x2^T F x1`` is kept and the
+    denominator is floored at 1e-300 (a finite residual for least squares)."""
     h1, h2 = to_homogeneous(x1), to_homogeneous(x2)
     Fx1 = h1 @ F_21.T
     Ftx2 = h2 @ F_21
-    num = np.abs(np.sum(h2 * Fx1, axis=1))
+    num = np.sum(h2 * Fx1, axis=1)
     den = np.sqrt(Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2)
+    if signed:
+        return num / np.maximum(den, 1e-300)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(den > 0, num / den, np.inf)
+        return np.where(den > 0, np.abs(num) / den, np.inf)
+
+
+def epipolar_line_distance(F_21: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Distance (N,) of each x2 (N, 2) to its epipolar line ``F_21 x1`` in image 2, in the units
+    of the coordinates given (one-sided, unlike :func:`sampson_distance`)."""
+    line = x1 @ F_21[:, :2].T + F_21[:, 2]
+    num = np.abs(np.sum(x2 * line[:, :2], axis=1) + line[:, 2])
+    return num / np.maximum(np.hypot(line[:, 0], line[:, 1]), 1e-12)
 
 
 def t_inf_from_pose(T_cam0_camT: np.ndarray, mean_scene_distance: float) -> float:
@@ -187,11 +219,7 @@ def triangulate_two_view(
     if x0.shape[0] == 0:
         return np.zeros((0, 3)), np.zeros(0, bool)
     T_1_0 = invert_pose(T_cam0_cam1)
-    P0 = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
-    P1 = K @ T_1_0[:3, :]
-    Xh = cv2.triangulatePoints(P0, P1, x0.T, x1.T)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        X = (Xh[:3] / Xh[3]).T
+    X = triangulate_dlt(K @ np.hstack([np.eye(3), np.zeros((3, 1))]), K @ T_1_0[:3, :], x0, x1)
     finite = np.isfinite(X).all(axis=1)
     X = np.where(finite[:, None], X, 0.0)
     z0 = X[:, 2]
@@ -228,3 +256,63 @@ def two_view_cloud(
     u = np.clip(np.round((px[:, 0] + 0.5) / scale - 0.5).astype(int), 0, w - 1)
     v = np.clip(np.round((px[:, 1] + 0.5) / scale - 0.5).astype(int), 0, h - 1)
     return X.astype(np.float32), rgb0[v, u].astype(np.uint8)
+
+
+def triangulate_dlt(P0: np.ndarray, P1: np.ndarray, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+    """Linear (DLT, ``cv2.triangulatePoints``) triangulation of (N, 2) matches seen by the 3x4
+    projection matrices P0 and P1; points (N, 3) in the frame the matrices map from (non-finite
+    where the homogeneous coordinate vanishes)."""
+    a = np.ascontiguousarray(np.asarray(x0).T, dtype=float)
+    b = np.ascontiguousarray(np.asarray(x1).T, dtype=float)
+    Xh = cv2.triangulatePoints(P0, P1, a, b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (Xh[:3] / Xh[3]).T
+
+
+def triangulate_normalised(n0: np.ndarray, n1: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """DLT triangulation of (N, 2) normalised camera coordinates between camera 0 at the origin
+    and camera 1 with ``X_1 = R X_0 + t``; points (N, 3) in camera-0 coordinates."""
+    P0 = np.hstack([np.eye(3), np.zeros((3, 1))])
+    P1 = np.hstack([R, np.asarray(t, dtype=float).reshape(3, 1)])
+    return triangulate_dlt(P0, P1, n0, n1)
+
+
+def in_front_triangulated(n0: np.ndarray, n1: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N,) bool: the DLT triangulation of the (N, 2) normalised matches is finite and in front
+    of both cameras (``X_1 = R X_0 + t``)."""
+    X = triangulate_normalised(n0, n1, R, t)
+    z1 = X @ R.T + t
+    return np.isfinite(X).all(axis=1) & (X[:, 2] > 0) & (z1[:, 2] > 0)
+
+
+def in_front_least_squares(r0: np.ndarray, r1: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N,) bool: the least-squares depths ``z0, z1`` of ``z1 r1 = z0 R r0 + t`` for the (N, 3)
+    rays ``r0``, ``r1`` (homogeneous normalised coordinates) are both positive."""
+    u, v = r0 @ R.T, -r1
+    uu, uv, vv = np.sum(u * u, 1), np.sum(u * v, 1), np.sum(v * v, 1)
+    ut, vt = u @ t, v @ t
+    det = uu * vv - uv * uv
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z0 = (-ut * vv + vt * uv) / det
+        z1 = (-vt * uu + ut * uv) / det
+    return (z0 > 0) & (z1 > 0)
+
+
+def cheirality_pose(
+    E: np.ndarray, in_front: Callable[[np.ndarray, np.ndarray], np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The decomposition ``(R, t)`` of the essential matrix E (``X_1 = R X_0 + t``, t of unit
+    length up to sign) that puts the most points in front of both cameras, as counted by
+    ``in_front(R, t)`` ((N,) bool, e.g. :func:`in_front_triangulated`), with that mask; the first
+    of the four candidates wins a tie. None when E cannot be decomposed."""
+    try:
+        R1, R2, tt = cv2.decomposeEssentialMat(E)
+    except cv2.error:
+        return None
+    tt = tt.ravel().astype(float)
+    best: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    for R, t in ((R1, tt), (R1, -tt), (R2, tt), (R2, -tt)):
+        ok = in_front(R, t)
+        if best is None or ok.sum() > best[2].sum():
+            best = (np.asarray(R, dtype=float), t, ok)
+    return best

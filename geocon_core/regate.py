@@ -29,19 +29,12 @@ __all__ = [
     "regate_family",
     "regate_pairs",
     "pair_inliers",
-    "DEFAULT_TAU_H_GRID",
-    "DEFAULT_TAU_F_GRID",
     "sensitivity_scan",
     "Residuals",
     "ResidualArrays",
     "load_residuals",
     "regate_clip",
 ]
-
-DEFAULT_TAU_H_GRID = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
-"""Symmetric transfer error thresholds (px) of the default sensitivity scan."""
-DEFAULT_TAU_F_GRID = (0.025, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3)
-"""Normalised Sampson thresholds of the default sensitivity scan."""
 
 
 @dataclass(frozen=True)
@@ -154,12 +147,15 @@ def regate_family(
 def sensitivity_scan(
     record: ClipRecord,
     *,
-    tau_h: Sequence[float] = DEFAULT_TAU_H_GRID,
-    tau_f: Sequence[float] = DEFAULT_TAU_F_GRID,
+    tau_h: Sequence[float] | None = None,
+    tau_f: Sequence[float] | None = None,
 ) -> list[Regated]:
-    """The threshold-score scan of one clip: every tau of both grids, plus the recorded
-    thresholds when the grids lack them (so the scan always contains the record's values)."""
+    """The threshold-score scan of one clip: every tau of both grids (default: the record's
+    ``config.scans``), plus the recorded thresholds when the grids lack them (so the scan always
+    contains the record's values)."""
     cfg = record.config
+    tau_h = cfg.scans.tau_h_grid if tau_h is None else tau_h
+    tau_f = cfg.scans.tau_f_grid if tau_f is None else tau_f
     out: list[Regated] = []
     grids: tuple[tuple[Family, Sequence[float]], ...] = (("H", tau_h), ("F", tau_f))
     for family, grid in grids:

@@ -34,7 +34,6 @@ from .verdict import flag_reasons
 
 __all__ = ["ReportResult", "build_report"]
 
-GATE_LINES = (0.03, 0.04, 0.05)
 _COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
 
 
@@ -115,7 +114,15 @@ def _violins(ax, groups: list[tuple[str, np.ndarray]]) -> None:
     ax.set_xticks(pos, [label for label, _ in data])
 
 
-def _fig_tinf(b: _Builder, ok: pd.DataFrame) -> None:
+def _gate_lines(config: dict[str, Any]) -> tuple[float, float, float]:
+    """The gate thresholds (tau_t_low, tau_t, tau_t_high) of the benchmark's configuration."""
+    from .config import ScoreConfig
+
+    cfg = ScoreConfig.from_dict(config) if config else ScoreConfig()
+    return (cfg.tau_t_low, cfg.tau_t, cfg.tau_t_high)
+
+
+def _fig_tinf(b: _Builder, ok: pd.DataFrame, gate_lines: tuple[float, float, float]) -> None:
     t = ok["t_inf"].to_numpy(float)
     fin = np.isfinite(t)
     if not fin.any():
@@ -129,20 +136,22 @@ def _fig_tinf(b: _Builder, ok: pd.DataFrame) -> None:
     ):
         if sel.any():
             ax[0, 0].hist(t[sel], edges, alpha=0.55, color=col, label=f"{label}, n={int(sel.sum())}")
-    for x, ls in zip(GATE_LINES, (":", "--", ":")):
+    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
         ax[0, 0].axvline(x, color="k", ls=ls, lw=1)
-    ax[0, 0].set(xlabel="t_inf", ylabel="clips", title="t_inf by expected class (gate lines 0.03 / 0.04 / 0.05)")
+    lines = " / ".join(f"{x:g}" for x in gate_lines)
+    ax[0, 0].set(xlabel="t_inf", ylabel="clips", title=f"t_inf by expected class (gate lines {lines})")
     ax[0, 0].legend(fontsize=7)
     cats = sorted(ok["category"].dropna().unique())
     _violins(ax[0, 1], [(c, ok.loc[ok["category"] == c, "t_inf"].to_numpy(float)) for c in cats])
-    for x, ls in zip(GATE_LINES, (":", "--", ":")):
+    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
         ax[0, 1].axhline(x, color="k", ls=ls, lw=1)
     ax[0, 1].set(ylabel="t_inf", title="t_inf per family")
     b.save(
         fig,
         "tinf",
         "Translation statistic",
-        "Where clips fall against the gate: expected-H clips should sit left of 0.03, expected-F clips right of 0.05; the gray zone between fits both models.",
+        f"Where clips fall against the gate: expected-H clips should sit left of {gate_lines[0]:g}, expected-F clips "
+        f"right of {gate_lines[2]:g}; the gray zone between fits both models.",
     )
 
 
@@ -163,7 +172,9 @@ def _fig_margins(b: _Builder, ok: pd.DataFrame) -> None:
     )
 
 
-def _fig_calibration(b: _Builder, ok: pd.DataFrame, seed: int) -> dict[str, Any] | None:
+def _fig_calibration(
+    b: _Builder, ok: pd.DataFrame, seed: int, gate_lines: tuple[float, float, float]
+) -> dict[str, Any] | None:
     t = ok["t_inf"].to_numpy(float)
     is_f = (ok["expected_model"] == "F").to_numpy()
     fin = np.isfinite(t)
@@ -176,7 +187,7 @@ def _fig_calibration(b: _Builder, ok: pd.DataFrame, seed: int) -> dict[str, Any]
     a = ax[0, 0]
     a.fill_between(bins["t_mid"], bins["low"], bins["high"], color=_color(0), alpha=0.25, label="Wilson 95%")
     a.plot(bins["t_mid"], bins["p"], "o-", color=_color(0), label="P(F | t_inf), 12 equal-count bins")
-    for x, ls in zip(GATE_LINES, (":", "--", ":")):
+    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
         a.axvline(x, color="k", ls=ls, lw=1)
     a.set(xlabel="t_inf (bin median)", ylabel="share expected F", ylim=(-0.02, 1.02), title="Gate calibration")
     a.legend(fontsize=7)
@@ -532,9 +543,10 @@ def build_report(
     )
 
     say("figures")
-    _fig_tinf(b, ok)
+    gate_lines = _gate_lines(bench.get("config", {}))
+    _fig_tinf(b, ok, gate_lines)
     _fig_margins(b, ok)
-    calib = _fig_calibration(b, ok, seed)
+    calib = _fig_calibration(b, ok, seed, gate_lines)
     if calib is not None:
         sections.append(
             (

@@ -249,7 +249,7 @@ def _mask_source(cfg: ScoreConfig, info: ClipInfo, masks: str | Path | None, flo
             raise ValueError("config.masks is 'external' but no masks path was given")
         return make_mask_source("external", info, path=masks)
     if cfg.masks == "motion":
-        return make_mask_source("motion", info, flow=flow, seed=cfg.seed)
+        return make_mask_source("motion", info, cfg.motion, flow=flow, seed=cfg.seed)
     return None
 
 
@@ -290,8 +290,12 @@ def score_clip(
     info = probe_clip(path, cfg)
     timer.add("probe", start)
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio)
-    backend: PoseBackend = load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend)
-    flow = make_flow_backend(cfg.flow) if cfg.masks != "none" else None  # shared: thread-safe per instance
+    backend: PoseBackend = (
+        load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
+    )
+    flow = (
+        make_flow_backend(cfg.flow, cfg.flow_params) if cfg.masks != "none" else None
+    )  # shared: thread-safe per instance
     mask_source = _mask_source(cfg, info, masks, flow)
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
     stages = _Pipeline(info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None)

@@ -344,7 +344,7 @@ def test_pose_log_reads_synthetic_ground_truth(tmp_path):
 def test_backend_registry():
     assert set(POSE_BACKENDS) == {"classical"}
     backend = make_pose_backend("classical", min_matches=40)
-    assert isinstance(backend, ClassicalPose) and backend.min_matches == 40 and backend.name == "classical"
+    assert isinstance(backend, ClassicalPose) and backend.config.min_matches == 40 and backend.name == "classical"
     assert isinstance(backend, PoseBackend)
     with pytest.raises(ValueError, match="classical.*log"):
         make_pose_backend("dust3r")

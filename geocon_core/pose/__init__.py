@@ -1,0 +1,62 @@
+"""Relative camera pose first -> last frame, the evidence of the translation gate (SPEC section 1).
+
+The gate needs ``t_inf = max(|tx|, |ty|, |tz|)`` of the relative pose between the first and the
+last frame, on the DUSt3R scale: the scene is scaled so that the mean distance of the visible
+scene points from the first camera is 1. A pose backend turns matched pixels of the two frames
+into a :class:`PoseEstimate` that carries ``t_inf``, the pose ``T_cam0_camT`` (the last camera in
+first-camera coordinates; its translation column is the last camera centre on that unit scale,
+see :mod:`geocon_core.geometry`) and the diagnostics needed to audit the decision.
+
+Backends
+--------
+``classical`` (:class:`ClassicalPose`, default, no weights; :mod:`geocon_core.pose.classical`)
+    Rotation-only and essential-matrix models fitted to the matches, with a decision rule
+    between them; settings in :class:`~geocon_core.stage_configs.PoseConfig`.
+``log`` (:class:`PoseLog`, :mod:`geocon_core.pose.log`)
+    A pose computed elsewhere, read from a JSON pose log.
+
+Modules: :mod:`.base` (the result record, the protocol, default intrinsics),
+:mod:`.classical`, :mod:`.lsq` (least-squares helpers), :mod:`.log`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from ..stage_configs import PoseConfig
+from .base import POSE_METHODS, PoseBackend, PoseEstimate, default_intrinsics
+from .classical import ClassicalPose
+from .log import POSE_LOG_FORMAT, PoseLog, load_pose_log
+
+__all__ = [
+    "PoseEstimate",
+    "PoseBackend",
+    "ClassicalPose",
+    "PoseLog",
+    "POSE_BACKENDS",
+    "POSE_LOG_FORMAT",
+    "POSE_METHODS",
+    "default_intrinsics",
+    "make_pose_backend",
+    "load_pose_log",
+]
+
+
+POSE_BACKENDS: dict[str, Callable[..., PoseBackend]] = {"classical": ClassicalPose}
+"""Backends built from settings alone; ``"log"`` is built from a path by
+:func:`make_pose_backend` (``make_pose_backend("log", path=...)``) or :func:`load_pose_log`."""
+
+
+def make_pose_backend(name: str, config: PoseConfig | None = None, **kwargs: Any) -> PoseBackend:
+    """Build a pose backend by name: ``"classical"`` (settings ``config``, defaults when None,
+    and single-field overrides as keywords) or ``"log"`` (``path=`` the pose log). An unknown
+    name raises ``ValueError`` listing the valid ones."""
+    key = str(name).strip().lower()
+    if key == "log":
+        if "path" not in kwargs or len(kwargs) != 1 or config is not None:
+            raise ValueError("the 'log' pose backend takes exactly one argument, path= (the pose log JSON)")
+        return PoseLog(kwargs["path"])
+    if key not in POSE_BACKENDS:
+        valid = ", ".join([*POSE_BACKENDS, "log"])
+        raise ValueError(f"unknown pose backend {name!r}; valid: {valid}")
+    return POSE_BACKENDS[key](config, **kwargs)

@@ -1,0 +1,251 @@
+"""The settings of each scoring stage, as frozen sub-configurations of :class:`~geocon_core.config.ScoreConfig`.
+
+Each stage receives its own sub-configuration: the reader (:class:`BarConfig`, :class:`CutConfig`),
+the flow backend (:class:`FlowConfig`), the motion segmentation (:class:`MotionConfig`), the
+pose backend (:class:`PoseConfig`), the category rule (:class:`CategoryConfig`) and the
+threshold scans (:class:`ScanConfig`). Every field can change a recorded number, so every
+field is covered by the configuration hash. Lengths are pixels of the images the stage works
+on unless a docstring says otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = [
+    "DIS_PRESET_NAMES",
+    "BarConfig",
+    "CutConfig",
+    "FlowConfig",
+    "MotionConfig",
+    "PoseConfig",
+    "CategoryConfig",
+    "ScanConfig",
+]
+
+DIS_PRESET_NAMES = ("ultrafast", "fast", "medium")
+"""The OpenCV DIS presets :class:`FlowConfig` accepts."""
+
+
+@dataclass(frozen=True)
+class BarConfig:
+    """Burned-in black bars and the content box (reader, SPEC section 0)."""
+
+    min_content_share: float = 0.3
+    """Bars that would leave less than this share (0..1) of the height or width mean a dark clip: no bars."""
+    margin_px: int = 2
+    """Working pixels dropped from the content box on each side that has a bar (codec ringing at the edge)."""
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.min_content_share <= 1 or self.margin_px < 0:
+            raise ValueError("bars: min_content_share must be in [0, 1] and margin_px non-negative")
+
+
+@dataclass(frozen=True)
+class CutConfig:
+    """Hard-cut detection of the reader: a cut between two frames needs every test below."""
+
+    thumb_width: int = 64
+    """Width (px) of the grey thumbnails compared; the height keeps the aspect ratio."""
+    hist_bins: int = 32
+    """Grey-level histogram bins of a thumbnail."""
+    min_distance: float = 0.1
+    """Bhattacharyya distance (0..1) between the two thumbnails' histograms must exceed this."""
+    min_mad: float = 20.0
+    """Mean absolute thumbnail difference (grey levels) must exceed this."""
+    median_factor: float = 2.5
+    """The distance must exceed this many times the median distance of the clip's other pairs."""
+    neighbour_factor: float = 2.0
+    """The distance must exceed this many times the larger distance of the adjacent pairs (a cut is an
+    isolated spike; a fast pan or a passing occluder raises several consecutive distances)."""
+    lone_distance: float = 0.35
+    """The distance a pair needs when the clip has no other pair to compare it with."""
+
+    def __post_init__(self) -> None:
+        if self.thumb_width < 1 or self.hist_bins < 1:
+            raise ValueError("cuts: thumb_width and hist_bins must be positive")
+
+
+@dataclass(frozen=True)
+class FlowConfig:
+    """Dense optical flow (:class:`~geocon_core.flow.DisFlow`), shared by the motion
+    segmentation and the object rigidity (AdaDFRC)."""
+
+    preset: str = "medium"
+    """OpenCV DIS preset, one of :data:`DIS_PRESET_NAMES`."""
+    fb_abs: float = 0.5
+    """Constant part (px) of the forward-backward threshold ``fb_abs + fb_rel * |F|``."""
+    fb_rel: float = 0.05
+    """Share of the flow length added to the forward-backward threshold."""
+    margin: int = 16
+    """Context (px) computed around a box on every side."""
+    min_side: int = 16
+    """Regions narrower or lower than this (px) are padded (edge pixels repeated) before DIS."""
+
+    def __post_init__(self) -> None:
+        if self.preset not in DIS_PRESET_NAMES:
+            raise ValueError(f"unknown DIS preset {self.preset!r}; valid: {', '.join(DIS_PRESET_NAMES)}")
+        if not (self.fb_abs >= 0 and self.fb_rel >= 0):
+            raise ValueError(f"fb_abs and fb_rel must be non-negative, got {self.fb_abs}, {self.fb_rel}")
+        if self.margin < 0:
+            raise ValueError(f"margin must be non-negative, got {self.margin}")
+        if self.min_side < 1:
+            raise ValueError(f"min_side must be positive, got {self.min_side}")
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Built-in motion segmentation (:class:`~geocon_core.masks.MotionSegmenter`). *Reduced* px
+    are pixels of the analysis scale; other lengths are working pixels per frame."""
+
+    scale: float = 0.5
+    """Analysis scale, a share of the working resolution (0.05..1)."""
+    fit_step: int = 12
+    """Spacing (reduced px) of the grid of flow vectors that the background models are fitted to."""
+    fit_tau_px: float = 1.0
+    """Inlier tolerance (px) of the background model fits."""
+    fit_min_inliers: int = 30
+    """Least reliable grid vectors for a background fit, and least inliers of a valid fit."""
+    fit_iters: int = 1000
+    """RANSAC iteration budget of each background fit."""
+    f_fit_tau: float = 0.1
+    """Inlier threshold (normalised Sampson distance) of the fundamental-matrix fit."""
+    static_px: float = 0.5
+    """The background is static when the homography moves 95 % of the grid vectors by at most this (px)."""
+    f_gain: float = 0.05
+    """Share of all grid vectors a fundamental matrix must explain beyond the homography to be used."""
+    k_sigma: float = 4.0
+    """Residual threshold in robust standard deviations of the background residual."""
+    min_px: float = 2.0
+    """Lower bound (px) of the residual threshold."""
+    min_area: float = 0.001
+    """Smallest object, a share of the content area."""
+    max_area: float = 0.35
+    """Largest object, a share of the content area."""
+    min_solidity: float = 0.5
+    """Smallest object solidity (area over convex-hull area)."""
+    min_thickness: float = 2.0
+    """Smallest distance (reduced px) of an object's core from its edge."""
+    edge_ratio: float = 0.5
+    """Largest ratio of the median score in the ring around an object to the median score inside."""
+    refine: float = 0.5
+    """A pixel is kept where its score reaches this share of the highest score within ``halo_px``."""
+    halo_px: int = 6
+    """Radius (reduced px) of the local-maximum window that trims the flow halo around objects."""
+    min_reliable: float = 0.3
+    """Smallest share of an object's pixels that pass the forward-backward check."""
+    fov_deg: float = 60.0
+    """Horizontal field of view (degrees) over the content width assumed for the cheirality residual."""
+    match_overlap: float = 0.3
+    """Smallest overlap ``|A & B| / min(|A|, |B|)`` between a track's predicted mask and a detection."""
+    max_gap: int = 2
+    """Frames a track survives without a detection."""
+    min_track: int = 2
+    """Distinct frames a track must be detected in to become an object."""
+    cheirality_min_share: float = 0.6
+    """Share of the fundamental matrix's inlier vectors the cheirality pose must put in front of both
+    cameras; otherwise that residual is not used."""
+    f_fit_points: int = 600
+    """About this many grid vectors feed a fundamental-matrix fit (every k-th one)."""
+
+    def __post_init__(self) -> None:
+        if not 0.05 <= self.scale <= 1.0:
+            raise ValueError(f"scale must be in [0.05, 1], got {self.scale}")
+        if self.min_track < 1:
+            raise ValueError(f"min_track must be at least 1, got {self.min_track}")
+        if not 1.0 < self.fov_deg < 179.0:
+            raise ValueError(f"fov_deg must be in (1, 179), got {self.fov_deg}")
+        if min(self.fit_step, self.f_fit_points, self.fit_iters, self.fit_min_inliers) < 1 or self.halo_px < 0:
+            raise ValueError(
+                "fit_step, f_fit_points, fit_iters, fit_min_inliers must be positive, halo_px non-negative"
+            )
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    """Classical two-view pose backend (:class:`~geocon_core.pose.ClassicalPose`); pixels are
+    pixels of the images the matches come from."""
+
+    min_matches: int = 30
+    """Fewer finite matches give the failure ``too_few_matches``."""
+    min_inliers: int = 15
+    """Least inliers of a model, and least points triangulated in front of both cameras."""
+    min_inlier_share: float = 0.25
+    """A model needs at least this share of the matches as inliers (and ``min_inliers``)."""
+    essential_px: float = 1.0
+    """Inlier threshold (px, Sampson distance) of the essential-matrix RANSAC."""
+    rot_ransac_px: float = 2.0
+    """Inlier threshold (px, transfer error) of the rotation-only RANSAC."""
+    rot_median_px: float = 1.0
+    """The rotation-only model explains the matches when their median parallax (px) is at most this..."""
+    rot_share_px: float = 2.0
+    """...and a share of at least ``rot_share`` of them lies within this parallax (px)."""
+    rot_share: float = 0.8
+    """Share of the consistent matches that must lie within ``rot_share_px``."""
+    fit_focal: bool = True
+    """Self-calibrate a common focal scale (principal point fixed)."""
+    focal_sigma: float = 0.2
+    """Standard deviation of the prior on the log focal scale."""
+    focal_min_gain: float = 100.0
+    """Least likelihood-ratio statistic for adopting a fitted focal scale in the essential model."""
+    max_focal_ratio: float = 1.6
+    """Bound on the focal scale (and on its inverse)."""
+    trim: float = 0.05
+    """Share of the sorted triangulated distances dropped at each end before the mean."""
+    ransac_iters: int = 5000
+    """Iteration budget of the essential-matrix RANSAC."""
+    rot_hypotheses: int = 300
+    """Two-point hypotheses of the rotation-only RANSAC."""
+    confidence: float = 0.9999
+    """RANSAC confidence of the essential-matrix fit (0..1)."""
+
+    def __post_init__(self) -> None:
+        if self.min_matches < 8:
+            raise ValueError(f"min_matches must be at least 8, got {self.min_matches}")
+        if self.min_inliers < 6:
+            raise ValueError(f"min_inliers must be at least 6, got {self.min_inliers}")
+        if not 0 <= self.trim < 0.5:
+            raise ValueError(f"trim must be in [0, 0.5), got {self.trim}")
+        if not min(self.essential_px, self.rot_ransac_px, self.rot_median_px, self.rot_share_px) > 0:
+            raise ValueError("pixel thresholds must be positive")
+        if not (0 < self.rot_share <= 1 and 0 <= self.min_inlier_share <= 1):
+            raise ValueError("rot_share must be in (0, 1] and min_inlier_share in [0, 1]")
+        if not (self.focal_sigma > 0 and self.max_focal_ratio >= 1 and self.focal_min_gain >= 0):
+            raise ValueError("focal_sigma must be positive, max_focal_ratio >= 1, focal_min_gain >= 0")
+        if self.ransac_iters < 1 or self.rot_hypotheses < 1 or not 0 < self.confidence < 1:
+            raise ValueError("ransac_iters and rot_hypotheses must be positive, confidence in (0, 1)")
+
+
+@dataclass(frozen=True)
+class CategoryConfig:
+    """The post-hoc scene family rule (:func:`~geocon_core.category.categorize`, SPEC section 5)."""
+
+    static_motion_px: float = 0.5
+    """Median background displacement between adjacent frames (working px, largest scale) below which
+    the camera counts as static."""
+    static_rotation_deg: float = 1.0
+    """First-last rotation (degrees) below which the camera counts as static."""
+    complex_rotation_deg: float = 3.0
+    """First-last rotation (degrees) from which a translating camera is C5 (complex)."""
+    min_object_frames: int = 3
+    """Frames a moving object must be tracked for to make a static scene C4."""
+    min_matches: int = 50
+    """Fewer median background matches per valid pair (largest scale) make the clip C6 (low texture)."""
+    stress_ir: float = 0.8
+    """A translating camera whose background IR stays below this is C6."""
+    min_valid_share: float = 0.5
+    """A smaller share of valid background (pair, scale) entries makes the clip C6."""
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """The threshold-sensitivity scan recorded next to each clip's scores."""
+
+    tau_h_grid: tuple[float, ...] = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
+    """Symmetric transfer error thresholds (px) of the homography scan."""
+    tau_f_grid: tuple[float, ...] = (0.025, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3)
+    """Normalised Sampson thresholds of the fundamental-matrix scan."""
+
+    def __post_init__(self) -> None:
+        if not self.tau_h_grid or not self.tau_f_grid or min(*self.tau_h_grid, *self.tau_f_grid) <= 0:
+            raise ValueError("scans: the tau grids must be non-empty and positive")
