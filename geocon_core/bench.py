@@ -1,11 +1,5 @@
-"""``geocon bench``: score every clip of a dataset in worker processes, resumably.
-
-Results layout (see ``docs/bench-tables.md``)::
-
-    RESULTS/bench.json                 dataset, full config, config hash, versions
-    RESULTS/clips/<clip_id>/           record.json, matches.npz, overlays/, audit.rrd (flagged clips),
-                                       status.json (written last: ok or failed, with the reason)
-    RESULTS/tables/*.parquet           flat tables, rebuilt from clips/ at the end of every run
+"""``geocon bench``: score every clip of a dataset in worker processes, resumably, into a
+results folder laid out as :mod:`geocon_core.layout` describes.
 
 A clip is finished when its ``status.json`` exists; a restarted run skips finished clips, so a
 killed run loses at most the clips that were in flight and never scores a clip twice. A clip that
@@ -15,7 +9,6 @@ reason and counted, never dropped; ``retry_failed`` scores failed clips again.
 
 from __future__ import annotations
 
-import importlib
 import json
 import multiprocessing
 import os
@@ -30,23 +23,29 @@ from typing import Any, Callable
 
 from .config import ScoreConfig, config_hash
 from .dataset import ClipEntry, load_dataset
+from .layout import (
+    BENCH_FORMAT,
+    CLIPS_DIR,
+    RRD_NAME,
+    STATUS_FORMAT,
+    clip_dir,
+    manifest_path,
+    read_manifest,
+    read_status,
+    write_manifest,
+    write_status,
+)
+from .tables import write_tables
 
 __all__ = [
-    "BENCH_FORMAT",
-    "STATUS_FORMAT",
     "BenchError",
     "BenchSummary",
-    "clip_dir",
+    "RecordRenderer",
     "is_flagged",
     "run_bench",
-    "read_status",
     "score_to_folder",
 ]
 
-BENCH_FORMAT = "geocon-bench/1"
-STATUS_FORMAT = "geocon-bench-clip/1"
-CLIPS_DIR = "clips"
-RRD_NAME = "audit.rrd"
 MAX_CRASHES = 2
 """A clip in flight when a worker process dies this many times is recorded as failed."""
 
@@ -67,28 +66,6 @@ class BenchSummary:
     failed: int
     seconds: float
     tables: tuple[Path, ...] = field(default_factory=tuple)
-
-
-def clip_dir(results: Path, clip_id: str) -> Path:
-    return results / CLIPS_DIR / clip_id
-
-
-def read_status(folder: Path) -> dict[str, Any] | None:
-    """The ``status.json`` of a clip folder, or None when the clip is not finished."""
-    path = folder / "status.json"
-    if not path.is_file():
-        return None
-    try:
-        status = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    return status if status.get("format") == STATUS_FORMAT else None
-
-
-def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False) + "\n")
-    tmp.replace(path)
 
 
 def is_flagged(summary: dict[str, Any], expected_model: str | None) -> bool:
@@ -136,15 +113,13 @@ def score_to_folder(
     return record
 
 
-def _load_renderer(spec: str | None) -> Callable[[Path, Path], Any] | None:
-    if spec is None:
-        return None
-    module, _, name = spec.partition(":")
-    return getattr(importlib.import_module(module), name)
+RecordRenderer = Callable[[Path, Path], Any]
+"""Renders a saved record: called as ``render(record_dir, output_path)``. Passed to worker
+processes, so it must be picklable (a module-level function)."""
 
 
 def _score_one(
-    entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: str | None, threads: int
+    entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: RecordRenderer | None, threads: int
 ) -> dict[str, Any]:
     """Worker: score one clip into its folder and write its status (ok or failed)."""
     import cv2
@@ -170,25 +145,24 @@ def _score_one(
     }
     try:
         record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
-        render = _load_renderer(renderer)
-        if render is not None and is_flagged(record.summary(), EXPECTED_MODEL.get(entry.category)):
-            render(out, out / RRD_NAME)
+        if renderer is not None and is_flagged(record.summary(), EXPECTED_MODEL.get(entry.category)):
+            renderer(out, out / RRD_NAME)
             status["rrd"] = RRD_NAME
     except Exception as exc:  # every failure is recorded with its reason, never dropped
         status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
     status["seconds"] = round(time.perf_counter() - start, 3)
-    _write_json(out / "status.json", status)
+    write_status(out, status)
     return status
 
 
 def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
     from .scorer import software_versions
 
-    manifest = results / "bench.json"
+    manifest = manifest_path(results)
     digest = config_hash(cfg)
     if manifest.is_file():
         try:
-            old = json.loads(manifest.read_text())
+            old = read_manifest(results)
         except json.JSONDecodeError:
             raise BenchError(f"{manifest} is not valid JSON; remove it or choose another --out") from None
         if old.get("format") != BENCH_FORMAT:
@@ -201,8 +175,8 @@ def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
         return
     results.mkdir(parents=True, exist_ok=True)
     (results / CLIPS_DIR).mkdir(exist_ok=True)
-    _write_json(
-        manifest,
+    write_manifest(
+        results,
         {
             "format": BENCH_FORMAT,
             "dataset": str(dataset.resolve()),
@@ -219,7 +193,7 @@ def run_bench(
     config: ScoreConfig | None = None,
     *,
     workers: int = 1,
-    rrd_renderer: str | None = None,
+    rrd_renderer: RecordRenderer | None = None,
     retry_failed: bool = False,
     on_clip: Callable[[dict[str, Any], int, int, int], None] | None = None,
     on_start: Callable[[int, int], None] | None = None,
@@ -227,7 +201,7 @@ def run_bench(
 ) -> BenchSummary:
     """Score every clip of ``dataset`` into ``results`` with ``workers`` processes.
 
-    ``rrd_renderer`` (``"module:function"``, called as ``f(record_dir, rrd_path)``) writes a Rerun
+    ``rrd_renderer`` (a module-level function, called as ``f(record_dir, rrd_path)``) writes a Rerun
     recording for flagged clips (:func:`is_flagged`). ``on_start(to_score, skipped)`` is called once;
     ``on_clip(status, done, total, failed)`` after each clip. Raises
     :class:`~geocon_core.dataset.DatasetError` or :class:`BenchError` before scoring anything."""
@@ -249,7 +223,6 @@ def run_bench(
     if on_start is not None:
         on_start(len(todo), skipped)
     threads = max(1, (os.cpu_count() or 1) // workers)
-    renderer = rrd_renderer
     done, failed = skipped, failed_before
     crashes: dict[str, int] = {}
     queue = list(todo)
@@ -264,7 +237,7 @@ def run_bench(
                 while queue and len(inflight) < limit and not broken:
                     entry = queue.pop(0)
                     fut = pool.submit(
-                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), renderer, threads
+                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), rrd_renderer, threads
                     )
                     inflight[fut] = entry
                 if not inflight:
@@ -295,8 +268,6 @@ def run_bench(
         pool.shutdown(wait=True)
     paths: tuple[Path, ...] = ()
     if tables:
-        from .tables import write_tables
-
         paths = write_tables(out)
     return BenchSummary(
         results=out,
@@ -324,5 +295,5 @@ def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any
         "video": str(entry.video),
         "seconds": None,
     }
-    _write_json(folder / "status.json", status)
+    write_status(folder, status)
     return status
