@@ -300,7 +300,7 @@ def _print_record(record, out_dir: Path | None) -> None:
     if g.pose_present:
         gate = f"{g.label} -> model {g.model}   t_inf {g.t_inf:.4f}   margin {g.margin:+.4f}   ({g.backend} pose, {g.pose['method']})"
     else:
-        gate = f"F (no pose: {g.pose.get('reason')}; fail->F)   backend {g.backend}"
+        gate = f"F (no pose: {g.pose.reason}; fail->F)   backend {g.backend}"
     table.add_row("gate", gate)
     tau = (
         f"tau_H {record.config.tau_h:g} px"

@@ -521,7 +521,7 @@ def _assemble(clip, info, cfg, K, backend, pose, timeline_poses, windows, scored
         margin=margin,
         backend=backend.name,
         thresholds={"tau_t": cfg.tau_t, "low": cfg.tau_t_low, "high": cfg.tau_t_high},
-        pose=pose.to_dict(),
+        pose=pose,
         timeline=tuple(timeline),
     )
     pairs, arrays = [], []
@@ -558,7 +558,7 @@ def _assemble(clip, info, cfg, K, backend, pose, timeline_poses, windows, scored
         warnings.append(f"{len(info.cuts)} hard cut(s) at frame(s) {list(info.cuts)}: pairs across them are not scored")
     return ClipRecord(
         clip=clip,
-        video=info.to_dict(),
+        video=info,
         config=cfg,
         config_hash=config_hash(cfg),
         versions=software_versions(),
@@ -670,7 +670,7 @@ def _categorize(record: ClipRecord, cfg: ScoreConfig, object_frames: list[int]):
         gate_model=record.gate.model,
         pose_present=record.gate.pose_present,
         t_inf=record.gate.t_inf,
-        rotation_deg=record.gate.pose.get("rotation_deg"),
+        rotation_deg=record.gate.pose.rotation_deg,
         background_motion_px=float(np.median(motions)) if motions else None,
         valid_share=bg.valid_pairs / bg.total_pairs if bg.total_pairs else 0.0,
         median_matches=float(np.median(matches)) if matches else None,

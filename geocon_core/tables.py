@@ -82,7 +82,7 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
     adap90 = [o.adap90 for o in record.objects if o.adap90 is not None]
     row.update(
         preset=record.config.preset,
-        frames=int(record.video.get("num_frames") or 0),
+        frames=record.video.num_frames,
         gate_label=gate.label,
         gate_model=gate.model,
         binary_label=gate.binary_label,

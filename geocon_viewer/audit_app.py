@@ -35,6 +35,7 @@ import viser.transforms as vtf
 import viser.uplot as uplot
 
 from geocon_core.diagnostics import Overlays, read_overlays
+from geocon_core.reader import DEFAULT_FPS
 from geocon_core.record import ClipRecord, read_record
 from geocon_core.regate import ClipVerdict, Thresholds, pair_inliers, regate_pairs
 from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
@@ -95,11 +96,11 @@ class ClipView:
 
     @property
     def num_frames(self) -> int:
-        return int(self.record.video.get("num_frames") or 0)
+        return self.record.video.num_frames
 
     @property
     def working_size(self) -> tuple[int, int]:
-        w, h = self.record.video["working_size"]
+        w, h = self.record.video.working_size
         return int(w), int(h)
 
 
@@ -383,7 +384,7 @@ class AuditApp:
                 self._show_failed(clip_id)
                 return
             record = read_record(clip.folder)
-            w, _ = record.video["working_size"]
+            w, _ = record.video.working_size
             view = ClipView(
                 clip_id, clip.folder, record, read_overlays(clip.folder), display_scale=min(1.0, DISPLAY_WIDTH / w)
             )
@@ -423,7 +424,7 @@ class AuditApp:
         from geocon_core.reader import ClipError, ClipInfo, iter_frames
 
         try:
-            info = ClipInfo.from_dict(view.record.video)
+            info = view.record.video
             for f in iter_frames(info):
                 if view.cancel.is_set() or self._stop.is_set():
                     return
@@ -453,7 +454,7 @@ class AuditApp:
     def _play_loop(self) -> None:
         while not self._stop.wait(0.0):
             view = self.view
-            fps = float(view.record.video.get("fps") or 12.0) if view is not None else 12.0
+            fps = view.record.video.fps if view is not None else DEFAULT_FPS
             time.sleep(1.0 / min(max(fps, 1.0), 12.0))
             if self.play.value and view is not None and view.num_frames > 1:
                 self.slider.value = (int(self.slider.value) + 1) % view.num_frames
@@ -537,7 +538,7 @@ class AuditApp:
             return
         rec = view.record
         w, h = view.working_size
-        fy = float(np.asarray(rec.intrinsics)[1, 1]) * float(rec.gate.pose.get("focal_scale") or 1.0)
+        fy = float(np.asarray(rec.intrinsics)[1, 1]) * rec.gate.pose.focal_scale
         fov = 2.0 * math.atan(h / 2.0 / fy)
         cloud = rec.cloud
         depth = 1.0
@@ -569,7 +570,7 @@ class AuditApp:
             )
 
         frustum("/cam_first", 0, (90, 200, 255))
-        T = rec.gate.pose.get("T_cam0_camT")
+        T = rec.gate.pose.T_cam0_camT
         if T is not None:
             T = np.asarray(T, dtype=float)
             frustum(
@@ -684,7 +685,7 @@ class AuditApp:
             f"**Background {state}** the report gate: model **{v.model}**, IR **{_fmt(v.ir)}** (gate ≥ {self.thresholds.ir_gate:g}), "
             f"GE **{_fmt(v.ge, '.2f')} px** (gate ≤ {self.thresholds.ge_gate:g}).",
             f"- gate: t_inf {_fmt(g.t_inf, '.4f')} → **{v.label}**, margin {_fmt(v.margin, '+.4f')}"
-            + ("" if g.pose_present else f" (no pose: {g.pose.get('reason')}; fail → F)"),
+            + ("" if g.pose_present else f" (no pose: {g.pose.reason}; fail → F)"),
             f"- H: IR {_fmt(v.ir_h)}, GE {_fmt(v.ge_h, '.2f')} · F: IR {_fmt(v.ir_f)}, GE {_fmt(v.ge_f, '.2f')}",
         ]
         if self.thresholds != self.index.recorded:

@@ -356,8 +356,8 @@ class RerunAudit:
         rec.log("audit", rr.TextDocument(audit_card(record), media_type=rr.MediaType.MARKDOWN), static=True)
 
     def _log_content_box(self, record: ClipRecord) -> None:
-        w, h = record.video["working_size"]
-        x0, y0, x1, y1 = record.video["content_box"]
+        w, h = record.video.working_size
+        x0, y0, x1, y1 = record.video.content_box
         content = np.zeros((h, w), bool)
         content[y0:y1, x0:x1] = True
         self._log_content(content)
@@ -368,7 +368,7 @@ class RerunAudit:
     def _log_matches(self, record: ClipRecord) -> None:
         rec, fam = self.rec, record.background.model
         s = self._draw_scale(record)
-        w, h = record.video["working_size"]
+        w, h = record.video.working_size
         for p in record.pairs:
             if p.gap != 1 or p.scale != s:
                 continue
@@ -442,7 +442,7 @@ class RerunAudit:
                     magnification_filter="Linear",
                 ),
             )
-        n = int(record.video.get("num_frames") or 0)
+        n = record.video.num_frames
         if n:  # the last frame starts no pair
             self._time(n - 1)
             rec.log("frame/matches", rr.Clear(recursive=True))
@@ -499,7 +499,7 @@ class RerunAudit:
     def _log_series(self, record: ClipRecord) -> None:
         rec, cfg, bg = self.rec, record.config, record.background
         fam = bg.model
-        n = int(record.video.get("num_frames") or self.n_frames or 1)
+        n = record.video.num_frames
         frames = np.arange(n)
 
         def cols(t: Sequence[int]) -> list:
@@ -578,14 +578,14 @@ class RerunAudit:
 
     def _log_world(self, record: ClipRecord) -> None:
         rec = self.rec
-        w, h = record.video["working_size"]
+        w, h = record.video.working_size
         K = np.asarray(record.intrinsics, dtype=float).copy()
         pose = record.gate.pose
-        fs = float(pose.get("focal_scale") or 1.0)
+        fs = pose.focal_scale
         K[0, 0] *= fs
         K[1, 1] *= fs
         rec.log("world", rr.ViewCoordinates.RDF, static=True)
-        T = None if pose.get("T_cam0_camT") is None else np.asarray(pose["T_cam0_camT"], dtype=float)
+        T = None if pose.T_cam0_camT is None else np.asarray(pose.T_cam0_camT, dtype=float)
         cloud = record.cloud
         depth = 1.0
         if cloud is not None and len(cloud.xyz):
@@ -713,9 +713,9 @@ def audit_card(record: ClipRecord) -> str:
         f"- label **{g.label}** (binary {g.binary_label}), model used **{g.model}**, backend `{g.backend}`",
         f"- t_inf {_fmt(g.t_inf)}, margin {_fmt(g.margin, '+.4f')}; thresholds: low {g.thresholds['low']:g} / high {g.thresholds['high']:g} "
         f"(binary {g.thresholds['tau_t']:g})",
-        f"- pose: method {g.pose.get('method')}, {g.pose.get('n_inliers')} of {g.pose.get('n_matches')} matches, rotation "
-        f"{_fmt(g.pose.get('rotation_deg'), '.2f', ' deg')}, parallax {_fmt(g.pose.get('parallax_px'), '.2f', ' px')}"
-        + ("" if g.pose_present else f"; no pose ({g.pose.get('reason')}): fail -> F"),
+        f"- pose: method {g.pose.method}, {g.pose.n_inliers} of {g.pose.n_matches} matches, rotation "
+        f"{_fmt(g.pose.rotation_deg, '.2f', ' deg')}, parallax {_fmt(g.pose.parallax_px, '.2f', ' px')}"
+        + ("" if g.pose_present else f"; no pose ({g.pose.reason}): fail -> F"),
         f"- {bg.choice_note}",
         "",
         "## Background",
@@ -793,7 +793,7 @@ class RrdSink:
         self._audit(fps).frame(f)
 
     def finish(self, record: ClipRecord) -> Path | None:
-        self._audit(float(record.video.get("fps") or 30.0)).record(record)
+        self._audit(record.video.fps).record(record)
         self.rec.flush()
         self.rec.disconnect()
         return self.path
@@ -811,7 +811,7 @@ def write_rrd(
     record = read_record(record_dir)
     overlays = read_overlays(record_dir)
     sink = RrdSink(path, connect=connect)
-    fps = float(record.video.get("fps") or 30.0)
+    fps = record.video.fps
     clip = Path(record.clip)
     if clip.exists():
         info = probe_clip(clip, record.config)
