@@ -40,6 +40,8 @@ from geocon_core.record import ClipRecord, read_record
 from geocon_core.regate import ClipVerdict, Thresholds, pair_inliers, regate_pairs
 from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
 
+from .style import fmt, object_color
+
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 
 LIST_ROWS = 12
@@ -61,20 +63,9 @@ _THRESHOLD_LABELS = {
 }
 
 
-def _fmt(v: float | None, spec: str = ".3f") -> str:
-    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:{spec}}"
-
-
 def _thumb(img: np.ndarray) -> np.ndarray:
     """A frame at the frustums' thumbnail width (256 px)."""
     return cv2.resize(img, (256, max(1, round(256 * img.shape[0] / img.shape[1]))), interpolation=cv2.INTER_AREA)
-
-
-def _object_color(object_id: int) -> tuple[int, int, int]:
-    import colorsys
-
-    r, g, b = colorsys.hsv_to_rgb((object_id * 0.618034) % 1.0, 0.75, 1.0)
-    return int(r * 255), int(g * 255), int(b * 255)
 
 
 @dataclass(eq=False)
@@ -301,8 +292,8 @@ class AuditApp:
             name = r.clip_id if len(r.clip_id) <= 28 else r.clip_id[:12] + "…" + r.clip_id[-14:]
             if self.view is not None and r.clip_id == self.view.clip_id:
                 name = f"**{name}**"
-            ir = "–" if v is None else _fmt(v.ir)
-            ge = "–" if v is None else _fmt(v.ge, ".2f")
+            ir = fmt(None if v is None else v.ir)
+            ge = "–" if v is None else fmt(v.ge, ".2f")
             lines.append(
                 f"| {i} | {name} | {r.clip.platform} | {r.clip.category or '–'} | {gate} | {ir} | {ge} | {mark} |"
             )
@@ -421,7 +412,7 @@ class AuditApp:
         self._render_table()
 
     def _decode_frames(self, view: ClipView) -> None:
-        from geocon_core.reader import ClipError, ClipInfo, iter_frames
+        from geocon_core.reader import ClipError, iter_frames
 
         try:
             info = view.record.video
@@ -491,7 +482,7 @@ class AuditApp:
                 small = cv2.resize(labels, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_NEAREST)
                 for oid in np.unique(small[small > 0]):
                     m = small == oid
-                    img[m] = (0.5 * img[m] + 0.5 * np.array(_object_color(int(oid)))).astype(np.uint8)
+                    img[m] = (0.5 * img[m] + 0.5 * np.array(object_color(int(oid)))).astype(np.uint8)
         if self.show_matches.value and matches is None:
             matches = self.frame_matches(t)
         if self.show_matches.value and matches is not None:
@@ -644,7 +635,7 @@ class AuditApp:
                 uplot.Series(label="frame"),
                 *[
                     uplot.Series(
-                        label=f"object {o.object_id}", stroke="#%02x%02x%02x" % _object_color(o.object_id), width=2
+                        label=f"object {o.object_id}", stroke="#%02x%02x%02x" % object_color(o.object_id), width=2
                     )
                     for o in objects
                 ],
@@ -669,7 +660,7 @@ class AuditApp:
             uplot.Series(label=f"high {th.tau_t_high:g}", stroke="#d62728", dash=(6, 4)),
             uplot.Series(label="first→last", stroke="#555555", dash=(2, 3)),
         )
-        self.gate_plot.title = f"Gate t_inf: {v.label} (margin {_fmt(v.margin, '+.4f')})"
+        self.gate_plot.title = f"Gate t_inf: {v.label} (margin {fmt(v.margin, '+.4f')})"
 
     def _card(self) -> str:
         view, v = self.view, self.verdict
@@ -682,20 +673,20 @@ class AuditApp:
             f"platform **{clip.platform}** · category **{clip.category or '–'}** (expects {clip.expected_model or '–'})"
             + (f" · {clip.prompt}" if clip.prompt else ""),
             "",
-            f"**Background {state}** the report gate: model **{v.model}**, IR **{_fmt(v.ir)}** (gate ≥ {self.thresholds.ir_gate:g}), "
-            f"GE **{_fmt(v.ge, '.2f')} px** (gate ≤ {self.thresholds.ge_gate:g}).",
-            f"- gate: t_inf {_fmt(g.t_inf, '.4f')} → **{v.label}**, margin {_fmt(v.margin, '+.4f')}"
+            f"**Background {state}** the report gate: model **{v.model}**, IR **{fmt(v.ir)}** (gate ≥ {self.thresholds.ir_gate:g}), "
+            f"GE **{fmt(v.ge, '.2f')} px** (gate ≤ {self.thresholds.ge_gate:g}).",
+            f"- gate: t_inf {fmt(g.t_inf, '.4f')} → **{v.label}**, margin {fmt(v.margin, '+.4f')}"
             + ("" if g.pose_present else f" (no pose: {g.pose.reason}; fail → F)"),
-            f"- H: IR {_fmt(v.ir_h)}, GE {_fmt(v.ge_h, '.2f')} · F: IR {_fmt(v.ir_f)}, GE {_fmt(v.ge_f, '.2f')}",
+            f"- H: IR {fmt(v.ir_h)}, GE {fmt(v.ge_h, '.2f')} · F: IR {fmt(v.ir_f)}, GE {fmt(v.ge_f, '.2f')}",
         ]
         if self.thresholds != self.index.recorded:
             rec_state = {True: "passed", False: "failed", None: "was not judged"}[bg.consistent]
-            lines.append(f"- as recorded: model {bg.model}, IR {_fmt(bg.ir)}, GE {_fmt(bg.ge, '.2f')}, {rec_state}")
+            lines.append(f"- as recorded: model {bg.model}, IR {fmt(bg.ir)}, GE {fmt(bg.ge, '.2f')}, {rec_state}")
         lines.append(f"- valid pairs {bg.valid_pairs} of {bg.total_pairs}; masks: {rec.masks_source}")
         if rec.objects:
             worst = max(rec.objects, key=lambda o: o.adap90 or 0.0)
             lines.append(
-                f"- {len(rec.objects)} objects; worst AdaP90 {_fmt(worst.adap90, '.3g')} px² (object {worst.object_id})"
+                f"- {len(rec.objects)} objects; worst AdaP90 {fmt(worst.adap90, '.3g')} px² (object {worst.object_id})"
             )
         if rec.warnings:
             lines += ["", *[f"⚠ {w}" for w in rec.warnings]]

@@ -37,7 +37,6 @@ logged at frame t. Entity paths:
 
 from __future__ import annotations
 
-import colorsys
 import contextlib
 import math
 import os
@@ -52,6 +51,8 @@ import rerun.blueprint as rrb
 
 from geocon_core.diagnostics import FlowSlice, FrameDiagnostics, flow_hue
 from geocon_core.record import ClipRecord
+
+from .style import fmt, object_color
 
 __all__ = [
     "RerunAudit",
@@ -108,9 +109,7 @@ def _colormap(values: np.ndarray, vmax: float) -> np.ndarray:
 
 
 def _object_color(object_id: int) -> tuple[int, int, int, int]:
-    h = (object_id * 0.61803398875) % 1.0
-    r, g, b = colorsys.hsv_to_rgb(h, 0.75, 1.0)
-    return int(r * 255), int(g * 255), int(b * 255), 255
+    return (*object_color(object_id), 255)
 
 
 def _png(image: np.ndarray, level: int = 6) -> bytes:
@@ -152,22 +151,46 @@ def residual_map(
     return rgba
 
 
-def _demote_realtime_threads() -> None:
-    """Put every thread of this process that runs under a real-time policy back to the normal one.
+def quiet_encoder_logs() -> None:
+    """Let the AV1 encoder (SVT-AV1) print errors only, unless ``SVT_LOG`` is set already. The
+    command line calls this before writing a recording; it changes the process environment."""
+    os.environ.setdefault("SVT_LOG", "1")
+
+
+def _thread_ids() -> set[int]:
+    try:
+        return {int(t) for t in os.listdir("/proc/self/task")}
+    except OSError:
+        return set()
+
+
+def _is_realtime(tid: int) -> bool:
+    with contextlib.suppress(OSError):
+        return os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR)
+    return False
+
+
+class _EncoderThreads:
+    """Undoes what SVT-AV1 does to scheduling, and nothing else.
 
     SVT-AV1 running as root gives its worker threads, and the thread that opens the encoder,
     ``SCHED_FIFO`` priority 99. Left alone, they and every process started afterwards (the rerun
-    server, a browser) starve the rest of the machine; on two cores the box stops responding."""
-    if not hasattr(os, "sched_setscheduler"):
-        return
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        return
-    for tid in tids:
-        with contextlib.suppress(OSError):
-            if os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR):
-                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+    server, a browser) starve the rest of the machine; on two cores the box stops responding.
+    This remembers the threads that ran under a real-time policy before the encoder opened (a
+    caller's choice, kept) and puts every other real-time thread back to the normal policy."""
+
+    def __init__(self) -> None:
+        supported = hasattr(os, "sched_getscheduler") and hasattr(os, "sched_setscheduler")
+        self.kept = {t for t in _thread_ids() if _is_realtime(t)} if supported else set()
+        self.enabled = supported
+
+    def restore(self) -> None:
+        if not self.enabled:
+            return
+        for tid in _thread_ids() - self.kept:
+            with contextlib.suppress(OSError):
+                if _is_realtime(tid):
+                    os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
 
 
 class _FrameVideo:
@@ -180,17 +203,12 @@ class _FrameVideo:
 
         import av
 
-        os.environ.setdefault("SVT_LOG", "1")  # errors only
         self.buf = io.BytesIO()
         self.container = av.open(self.buf, "w", format="mp4")
         self.fps, self.crf = fps, crf
         self.stream = None
         self.indices: list[int] = []
-        # Only undo what the encoder did: a caller that chose a real-time policy keeps it.
-        self._demote = hasattr(os, "sched_getscheduler") and os.sched_getscheduler(0) not in (
-            os.SCHED_FIFO,
-            os.SCHED_RR,
-        )
+        self._threads = _EncoderThreads()
 
     def add(self, index: int, rgb: np.ndarray) -> None:
         import av
@@ -210,8 +228,7 @@ class _FrameVideo:
         self.indices.append(index)
         for packet in self.stream.encode(frame):
             self.container.mux(packet)
-        if self._demote:
-            _demote_realtime_threads()
+        self._threads.restore()
 
     def finish(self) -> bytes | None:
         if self.stream is None:
@@ -219,8 +236,7 @@ class _FrameVideo:
         for packet in self.stream.encode():
             self.container.mux(packet)
         self.container.close()
-        if self._demote:
-            _demote_realtime_threads()
+        self._threads.restore()
         return self.buf.getvalue()
 
 
@@ -692,10 +708,6 @@ def worst_frame(record: ClipRecord) -> int:
     return worst
 
 
-def _fmt(v: float | None, spec: str = ".4f", unit: str = "") -> str:
-    return "n/a" if v is None else f"{v:{spec}}{unit}"
-
-
 def audit_card(record: ClipRecord) -> str:
     """The clip's audit card in markdown: verdict, gate rationale with its inputs, thresholds,
     coverage, objects, configuration and versions."""
@@ -706,28 +718,28 @@ def audit_card(record: ClipRecord) -> str:
     lines = [
         f"# {record.clip.rsplit('/', 1)[-1]}",
         "",
-        f"**Verdict: background {verdict}** — model {bg.model}, IR {_fmt(bg.ir, '.3f')} (gate >= {cfg.ir_gate:g}), "
-        f"GE {_fmt(bg.ge, '.2f', ' px')} (gate <= {cfg.ge_gate:g} px); category **{record.category.label if record.category else 'n/a'}**.",
+        f"**Verdict: background {verdict}** — model {bg.model}, IR {fmt(bg.ir, '.3f')} (gate >= {cfg.ir_gate:g}), "
+        f"GE {fmt(bg.ge, '.2f', ' px')} (gate <= {cfg.ge_gate:g} px); category **{record.category.label if record.category else 'n/a'}**.",
         "",
         "## Translation gate",
         f"- label **{g.label}** (binary {g.binary_label}), model used **{g.model}**, backend `{g.backend}`",
-        f"- t_inf {_fmt(g.t_inf)}, margin {_fmt(g.margin, '+.4f')}; thresholds: low {g.thresholds['low']:g} / high {g.thresholds['high']:g} "
+        f"- t_inf {fmt(g.t_inf, '.4f')}, margin {fmt(g.margin, '+.4f')}; thresholds: low {g.thresholds['low']:g} / high {g.thresholds['high']:g} "
         f"(binary {g.thresholds['tau_t']:g})",
         f"- pose: method {g.pose.method}, {g.pose.n_inliers} of {g.pose.n_matches} matches, rotation "
-        f"{_fmt(g.pose.rotation_deg, '.2f', ' deg')}, parallax {_fmt(g.pose.parallax_px, '.2f', ' px')}"
+        f"{fmt(g.pose.rotation_deg, '.2f', ' deg')}, parallax {fmt(g.pose.parallax_px, '.2f', ' px')}"
         + ("" if g.pose_present else f"; no pose ({g.pose.reason}): fail -> F"),
         f"- {bg.choice_note}",
         "",
         "## Background",
         f"- residual rules: H symmetric transfer error <= {cfg.tau_h:g} px; F normalised Sampson <= {cfg.tau_f:g} "
-        f"(~{_fmt(bg.tau_f_px, '.2f', ' px')} at the largest scale)",
+        f"(~{fmt(bg.tau_f_px, '.2f', ' px')} at the largest scale)",
         f"- valid pairs {bg.valid_pairs} of {bg.total_pairs}; invalid: {reasons}",
-        f"- other family {bg.other.family}: IR {_fmt(bg.other.ir, '.3f')}, GE {_fmt(bg.other.ge, '.2f', ' px')}",
+        f"- other family {bg.other.family}: IR {fmt(bg.other.ir, '.3f')}, GE {fmt(bg.other.ge, '.2f', ' px')}",
         "",
         "| gap | IR | GE (px) | valid |",
         "|---|---|---|---|",
         *[
-            f"| {gs.gap} | {_fmt(gs.ir, '.3f')} | {_fmt(gs.ge, '.2f')} | {gs.valid_pairs}/{gs.total_pairs} |"
+            f"| {gs.gap} | {fmt(gs.ir, '.3f')} | {fmt(gs.ge, '.2f')} | {gs.valid_pairs}/{gs.total_pairs} |"
             for gs in bg.chosen.per_gap
         ],
         "",
@@ -744,7 +756,7 @@ def audit_card(record: ClipRecord) -> str:
             "|---|---|---|---|---|---|",
         ]
         lines += [
-            f"| {o.object_id} | {o.frames} | {_fmt(o.adadfrc, '.3g')} | {_fmt(o.adadfrc_w2, '.3g')} | {_fmt(o.adap90, '.3g')} | {o.masked_share:.3f} |"
+            f"| {o.object_id} | {o.frames} | {fmt(o.adadfrc, '.3g')} | {fmt(o.adadfrc_w2, '.3g')} | {fmt(o.adap90, '.3g')} | {o.masked_share:.3f} |"
             for o in record.objects
         ]
     if record.warnings:

@@ -7,7 +7,7 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.cli import app
+from geocon_viewer.cli import app
 from geocon_core.synth import ClipPlan, write_clip
 
 runner = CliRunner()

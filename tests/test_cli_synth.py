@@ -8,7 +8,7 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from geocon_core.cli import app
+from geocon_viewer.cli import app
 from geocon_core.synth import FAMILIES, load_ground_truth
 
 runner = CliRunner()

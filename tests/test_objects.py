@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.cli import app
+from geocon_viewer.cli import app
 from geocon_core.config import ScoreConfig, preset
 from geocon_core.record import read_record, write_record
 from geocon_core.scorer import score_clip
