@@ -744,8 +744,9 @@ def audit_card(record: ClipRecord) -> str:
         ],
         "",
         "## Coverage",
-        f"- {v.get('num_frames')} frames at {v.get('fps')} fps, working size {v.get('working_size')}, content box {v.get('content_box')}",
-        f"- duplicated frames {len(v.get('duplicates', []))}, hard cuts {len(v.get('cuts', []))}; masks: {record.masks_source}",
+        f"- {v.num_frames} frames at {v.fps} fps, working size {list(v.working_size)}, "
+        f"content box {list(v.content_box)}",
+        f"- duplicated frames {len(v.duplicates)}, hard cuts {len(v.cuts)}; masks: {record.masks_source}",
     ]
     if record.objects:
         lines += [
