@@ -73,7 +73,30 @@ _LAZY: dict[str, str] = {
 }
 """Public name -> the module of this package that defines it."""
 
-__all__ = ["__version__", *_LAZY]
+__all__ = [
+    "__version__",
+    "score_clip",
+    "ScoreConfig",
+    "PRESETS",
+    "preset",
+    "config_hash",
+    "read_record",
+    "write_record",
+    "ClipRecord",
+    "GateRecord",
+    "BackgroundSummary",
+    "FamilySummary",
+    "PairRecord",
+    "FitSummary",
+    "MatchArrays",
+    "ObjectSummary",
+    "ObjectEntry",
+    "Category",
+    "PointCloud",
+    "ClipInfo",
+    "ClipError",
+    "PoseEstimate",
+]
 
 
 def __getattr__(name: str) -> Any:

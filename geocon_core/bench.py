@@ -170,7 +170,8 @@ def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
         if old.get("config_hash") != digest:
             raise BenchError(
                 f"{results} was scored with another configuration (hash {old.get('config_hash')}, preset "
-                f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another --out"
+                f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another "
+                "--out"
             )
         return
     results.mkdir(parents=True, exist_ok=True)
@@ -212,60 +213,20 @@ def run_bench(
     entries = load_dataset(data)
     _prepare_results(out, data, cfg)
     start = time.perf_counter()
-    todo, failed_before = [], 0
-    for entry in entries:
-        status = read_status(clip_dir(out, entry.clip_id))
-        if status is None or (retry_failed and status["status"] == "failed"):
-            todo.append(entry)
-        elif status["status"] == "failed":
-            failed_before += 1
+    todo, failed_before = _unfinished(entries, out, retry_failed)
     skipped = len(entries) - len(todo)
     if on_start is not None:
         on_start(len(todo), skipped)
-    threads = max(1, (os.cpu_count() or 1) // workers)
     done, failed = skipped, failed_before
-    crashes: dict[str, int] = {}
-    queue = list(todo)
-    ctx = multiprocessing.get_context("spawn")
-    while queue:
-        limit = 1 if crashes else workers  # after a worker died, suspects run alone
-        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
-        inflight: dict[Future, ClipEntry] = {}
-        broken = False
-        try:
-            while queue or inflight:
-                while queue and len(inflight) < limit and not broken:
-                    entry = queue.pop(0)
-                    fut = pool.submit(
-                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), rrd_renderer, threads
-                    )
-                    inflight[fut] = entry
-                if not inflight:
-                    break
-                finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    entry = inflight.pop(fut)
-                    try:
-                        status = fut.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        crashes[entry.clip_id] = crashes.get(entry.clip_id, 0) + 1
-                        if crashes[entry.clip_id] < MAX_CRASHES:
-                            queue.insert(0, entry)
-                            continue
-                        status = _crashed(out, entry, cfg)
-                    done += 1
-                    failed += status["status"] == "failed"
-                    if on_clip is not None:
-                        on_clip(status, done, len(entries), failed)
-                if broken and not inflight:
-                    break
-        except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.terminate()
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
+
+    def finished(status: dict[str, Any]) -> None:
+        nonlocal done, failed
+        done += 1
+        failed += status["status"] == "failed"
+        if on_clip is not None:
+            on_clip(status, done, len(entries), failed)
+
+    _score_all(todo, out, cfg, workers, rrd_renderer, finished)
     paths: tuple[Path, ...] = ()
     if tables:
         paths = write_tables(out)
@@ -280,6 +241,71 @@ def run_bench(
     )
 
 
+def _unfinished(entries: list[ClipEntry], out: Path, retry_failed: bool) -> tuple[list[ClipEntry], int]:
+    """The clips still to score (unfinished, or failed when ``retry_failed``) and how many failed
+    clips are kept as they are."""
+    todo, failed_before = [], 0
+    for entry in entries:
+        status = read_status(clip_dir(out, entry.clip_id))
+        if status is None or (retry_failed and status["status"] == "failed"):
+            todo.append(entry)
+        elif status["status"] == "failed":
+            failed_before += 1
+    return todo, failed_before
+
+
+def _score_all(
+    todo: list[ClipEntry],
+    out: Path,
+    cfg: ScoreConfig,
+    workers: int,
+    rrd_renderer: RecordRenderer | None,
+    finished: Callable[[dict[str, Any]], None],
+) -> None:
+    """Score ``todo`` in worker processes, calling ``finished(status)`` per clip. A clip in flight
+    when a worker dies is retried alone, and recorded as failed after :data:`MAX_CRASHES` deaths."""
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    crashes: dict[str, int] = {}
+    queue = list(todo)
+    ctx = multiprocessing.get_context("spawn")
+    while queue:
+        limit = 1 if crashes else workers  # after a worker died, suspects run alone
+        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
+        inflight: dict[Future[dict[str, Any]], ClipEntry] = {}
+        broken = False
+        try:
+            while queue or inflight:
+                while queue and len(inflight) < limit and not broken:
+                    entry = queue.pop(0)
+                    fut = pool.submit(
+                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), rrd_renderer, threads
+                    )
+                    inflight[fut] = entry
+                if not inflight:
+                    break
+                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    entry = inflight.pop(fut)
+                    try:
+                        status = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        crashes[entry.clip_id] = crashes.get(entry.clip_id, 0) + 1
+                        if crashes[entry.clip_id] < MAX_CRASHES:
+                            queue.insert(0, entry)
+                            continue
+                        status = _crashed(out, entry, cfg)
+                    finished(status)
+                if broken and not inflight:
+                    break
+        except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+
+
 def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any]:
     folder = clip_dir(results, entry.clip_id)
     folder.mkdir(parents=True, exist_ok=True)
@@ -289,7 +315,8 @@ def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any
         "status": "failed",
         "traceback": None,
         "rrd": None,
-        "error": f"the worker process died {MAX_CRASHES} times while scoring this clip (out of memory or a crash in a native library)",
+        "error": f"the worker process died {MAX_CRASHES} times while scoring this clip "
+        "(out of memory or a crash in a native library)",
         "config_hash": config_hash(cfg),
         "meta": entry.meta,
         "video": str(entry.video),

@@ -27,11 +27,27 @@ from typing import Any
 
 from .reader import ClipError, check_clip
 
-__all__ = ["CATEGORIES", "EXPECTED_MODEL", "REQUIRED_FIELDS", "ClipEntry", "DatasetError", "load_dataset"]
+__all__ = [
+    "CATEGORIES",
+    "EXPECTED_MODEL",
+    "REQUIRED_FIELDS",
+    "ClipEntry",
+    "DatasetError",
+    "expected_model",
+    "load_dataset",
+]
 
 CATEGORIES = ("C1", "C2", "C3", "C4", "C5", "C6")
 EXPECTED_MODEL = {"C1": "H", "C2": "H", "C4": "H", "C3": "F", "C5": "F", "C6": "F"}
 """The expected rule (SPEC section 6): the background model each category should gate to."""
+
+
+def expected_model(category: object) -> str | None:
+    """The family a clip of ``category`` should be gated to (:data:`EXPECTED_MODEL`), or None for
+    a missing or unknown category."""
+    return EXPECTED_MODEL.get(category) if isinstance(category, str) else None
+
+
 REQUIRED_FIELDS = (
     "clip_id",
     "prompt",
@@ -162,7 +178,8 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
         video = _find_video(sidecar, meta)
         if video is None:
             mine.append(
-                f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another video, or a 'video' field)"
+                f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another "
+                "video, or a 'video' field)"
             )
         elif not video.exists():
             mine.append(f"{name}: clip file {meta.get('video')} does not exist")
@@ -179,8 +196,8 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
         if mine:
             problems.extend(mine)
             continue
+        assert isinstance(cid, str) and video is not None  # checked by _field_problems and above
         seen[cid] = sidecar
-        assert video is not None
         entries.append(
             ClipEntry(
                 clip_id=cid,

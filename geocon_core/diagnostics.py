@@ -226,14 +226,17 @@ class Overlays:
         e = self.entries.get(t)
         if e is None or e.labels is None:
             return None
-        labels: np.ndarray = cv2.imread(str(self.folder / e.labels), cv2.IMREAD_UNCHANGED)
-        return labels
+        labels = cv2.imread(str(self.folder / e.labels), cv2.IMREAD_UNCHANGED)
+        return None if labels is None else np.asarray(labels)
 
     def flows(self, t: int) -> list[FlowSlice]:
         e = self.entries.get(t)
         out = []
         for f in () if e is None else e.flows:
-            img = cv2.cvtColor(cv2.imread(str(self.folder / f.file), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
+            bgra = cv2.imread(str(self.folder / f.file), cv2.IMREAD_UNCHANGED)
+            if bgra is None:
+                raise OSError(f"could not read {self.folder / f.file}")
+            img = cv2.cvtColor(bgra, cv2.COLOR_BGRA2RGBA)
             out.append(FlowSlice(f.object_id, f.t0, f.t1, f.box, f.max_magnitude, img))
         return out
 

@@ -109,7 +109,7 @@ def _violins(ax, groups: list[tuple[str, np.ndarray]]) -> None:
         body.set_facecolor(_color(i))
         body.set_alpha(0.4)
     rng = np.random.default_rng(0)
-    for p, (_, v) in zip(pos, data):
+    for p, (_, v) in zip(pos, data, strict=True):
         ax.scatter(p + rng.uniform(-0.12, 0.12, v.size), v, s=8, color="k", alpha=0.6, zorder=3)
     ax.set_xticks(pos, [label for label, _ in data])
 
@@ -141,7 +141,8 @@ def _fig_tinf(b: _Builder, ok: pd.DataFrame) -> None:
         fig,
         "tinf",
         "Translation statistic",
-        "Where clips fall against the gate: expected-H clips should sit left of 0.03, expected-F clips right of 0.05; the gray zone between fits both models.",
+        "Where clips fall against the gate: expected-H clips should sit left of 0.03, expected-F clips right of "
+        "0.05; the gray zone between fits both models.",
     )
 
 
@@ -158,7 +159,8 @@ def _fig_margins(b: _Builder, ok: pd.DataFrame) -> None:
         fig,
         "margins",
         "Gate margins",
-        "Distance of t_inf to the nearer gate threshold; values near 0 are thin decisions that flip with small pose errors.",
+        "Distance of t_inf to the nearer gate threshold; values near 0 are thin decisions that flip with small pose "
+        "errors.",
     )
 
 
@@ -196,18 +198,19 @@ def _fig_calibration(b: _Builder, ok: pd.DataFrame, seed: int) -> dict[str, Any]
         ax[0, 0].axvline(g, color="#999999", lw=0.6)
     ax[0, 0].set(xlabel="tau_t", ylabel="net benefit", title="Net benefit (TP - c FP) / N")
     ax[0, 0].legend(fontsize=7)
-    x = np.arange(len(boot.grid))
-    ax[0, 1].errorbar(x, boot.mean, yerr=[boot.mean - boot.low, boot.high - boot.mean], fmt="o", capsize=3)
-    ax[0, 1].set_xticks(x, [f"{g:g}" for g in boot.grid])
+    pos = np.arange(len(boot.grid))
+    ax[0, 1].errorbar(pos, boot.mean, yerr=[boot.mean - boot.low, boot.high - boot.mean], fmt="o", capsize=3)
+    ax[0, 1].set_xticks(pos, [f"{g:g}" for g in boot.grid])
     ax[0, 1].set(xlabel="tau_t", ylabel="balanced accuracy", title=f"Bootstrap (B = {boot.B}) mean and 95% CI")
-    ax[0, 2].bar(x, boot.argmax_counts, color=_color(2))
-    ax[0, 2].set_xticks(x, [f"{g:g}" for g in boot.grid])
+    ax[0, 2].bar(pos, boot.argmax_counts, color=_color(2))
+    ax[0, 2].set_xticks(pos, [f"{g:g}" for g in boot.grid])
     ax[0, 2].set(xlabel="tau_t", ylabel="replicates", title=f"argmax histogram (best {boot.best_tau:g})")
     b.save(
         fig,
         "net_benefit_bootstrap",
         "Threshold choice",
-        "Net benefit of calling F above tau_t for three false-positive costs, and which tau_t of the grid maximises balanced accuracy across bootstrap replicates.",
+        "Net benefit of calling F above tau_t for three false-positive costs, and which tau_t of the grid maximises "
+        "balanced accuracy across bootstrap replicates.",
     )
     return {"best_tau": boot.best_tau, "grid": list(boot.grid), "argmax_counts": boot.argmax_counts.tolist()}
 
@@ -246,7 +249,8 @@ def _fig_ridgelines(b: _Builder, ok: pd.DataFrame) -> None:
         fig,
         "ridgelines",
         "IR/GE ridgelines",
-        "Distribution of each family's clip IR and GE under the homography and the fundamental-matrix fit; translation families should separate H from F.",
+        "Distribution of each family's clip IR and GE under the homography and the fundamental-matrix fit; "
+        "translation families should separate H from F.",
     )
 
 
@@ -277,7 +281,8 @@ def _fig_effects(b: _Builder, ok: pd.DataFrame, boot: int, seed: int) -> pd.Data
         fig,
         "effect_sizes",
         "Effect sizes",
-        "Scene-balanced median difference of each platform against the pooled others, with 95% bootstrap CIs (resampling scenes); an interval clear of 0 is a real gap.",
+        "Scene-balanced median difference of each platform against the pooled others, with 95% bootstrap CIs "
+        "(resampling scenes); an interval clear of 0 is a real gap.",
     )
     return df
 
@@ -315,13 +320,14 @@ def _fig_dynamic(b: _Builder, objects: pd.DataFrame, frames: pd.DataFrame) -> li
     ax[0, 1].legend(fontsize=7)
     x = np.arange(len(summ))
     ax[0, 2].bar(x, summ["rate_above_p80"], color=[_color(models.index(m)) for m in summ["model"]])
-    ax[0, 2].set_xticks(x, [f"{m}\n{c}" for m, c in zip(summ["model"], summ["category"])], fontsize=7)
+    ax[0, 2].set_xticks(x, [f"{m}\n{c}" for m, c in zip(summ["model"], summ["category"], strict=True)], fontsize=7)
     ax[0, 2].set(ylabel="share above P80", title="Share above P80 (~20% by construction)")
     b.save(
         fig,
         "adap90",
         "Dynamic coherence",
-        "Per-object AdaP90 (90th percentile of the per-frame AdaDFRC): severity and tail shape matter, not the rate above P80, which is near 20% by construction.",
+        "Per-object AdaP90 (90th percentile of the per-frame AdaDFRC): severity and tail shape matter, not the rate "
+        "above P80, which is near 20% by construction.",
     )
     top = stats.top_hardest(obj, frames, n=8)
     if top:
@@ -329,7 +335,7 @@ def _fig_dynamic(b: _Builder, objects: pd.DataFrame, frames: pd.DataFrame) -> li
         for i, t in enumerate(top):
             a = ax[i, 0]
             if t["trace"]:
-                xs, ys = zip(*t["trace"])
+                xs, ys = zip(*t["trace"], strict=True)
                 a.plot(xs, ys, color=_color(models.index(t["model"])), lw=1)
             a.set_yticks([])
             a.text(
@@ -347,7 +353,8 @@ def _fig_dynamic(b: _Builder, objects: pd.DataFrame, frames: pd.DataFrame) -> li
             fig,
             "top_objects",
             "Hardest objects",
-            "Per-frame AdaDFRC (D_t, px²) of the objects with the highest AdaP90: a sustained plateau is a deforming object, a lone spike a segmentation glitch.",
+            "Per-frame AdaDFRC (D_t, px²) of the objects with the highest AdaP90: a sustained plateau is a deforming "
+            "object, a lone spike a segmentation glitch.",
         )
     return top
 
@@ -376,7 +383,8 @@ def _fig_sensitivity(b: _Builder, sens: pd.DataFrame, config: dict[str, Any]) ->
         fig,
         "sensitivity",
         "Threshold-score sensitivity",
-        "Scene-balanced median IR and GE re-gated from stored residuals at other thresholds (dashed: the recorded one); rankings that survive the sweep are robust.",
+        "Scene-balanced median IR and GE re-gated from stored residuals at other thresholds (dashed: the recorded "
+        "one); rankings that survive the sweep are robust.",
     )
 
 
@@ -441,11 +449,15 @@ def _flagged(ok: pd.DataFrame, top: list[dict[str, Any]], rel: str) -> str:
     )
 
 
-_CSS = """body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1180px;margin:2em auto;padding:0 1em;color:#222}
+_CSS = """body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1180px;margin:2em auto;padding:0 1em;
+color:#222}
 h1{margin-bottom:0}h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:2em}.meta{color:#555;font-size:.9em}
-table{border-collapse:collapse;font-size:.85em;margin:.5em 0}th,td{border:1px solid #ddd;padding:3px 7px;text-align:left}td.n{text-align:right}
+table{border-collapse:collapse;font-size:.85em;margin:.5em 0}
+th,td{border:1px solid #ddd;padding:3px 7px;text-align:left}
+td.n{text-align:right}
 th{background:#f4f4f4}figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
-figcaption{color:#444;font-size:.9em}.warn{color:#a33}nav a{margin-right:1em}code{background:#f4f4f4;padding:0 3px;font-size:.9em}"""
+figcaption{color:#444;font-size:.9em}.warn{color:#a33}nav a{margin-right:1em}
+code{background:#f4f4f4;padding:0 3px;font-size:.9em}"""
 
 
 def build_report(
@@ -474,7 +486,8 @@ def build_report(
     clips = tables["clips"]
     ok = clips[clips["status"] == "ok"].copy()
     footer = (
-        f"config {bench.get('config_hash')} · geocon {versions.get('geocon', '?')} · opencv {versions.get('opencv', '?')} · "
+        f"config {bench.get('config_hash')} · geocon {versions.get('geocon', '?')} · opencv "
+        f"{versions.get('opencv', '?')} · "
         f"n = {len(ok)} clips"
     )
     b = _Builder(target, footer, formats)
@@ -514,7 +527,8 @@ def build_report(
             + "<h3>F-rates and anomaly rates (expected rule C1/C2/C4 → H, C3/C5/C6 → F)</h3>"
             + "<p>Present-only: clips with a pose and a decided gate; fail→F: every clip, no pose counted as F.</p>"
             + _html_table(rates[[c for c in rates.columns if not c.endswith(("_low", "_high"))]])
-            + f"<p>Cross-platform consensus: {cons.attrs['n_unanimous']} of {cons.attrs['n_tuples']} (scene, category) tuples "
+            + f"<p>Cross-platform consensus: {cons.attrs['n_unanimous']} of {cons.attrs['n_tuples']} "
+            "(scene, category) tuples "
             f"with at least two decided platforms are unanimous ({cons.attrs['consensus_rate']:.1%}).</p>"
             + "<h3>Gate margins</h3>"
             + _html_table(margins)
@@ -565,9 +579,11 @@ def build_report(
     body = "".join(f'<h2 id="s{i}">{html.escape(t)}</h2>{content}' for i, (t, content) in enumerate(sections))
     ver = ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in sorted(versions.items()))
     page = (
-        f'<!doctype html><html lang="en"><head><meta charset="utf-8"><title>GeoCon benchmark report</title><style>{_CSS}</style></head><body>'
+        '<!doctype html><html lang="en"><head><meta charset="utf-8"><title>GeoCon benchmark report</title>'
+        f"<style>{_CSS}</style></head><body>"
         f'<h1>GeoCon benchmark report</h1><p class="meta">dataset {html.escape(str(bench.get("dataset")))} · config '
-        f"<b>{html.escape(str(bench.get('config_hash')))}</b> (preset {html.escape(str(bench.get('config', {}).get('preset')))}) · {ver}</p>"
+        f"<b>{html.escape(str(bench.get('config_hash')))}</b> (preset "
+        f"{html.escape(str(bench.get('config', {}).get('preset')))}) · {ver}</p>"
         f'<p>{len(clips)} clips: {len(ok)} scored, <span class="warn">{len(failed)} failed</span>; '
         f"{ok['model'].nunique()} platforms, {ok['scene_id'].nunique()} scenes.</p><nav>{nav}</nav>{body}</body></html>"
     )

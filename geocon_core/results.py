@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from .config import ScoreConfig
-from .dataset import EXPECTED_MODEL
+from .dataset import expected_model
 from .layout import (
     BENCH_FORMAT,
     MANIFEST_NAME,
@@ -135,15 +135,13 @@ def _from_record_json(
     adap90 = [o["adap90"] for o in d.get("objects", []) if o.get("adap90") is not None]
     meta = status.get("meta") or {}
     rrd = (
-        folder / status["rrd"]
-        if status.get("rrd")
-        else (folder / RRD_NAME if (folder / RRD_NAME).is_file() else None)
+        folder / status["rrd"] if status.get("rrd") else (folder / RRD_NAME if (folder / RRD_NAME).is_file() else None)
     )
     return ResultClip(
         clip_id=clip_id,
         platform=str(meta.get("model", "-")),
         category=meta.get("category"),
-        expected_model=EXPECTED_MODEL.get(meta.get("category")),
+        expected_model=expected_model(meta.get("category")),
         status="ok",
         error=None,
         folder=folder,
@@ -166,7 +164,7 @@ def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultCl
         clip_id=clip_id,
         platform=str(meta.get("model", "-")),
         category=meta.get("category"),
-        expected_model=EXPECTED_MODEL.get(meta.get("category")),
+        expected_model=expected_model(meta.get("category")),
         status="failed",
         error=status.get("error") or "unknown error",
         folder=folder,
@@ -223,7 +221,8 @@ class ResultsIndex:
         root = Path(path)
         if not root.exists():
             raise ResultsError(
-                f"{root} does not exist: give a results folder from `geocon bench` or a record folder from `geocon score`"
+                f"{root} does not exist: give a results folder from `geocon bench` or a record folder from `geocon "
+                "score`"
             )
         if root.is_file() and root.name == "record.json":
             root = root.parent
@@ -279,7 +278,7 @@ class ResultsIndex:
                     clip_id=cid,
                     platform=str(meta.get("model", "-")),
                     category=meta.get("category"),
-                    expected_model=EXPECTED_MODEL.get(meta.get("category")),
+                    expected_model=expected_model(meta.get("category")),
                     status="ok",
                     error=None,
                     folder=folder,

@@ -164,7 +164,7 @@ def scene_balanced_table(
         key = key if isinstance(key, tuple) else (key,)
         rows.append(
             {
-                **dict(zip(by, key)),
+                **dict(zip(by, key, strict=True)),
                 "median": ci.estimate,
                 "low": ci.low,
                 "high": ci.high,
@@ -191,7 +191,7 @@ def gate_rates(clips: pd.DataFrame, *, by: Sequence[str] = ("model", "category")
         expected = g["expected_model"].to_numpy()
         rows.append(
             {
-                **dict(zip(by, key)),
+                **dict(zip(by, key, strict=True)),
                 "n_clips": len(g),
                 "n_present": len(present),
                 **_rate_cols("f_rate_present", int((present["gate_label"] == "F").sum()), len(present)),
@@ -245,7 +245,7 @@ def margin_summary(clips: pd.DataFrame, *, by: Sequence[str] = ("model",)) -> pd
         m = g["margin"].to_numpy(float)
         rows.append(
             {
-                **dict(zip(by, key)),
+                **dict(zip(by, key, strict=True)),
                 "n": m.size,
                 "p10": float(np.percentile(m, 10)),
                 "median": float(np.median(m)),
@@ -286,7 +286,9 @@ def calibration_bins(t_inf, is_f, *, K: int = 12, confidence: float = 0.95) -> p
     return pd.DataFrame(rows, columns=["bin", "t_low", "t_high", "t_mid", "n", "k", "p", "low", "high"])
 
 
-def net_benefit(t_inf, is_f, taus: Sequence[float], *, costs: Sequence[float] = (0.5, 1.0, 2.0)) -> pd.DataFrame:
+def net_benefit(
+    t_inf, is_f, taus: Sequence[float] | np.ndarray, *, costs: Sequence[float] = (0.5, 1.0, 2.0)
+) -> pd.DataFrame:
     """Net benefit ``(TP - c * FP) / N`` of predicting F iff ``t_inf >= tau``."""
     t, y = _finite(t_inf, is_f)
     rows = []
@@ -390,7 +392,7 @@ def percentile_aligned(
             sel = (xv >= lo) & (xv <= hi)
             rows.append(
                 {
-                    **dict(zip(by, key)),
+                    **dict(zip(by, key, strict=True)),
                     "percentile": float(p),
                     f"{x}_p": float(np.percentile(xv, p)),
                     f"{y}_at": float(np.median(yv[sel])),
@@ -410,7 +412,7 @@ def adap90_summary(objects: pd.DataFrame, *, by: Sequence[str] = ("model", "cate
         p80 = float(np.percentile(v, 80))
         rows.append(
             {
-                **dict(zip(by, key)),
+                **dict(zip(by, key, strict=True)),
                 "n_objects": v.size,
                 "p50": float(np.median(v)),
                 "p80": p80,
@@ -442,12 +444,12 @@ def top_hardest(
             d = fr["d_t"].to_numpy(float)
             out.append(
                 {
-                    **dict(zip(by, key)),
+                    **dict(zip(by, key, strict=True)),
                     "clip_id": row.clip_id,
                     "object_id": int(row.object_id),
                     "category": row.category,
                     "adap90": float(row.adap90),
-                    "trace": list(zip(fr["t0"].astype(int).tolist(), d.tolist())),
+                    "trace": list(zip(fr["t0"].astype(int).tolist(), d.tolist(), strict=True)),
                     "p50": float(np.median(d)) if d.size else _NAN,
                     "p90": float(np.percentile(d, 90)) if d.size else _NAN,
                     "frames": int(d.size),
@@ -464,7 +466,7 @@ def sensitivity_table(sensitivity: pd.DataFrame, *, by: Sequence[str] = ("model"
     for key, g in data.groupby([*by, "family", "tau"], sort=True):
         rows.append(
             {
-                **dict(zip([*by, "family", "tau"], key)),
+                **dict(zip([*by, "family", "tau"], key, strict=True)),
                 "ir": scene_balanced_median(g["ir"], g["scene_id"]),
                 "ge": scene_balanced_median(g["ge"], g["scene_id"]),
                 "n_clips": len(g),

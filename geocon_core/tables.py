@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .dataset import EXPECTED_MODEL
+from .dataset import expected_model
 from .layout import CLIPS_DIR, clip_folders, read_status, tables_dir
 from .record import ClipRecord, read_record
 from .regate import sensitivity_scan
@@ -42,7 +42,7 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         "model_version": None if meta.get("model_version") is None else str(meta["model_version"]),
         "prompt": meta.get("prompt"),
         "seed": None if meta.get("seed") is None else str(meta["seed"]),
-        "expected_model": EXPECTED_MODEL.get(meta.get("category")),
+        "expected_model": expected_model(meta.get("category")),
         "status": status["status"],
         "error": status.get("error"),
         "record": folder if record is not None else None,
@@ -316,7 +316,8 @@ def write_tables(results: str | Path) -> tuple[Path, ...]:
         import pyarrow  # noqa: F401
     except ImportError:
         raise ImportError(
-            "writing Parquet tables needs the bench extra: pip install 'geocon[bench]' (or bash scripts/bootstrap.sh bench)"
+            "writing Parquet tables needs the bench extra: pip install 'geocon[bench]' (or bash scripts/bootstrap.sh "
+            "bench)"
         ) from None
     base = Path(results)
     folder = tables_dir(base)

@@ -183,9 +183,13 @@ class AuditApp:
         self.frame_panel.dock_left()
         self.frame_panel.set_width(470)
         self.slider.on_update(lambda e: self._on_frame(int(e.target.value)))
-        for handle in (self.show_matches, self.show_masks):
-            handle.on_update(lambda _: self._render_frame())
-        self.rrd_button.on_click(lambda _: self.write_rrd(background=True))
+        for box in (self.show_matches, self.show_masks):
+            box.on_update(lambda _: self._render_frame())
+
+        def on_rrd(_: object) -> None:
+            self.write_rrd(background=True)
+
+        self.rrd_button.on_click(on_rrd)
 
         self.plot_panel = gui.add_panel()
         with self.plot_panel.add_tab("Background"):
@@ -233,7 +237,7 @@ class AuditApp:
             self._render_summary()
             self._render_table()
             if self.clip.value != target:
-                self.clip.value = target  # runs _on_clip
+                self.clip.value = target  # type: ignore[misc]  # runs _on_clip; viser setter typing gap
             elif self.view is None or self.view.clip_id != target:
                 self._on_clip(target)
             else:
@@ -270,7 +274,7 @@ class AuditApp:
         )
 
     def _on_filters(self) -> None:
-        self.page.value = 1
+        self.page.value = 1  # type: ignore[misc]  # viser setter typing gap
         self.refresh()
 
     def _step(self, delta: int) -> None:
@@ -278,7 +282,7 @@ class AuditApp:
         if not ids:
             return
         i = ids.index(self.clip.value) if self.clip.value in ids else 0
-        self.clip.value = ids[min(max(i + delta, 0), len(ids) - 1)]
+        self.clip.value = ids[min(max(i + delta, 0), len(ids) - 1)]  # type: ignore[misc]  # viser setter typing gap
 
     # --- thresholds ----------------------------------------------------------------------------
     def _on_threshold(self, name: str, value: float) -> None:
@@ -319,7 +323,7 @@ class AuditApp:
         bar.visible = True
 
         def progress(done: int, total: int) -> None:
-            bar.value = 100.0 * done / max(total, 1)
+            bar.value = 100.0 * done / max(total, 1)  # type: ignore[misc]  # viser setter typing gap
 
         try:
             self.index.preload(progress=progress, stop=self._stop)
@@ -416,7 +420,7 @@ class AuditApp:
             fps = view.record.video.fps if view is not None else DEFAULT_FPS
             time.sleep(1.0 / min(max(fps, 1.0), 12.0))
             if self.play.value and view is not None and view.num_frames > 1:
-                self.slider.value = (int(self.slider.value) + 1) % view.num_frames
+                self.slider.value = (int(self.slider.value) + 1) % view.num_frames  # type: ignore[misc]  # viser setter typing gap
 
     # --- drawing -------------------------------------------------------------------------------
     def frame_matches(self, t: int) -> tuple[np.ndarray, np.ndarray] | None:

@@ -139,9 +139,8 @@ def render_scene(server: viser.ViserServer, view: ClipView | None) -> Any:
         )
 
     frustum("/cam_first", 0, (90, 200, 255))
-    T = rec.gate.pose.T_cam0_camT
-    if T is not None:
-        T = np.asarray(T, dtype=float)
+    if rec.gate.pose.T_cam0_camT is not None:
+        T = np.asarray(rec.gate.pose.T_cam0_camT, dtype=float)
         frustum(
             "/cam_last",
             view.num_frames - 1,
@@ -185,18 +184,17 @@ def render_plots(plots: Plots, view: ClipView | None, v: ClipVerdict | None, th:
     for p, row in regate_pairs(rec, v.model, tau):
         if p.gap == g0 and p.scale == s and row.valid:
             ir[p.t0], ge[p.t0] = row.ir, row.ge
-    line = {"width": 2}
     plots.ir.data = (x, ir, np.full(n, th.ir_gate))
     plots.ir.series = (
         uplot.Series(label="frame"),
-        uplot.Series(label=f"IR {v.model} (scale {s:g})", stroke="#1f77b4", **line),
+        uplot.Series(label=f"IR {v.model} (scale {s:g})", stroke="#1f77b4", width=2),
         uplot.Series(label=f"gate {th.ir_gate:g}", stroke="#d62728", dash=(6, 4)),
     )
     plots.ir.title = f"IR per pair ({v.model}, tau {tau:g})"
     plots.ge.data = (x, ge, np.full(n, th.ge_gate))
     plots.ge.series = (
         uplot.Series(label="frame"),
-        uplot.Series(label=f"GE {v.model} px", stroke="#ff7f0e", **line),
+        uplot.Series(label=f"GE {v.model} px", stroke="#ff7f0e", width=2),
         uplot.Series(label=f"gate {th.ge_gate:g} px", stroke="#d62728", dash=(6, 4)),
     )
     objects = sorted(rec.objects, key=lambda o: -(o.adap90 or 0.0))[:6]

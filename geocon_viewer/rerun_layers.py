@@ -71,12 +71,12 @@ def residual_map(
     np.add.at(num, (gy, gx), r)
     np.add.at(den, (gy, gx), 1.0)
     s = sigma_px / cell
-    num = cv2.GaussianBlur(num, (0, 0), s)
-    den = cv2.GaussianBlur(den, (0, 0), s)
+    num_b = np.asarray(cv2.GaussianBlur(num, (0, 0), s))
+    den_b = np.asarray(cv2.GaussianBlur(den, (0, 0), s))
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(den > 1e-9, num / den, 0.0)
+        mean = np.where(den_b > 1e-9, num_b / den_b, 0.0)
     # one match within ~sigma gives about 1 / (2 pi s^2) density: call 3 matches full evidence
-    alpha = np.clip(den * (2 * math.pi * s * s) / 3.0, 0.0, 1.0)
+    alpha = np.clip(den_b * (2 * math.pi * s * s) / 3.0, 0.0, 1.0)
     rgba = _colormap(mean.ravel(), vmax).reshape(gh, gw, 4)
     rgba[..., 3] = np.round(alpha * 220).astype(np.uint8)
     return rgba
@@ -173,7 +173,7 @@ class RecordLayers:
             rec.log(
                 "frame/matches/lines",
                 rr.LineStrips2D(
-                    strips,
+                    strips.astype(np.float32),
                     radii=LINE_RADIUS,
                     colors=_colormap(res_px, vmax),
                     labels=f"x_t -> x_t+1, colour = residual 0..{vmax:.2f} px",
@@ -249,7 +249,7 @@ class RecordLayers:
                     self._time(t + 1)
                     rec.log(f"frame/cells/{oid}", rr.Clear(recursive=True))
 
-    def _cols(self, t: Sequence[int]) -> list[Any]:
+    def _cols(self, t: Sequence[int] | np.ndarray) -> list[Any]:
         ts = np.asarray(t, np.int64)
         return [rr.TimeColumn("frame", sequence=ts), rr.TimeColumn("video_time", duration=ts / self.fps)]
 
@@ -274,20 +274,28 @@ class RecordLayers:
         for gap in cfg.gaps:
             for si, s in enumerate(cfg.scales):
                 rows = [p for p in record.pairs if p.gap == gap and p.scale == s]
-                ok = [p for p in rows if p.skip is None and p.fit(fam) is not None and p.fit(fam).valid]
+                fits = [(p, p.fit(fam)) for p in rows]
+                ok = [(p, f) for p, f in fits if p.skip is None and f is not None and f.valid]
                 shade = 120 + int(135 * (si + 1) / len(cfg.scales))
                 for metric in ("ir", "ge"):
                     path = f"series/background/{metric}/gap{gap}/scale{s:g}"
                     color = (40, 110, shade, 255) if metric == "ir" else (shade, 90, 40, 255)
                     self._line(path, f"{metric.upper()} {fam} gap {gap} scale {s:g}", color)
                     if ok:
-                        vals = [getattr(p.fit(fam), metric) for p in ok]
+                        vals = [getattr(f, metric) for _, f in ok]
                         rec.send_columns(
-                            path, indexes=self._cols([p.t0 for p in ok]), columns=rr.Scalars.columns(scalars=vals)
+                            path, indexes=self._cols([p.t0 for p, _ in ok]), columns=rr.Scalars.columns(scalars=vals)
                         )
-                for p in rows:
-                    f = p.fit(fam)
-                    bad = p.skip is not None or f is None or not f.valid or f.ir < cfg.ir_gate or f.ge > cfg.ge_gate
+                for p, f in fits:
+                    bad = (
+                        p.skip is not None
+                        or f is None
+                        or not f.valid
+                        or f.ir is None
+                        or f.ge is None
+                        or f.ir < cfg.ir_gate
+                        or f.ge > cfg.ge_gate
+                    )
                     if bad and gap == 1 and s == max(cfg.scales):
                         flagged_t.append(p.t0)
                         flagged_v.append(0.0 if f is None or f.ir is None else f.ir)
@@ -314,23 +322,27 @@ class RecordLayers:
         for o in record.objects:
             path = f"series/objects/{o.object_id}"
             self._line(path, f"AdaDFRC D_t object {o.object_id} (px^2)", object_rgba(o.object_id))
-            es = [e for e in record.object_entries if e.object_id == o.object_id and e.scale == s_max and e.valid]
+            es = [
+                e
+                for e in record.object_entries
+                if e.object_id == o.object_id and e.scale == s_max and e.valid and e.d_t is not None
+            ]
             if es:
                 self.rec.send_columns(
                     path,
                     indexes=self._cols([e.t0 for e in es]),
-                    columns=rr.Scalars.columns(scalars=[e.d_t for e in es]),
+                    columns=rr.Scalars.columns(scalars=[e.d_t for e in es if e.d_t is not None]),
                 )
 
     def _log_gate_series(self, record: ClipRecord) -> None:
         g, n = record.gate, record.video.num_frames
-        wins = [w for w in g.timeline if w.t_inf is not None]
+        wins = [(w.end, w.t_inf) for w in g.timeline if w.t_inf is not None]
         self._line("series/gate/t_inf", "t_inf per window (at its last frame)", (230, 230, 230, 255), 2.0)
         if wins:
             self.rec.send_columns(
                 "series/gate/t_inf",
-                indexes=self._cols([w.end for w in wins]),
-                columns=rr.Scalars.columns(scalars=[w.t_inf for w in wins]),
+                indexes=self._cols([end for end, _ in wins]),
+                columns=rr.Scalars.columns(scalars=[t_inf for _, t_inf in wins]),
             )
         for name, value, color in (
             ("low", g.thresholds["low"], (80, 200, 120, 255)),

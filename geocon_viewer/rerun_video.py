@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class FrameVideo:
         self.buf = io.BytesIO()
         self.container = av.open(self.buf, "w", format="mp4")
         self.fps, self.crf = fps, crf
-        self.stream = None
+        self.stream: Any = None
         self.indices: list[int] = []
         self._threads = _EncoderThreads()
 

@@ -154,6 +154,7 @@ def test_import_geocon_core_loads_no_opencv_stage():
 def test_the_public_api_resolves():
     import geocon_core
 
+    assert set(geocon_core.__all__) == {"__version__", *geocon_core._LAZY}
     for name in geocon_core.__all__:
         assert getattr(geocon_core, name) is not None, name
     with pytest.raises(AttributeError):

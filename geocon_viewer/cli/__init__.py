@@ -69,7 +69,3 @@ app.command("serve")(commands_view.serve)
 def main() -> None:
     """The ``geocon`` console script."""
     app()
-
-
-if __name__ == "__main__":
-    main()

@@ -184,7 +184,7 @@ def serve(
         if clip is not None:
             if clip not in audit.index.by_id:
                 raise fail(f"no clip {clip!r} in {results}")
-            audit.clip.value = clip
+            audit.clip.value = clip  # type: ignore[misc]  # viser setter typing gap
         n = len(audit.index.clips)
         reach = "this machine only" if audit.host in ("127.0.0.1", "localhost", "::1") else "reachable from the network"
         ready = time.perf_counter() - start
