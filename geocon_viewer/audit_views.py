@@ -158,14 +158,13 @@ def render_scene(server: viser.ViserServer, view: ClipView | None) -> Any:
             )
     note = "no point cloud" if cloud is None else cloud.note
     scene.add_label("/note", note, position=(0.0, -0.12 * depth, 0.0))
+    look_at, position, up = (0.0, 0.0, depth), (0.3 * depth, -0.45 * depth, -0.7 * depth), (0.0, -1.0, 0.0)
     cam = server.initial_camera
-    cam.look_at = (0.0, 0.0, depth)
-    cam.position = (0.3 * depth, -0.45 * depth, -0.7 * depth)
-    cam.up = (0.0, -1.0, 0.0)
+    cam.look_at, cam.position, cam.up = look_at, position, up
     for client in server.get_clients().values():
-        client.camera.look_at = cam.look_at
-        client.camera.position = cam.position
-        client.camera.up_direction = cam.up
+        client.camera.look_at = look_at
+        client.camera.position = position
+        client.camera.up_direction = up
     return cloud_handle
 
 
