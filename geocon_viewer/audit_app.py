@@ -21,7 +21,6 @@ tab connected to the server. The server binds to 127.0.0.1 unless told otherwise
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import replace
@@ -31,7 +30,6 @@ from typing import Any
 import cv2
 import numpy as np
 import viser
-import viser.uplot as uplot
 
 from geocon_core.diagnostics import read_overlays
 from geocon_core.reader import DEFAULT_FPS
@@ -39,26 +37,25 @@ from geocon_core.record import read_record
 from geocon_core.regate import ClipVerdict, Thresholds, pair_inliers
 from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
 
-from .audit_views import ClipView, Plots, clip_card, draw_frame, render_plots, render_scene, thumb
-from .style import fmt
+from .audit_triage import LIST_ROWS, THRESHOLD_LABELS, rrd_text, thresholds_text, triage_summary, triage_table
+from .audit_views import (
+    ClipView,
+    Plots,
+    clip_card,
+    draw_frame,
+    empty_plot,
+    frame_text,
+    render_plots,
+    render_scene,
+    thumb,
+)
 
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 
-LIST_ROWS = 12
-"""Rows of the triage table shown at once (the clip picker holds all of them)."""
 DISPLAY_WIDTH = 640
 """Width (px) the frames are shown at."""
 ANY = "any"
 FLAGGED = "flagged"
-_STATE_MARK = {"fails": "FAIL", "not judged": "n/j", "error": "ERROR", "passes": "ok"}
-_THRESHOLD_LABELS = {
-    "tau_h": ("tau_H (px)", 0.05, "Symmetric transfer error threshold of the homography."),
-    "tau_f": ("tau_F", 0.005, "Normalised Sampson threshold of the fundamental matrix."),
-    "ir_gate": ("IR gate", 0.005, "Report gate: a clip passes when IR >= this ..."),
-    "ge_gate": ("GE gate (px)", 0.1, "... and GE <= this (px)."),
-    "tau_t_low": ("gate low", 0.005, "Hysteresis gate: H when t_inf <= this."),
-    "tau_t_high": ("gate high", 0.005, "Hysteresis gate: F when t_inf >= this; U in between."),
-}
 
 
 class AuditApp:
@@ -149,7 +146,7 @@ class AuditApp:
             buttons = gui.add_button_group("", ["◀ more severe", "less severe ▶"])
         with gui.add_folder("Thresholds"):
             self.number: dict[str, Any] = {}
-            for name, (label, step, hint) in _THRESHOLD_LABELS.items():
+            for name, (label, step, hint) in THRESHOLD_LABELS.items():
                 self.number[name] = gui.add_number(label, getattr(self.thresholds, name), min=0.0, step=step, hint=hint)
             self.reset = gui.add_button("Reset to the recorded thresholds")
             self.thresholds_md = gui.add_markdown("")
@@ -193,23 +190,13 @@ class AuditApp:
 
         self.plot_panel = gui.add_panel()
         with self.plot_panel.add_tab("Background"):
-            self.ir_plot = self._empty_plot("IR per pair")
-            self.ge_plot = self._empty_plot("GE per pair (px)")
+            self.ir_plot = empty_plot(self.server, "IR per pair")
+            self.ge_plot = empty_plot(self.server, "GE per pair (px)")
         with self.plot_panel.add_tab("Objects"):
-            self.obj_plot = self._empty_plot("AdaDFRC D_t per object (px²)")
+            self.obj_plot = empty_plot(self.server, "AdaDFRC D_t per object (px²)")
         with self.plot_panel.add_tab("Gate"):
-            self.gate_plot = self._empty_plot("t_inf per window")
+            self.gate_plot = empty_plot(self.server, "t_inf per window")
         self.plot_panel.dock_below(self.frame_panel)
-
-    def _empty_plot(self, title: str):
-        x = np.zeros(1)
-        return self.server.gui.add_uplot(
-            (x, x),
-            (uplot.Series(label="frame"), uplot.Series(label="-")),
-            title=title,
-            aspect=2.2,
-            scales={"x": uplot.Scale(time=False)},
-        )
 
     # --- triage list ---------------------------------------------------------------------------
     def _filters(self) -> dict[str, Any]:
@@ -244,34 +231,11 @@ class AuditApp:
                 self._refresh_selected()
 
     def _render_summary(self) -> None:
-        counts = self.index.counts(self.rows)
-        total = len(self.index.clips)
-        parts = ", ".join(f"{k} {v}" for k, v in counts.items() if v)
-        shown = f"{len(self.rows)} of {total} clips" if len(self.rows) != total else f"{total} clips"
-        self.summary_md.content = f"{shown} — {parts or 'none'}"
+        self.summary_md.content = triage_summary(self.rows, self.index.counts(self.rows), len(self.index.clips))
 
     def _render_table(self) -> None:
-        pages = max(1, math.ceil(len(self.rows) / LIST_ROWS))
-        page = min(max(1, int(self.page.value)), pages)
-        start = (page - 1) * LIST_ROWS
-        lines = ["| # | clip | plat. | cat | gate | IR | GE | |", "|---|---|---|---|---|---|---|---|"]
-        for i, r in enumerate(self.rows[start : start + LIST_ROWS], start=start + 1):
-            v = r.verdict
-            gate = "–" if v is None else f"{v.label}→{v.model}" + ("≠" if r.gate_mismatch else "")
-            mark = _STATE_MARK[r.state]
-            name = r.clip_id if len(r.clip_id) <= 28 else r.clip_id[:12] + "…" + r.clip_id[-14:]
-            if self.view is not None and r.clip_id == self.view.clip_id:
-                name = f"**{name}**"
-            ir = fmt(None if v is None else v.ir)
-            ge = "–" if v is None else fmt(v.ge, ".2f")
-            lines.append(
-                f"| {i} | {name} | {r.clip.platform} | {r.clip.category or '–'} | {gate} | {ir} | {ge} | {mark} |"
-            )
-        if not self.rows:
-            lines.append("| | no clip matches the filters | | | | | | |")
-        self.table_md.content = (
-            "\n".join(lines) + f"\n\npage {page} of {pages} · ≠: gate differs from the category's expected model"
-        )
+        selected = None if self.view is None else self.view.clip_id
+        self.table_md.content = triage_table(self.rows, int(self.page.value), selected)
 
     def _on_filters(self) -> None:
         self.page.value = 1  # type: ignore[misc]  # viser setter typing gap
@@ -306,17 +270,7 @@ class AuditApp:
         self.refresh()
 
     def _render_thresholds(self) -> None:
-        changed = self.thresholds.changed(self.index.recorded)
-        if not changed:
-            text = "All thresholds as recorded" + (
-                f" (config `{self.index.config_hash}`)." if self.index.config_hash else "."
-            )
-        else:
-            text = "**Differs from the recorded config:** " + ", ".join(
-                f"{_THRESHOLD_LABELS[k][0]} {now:g} (recorded {old:g})" for k, (old, now) in changed.items()
-            )
-            text += ". Scores are re-gated from the stored residuals (models not re-fitted)."
-        self.thresholds_md.content = text
+        self.thresholds_md.content = thresholds_text(self.thresholds, self.index.recorded, self.index.config_hash)
 
     def _preload_residuals(self) -> None:
         bar = self.preload_bar
@@ -460,30 +414,11 @@ class AuditApp:
         img = self.frame_image(t, matches)
         if img is not None:
             self.image.image = img
-        share = view.overlays.masked_share(t) if view.overlays is not None else None
-        text = f"frame {t} of {view.num_frames - 1}"
-        if matches is not None:
-            k = int(matches[1].sum())
-            model = "?" if self.verdict is None else self.verdict.model
-            pair = f"({t}, {t + min(view.record.config.gaps)})"
-            text += f" · pair {pair}: {k} of {len(matches[1])} matches inliers under {model}"
-        if share is not None:
-            text += f" · masked {share:.1%}"
-        if view.frames_error:
-            text += f"\n\n⚠ {view.frames_error}"
-        elif img is None:
-            text += " · decoding…"
-        self.frame_md.content = text
+        self.frame_md.content = frame_text(view, t, matches, self.verdict, shown=img is not None)
 
     # --- recordings ----------------------------------------------------------------------------
     def _rrd_text(self) -> str:
-        view = self.view
-        if view is None:
-            return ""
-        rrd = view.folder / "audit.rrd"
-        if rrd.is_file():
-            return f"recording: `{rrd}` ({rrd.stat().st_size / 1e6:.1f} MB); open it with `rerun {rrd.name}`"
-        return "no recording yet"
+        return "" if self.view is None else rrd_text(self.view.folder)
 
     def write_rrd(self, *, background: bool = False) -> Path | None:
         """Write the selected clip's Rerun recording to ``audit.rrd`` in its record folder and

@@ -21,12 +21,22 @@ from geocon_core.record import ClipRecord
 from geocon_core.regate import ClipVerdict, Thresholds, regate_pairs
 from geocon_core.results import ResultClip
 
-from .style import fmt, object_color
+from .style import EMPTY, fmt, object_color
 
 INLIER = (60, 200, 90)
 OUTLIER = (235, 60, 50)
 
-__all__ = ["ClipView", "Plots", "thumb", "draw_frame", "render_scene", "render_plots", "clip_card"]
+__all__ = [
+    "ClipView",
+    "Plots",
+    "thumb",
+    "draw_frame",
+    "frame_text",
+    "empty_plot",
+    "render_scene",
+    "render_plots",
+    "clip_card",
+]
 
 
 def thumb(img: np.ndarray) -> np.ndarray:
@@ -86,6 +96,38 @@ def draw_frame(view: ClipView, t: int, *, masks: bool, matches: tuple[np.ndarray
                 lineType=cv2.LINE_AA,
             )
     return img
+
+
+def frame_text(
+    view: ClipView, t: int, matches: tuple[np.ndarray, np.ndarray] | None, v: ClipVerdict | None, *, shown: bool
+) -> str:
+    """The caption under frame ``t``: the pair's inlier count, the masked share, decoding state."""
+    share = view.overlays.masked_share(t) if view.overlays is not None else None
+    text = f"frame {t} of {view.num_frames - 1}"
+    if matches is not None:
+        k = int(matches[1].sum())
+        model = "?" if v is None else v.model
+        pair = f"({t}, {t + min(view.record.config.gaps)})"
+        text += f" · pair {pair}: {k} of {len(matches[1])} matches inliers under {model}"
+    if share is not None:
+        text += f" · masked {share:.1%}"
+    if view.frames_error:
+        text += f"\n\n⚠ {view.frames_error}"
+    elif not shown:
+        text += " · decoding…"
+    return text
+
+
+def empty_plot(server: viser.ViserServer, title: str) -> Any:
+    """A placeholder uPlot in the GUI (filled when a clip is selected)."""
+    x = np.zeros(1)
+    return server.gui.add_uplot(
+        (x, x),
+        (uplot.Series(label="frame"), uplot.Series(label="-")),
+        title=title,
+        aspect=2.2,
+        scales={"x": uplot.Scale(time=False)},
+    )
 
 
 @dataclass(frozen=True)
@@ -244,7 +286,7 @@ def clip_card(view: ClipView, v: ClipVerdict, clip: ResultClip, th: Thresholds, 
     state = {True: "passes", False: "FAILS", None: "cannot be judged"}[v.consistent]
     lines = [
         f"### {view.clip_id}",
-        f"platform **{clip.platform}** · category **{clip.category or '–'}** (expects {clip.expected_model or '–'})"
+        f"platform **{clip.platform}** · category **{clip.category or EMPTY}** (expects {clip.expected_model or EMPTY})"
         + (f" · {clip.prompt}" if clip.prompt else ""),
         "",
         f"**Background {state}** the report gate: model **{v.model}**, IR **{fmt(v.ir)}** "
