@@ -47,6 +47,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from geocon_core.diagnostics import FlowSlice, FrameDiagnostics, flow_hue
+from geocon_core.reader import DEFAULT_FPS
 from geocon_core.record import ClipRecord
 
 from .rerun_card import RERUN_VERSION, audit_card, worst_frame
@@ -92,9 +93,9 @@ def frames_from_diagnostics(fd: FrameDiagnostics) -> AuditFrame:
 class RerunAudit:
     """Writes one clip's audit into ``rec``.
 
-    fps: the clip's frame rate (for ``video_time``); frames: ``"video"`` (AV1, compact, the
-    default) or ``"jpeg"`` (one JPEG per frame, ``quality``); scale: which scale's matches are
-    drawn over the frames (default: the largest).
+    fps: the clip's frame rate (for ``video_time``; the reader's ``DEFAULT_FPS`` when not
+    positive); frames: ``"video"`` (AV1, compact, the default) or ``"jpeg"`` (one JPEG per frame,
+    ``quality``); scale: which scale's matches are drawn over the frames (default: the largest).
     """
 
     def __init__(
@@ -109,7 +110,7 @@ class RerunAudit:
         if frames not in ("video", "jpeg"):
             raise ValueError(f"frames must be 'video' or 'jpeg', got {frames!r}")
         if not fps > 0:
-            fps = 30.0
+            fps = DEFAULT_FPS
         self.rec, self.fps, self.scale = rec, float(fps), scale
         self.frames_mode = frames
         self.quality = int(quality if quality is not None else (32 if frames == "video" else 80))
