@@ -194,6 +194,10 @@ class ObjectEntry:
 
 @dataclass(frozen=True)
 class ObjectScaleSummary:
+    """One object at one scale: mean ``D_t`` (``adadfrc`` = S) and mean W2 over its valid frame
+    pairs (px^2 of the scale), AdaP90 (px^2), the number of valid pairs and the skip reasons with
+    their counts."""
+
     scale: float
     adadfrc: float | None
     adadfrc_w2: float | None
@@ -251,6 +255,9 @@ class Category:
 
 @dataclass(frozen=True)
 class GapSummary:
+    """One family at one frame gap: the aggregated IR (share, 0..1) and GE (px) over its valid
+    (pair, scale) entries, with the valid and total entry counts."""
+
     gap: int
     ir: float | None
     ge: float | None
@@ -260,6 +267,9 @@ class GapSummary:
 
 @dataclass(frozen=True)
 class ScaleSummary:
+    """One family at one scale: the median IR (share, 0..1) and GE (px of the scale) over its valid
+    pairs, their count, and the pixel equivalent of tau_F at this scale (median over valid F fits)."""
+
     scale: float
     ir: float | None
     ge: float | None
