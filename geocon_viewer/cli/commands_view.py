@@ -172,6 +172,9 @@ def serve(
     from geocon_core.results import ResultsError
 
     from ..audit_app import AuditApp
+    from ..rerun_video import quiet_encoder_logs
+
+    quiet_encoder_logs()  # the app writes recordings on request
 
     start = time.perf_counter()
     try:
