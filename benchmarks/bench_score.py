@@ -53,7 +53,7 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
     if sink is not None:
         sink.finish(record)
     wall = time.perf_counter() - t0
-    n = record.video["num_frames"]
+    n = record.video.num_frames
     return {
         "preset": preset_name,
         "masks": masks,

@@ -1,14 +1,112 @@
 """GeoCon core: ground-truth-free scoring of geometric consistency in video.
 
-The package imports nothing heavy at import time; import the stage modules you need:
+The public API, loaded lazily (``import geocon_core`` imports no OpenCV stage until a name is
+used):
 
-- :mod:`geocon_core.geometry`: pure two-view geometry (homographies, Sampson distance, poses);
-- :mod:`geocon_core.verdict`: the verdict rules (translation gate H / F / U, report gate, flags);
-- :mod:`geocon_core.synth`: synthetic scenes with exact ground truth (``geocon synth``);
-- :mod:`geocon_core.bench`, :mod:`geocon_core.tables`, :mod:`geocon_core.stats`,
-  :mod:`geocon_core.report`: benchmarks of many clips (``geocon bench``, ``geocon report``).
+>>> from geocon_core import ScoreConfig, score_clip, write_record   # doctest: +SKIP
+>>> record = score_clip("clip.mp4", ScoreConfig())                   # doctest: +SKIP
+>>> write_record(record, "out/")                                     # doctest: +SKIP
+
+- scoring: :func:`score_clip`, :class:`ScoreConfig`, :func:`preset`, :data:`PRESETS`,
+  :func:`config_hash`;
+- records: :func:`read_record`, :func:`write_record`, :class:`ClipRecord` and its parts
+  (:class:`GateRecord`, :class:`BackgroundSummary`, :class:`PairRecord`, ...), :class:`ClipInfo`,
+  :class:`PoseEstimate`;
+- errors: :class:`ClipError` (unusable input).
+
+The stage modules stay importable on their own: :mod:`geocon_core.geometry` (two-view geometry),
+:mod:`geocon_core.verdict` (the translation gate, the report gate and flags), :mod:`geocon_core.synth` (synthetic scenes),
+:mod:`geocon_core.bench`, :mod:`geocon_core.tables`, :mod:`geocon_core.stats` and
+:mod:`geocon_core.report` (benchmarks of many clips).
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from ._version import __version__
 
-__all__ = ["__version__"]
+if TYPE_CHECKING:
+    from .config import PRESETS, ScoreConfig, config_hash, preset
+    from .pose import PoseEstimate
+    from .reader import ClipError, ClipInfo
+    from .record import (
+        BackgroundSummary,
+        Category,
+        ClipRecord,
+        FamilySummary,
+        FitSummary,
+        GateRecord,
+        MatchArrays,
+        ObjectEntry,
+        ObjectSummary,
+        PairRecord,
+        PointCloud,
+        read_record,
+        write_record,
+    )
+    from .scorer import score_clip
+
+_LAZY: dict[str, str] = {
+    "score_clip": "scorer",
+    "ScoreConfig": "config",
+    "PRESETS": "config",
+    "preset": "config",
+    "config_hash": "config",
+    "read_record": "record",
+    "write_record": "record",
+    "ClipRecord": "record",
+    "GateRecord": "record",
+    "BackgroundSummary": "record",
+    "FamilySummary": "record",
+    "PairRecord": "record",
+    "FitSummary": "record",
+    "MatchArrays": "record",
+    "ObjectSummary": "record",
+    "ObjectEntry": "record",
+    "Category": "record",
+    "PointCloud": "record",
+    "ClipInfo": "reader",
+    "ClipError": "reader",
+    "PoseEstimate": "pose",
+}
+"""Public name -> the module of this package that defines it."""
+
+__all__ = [
+    "__version__",
+    "score_clip",
+    "ScoreConfig",
+    "PRESETS",
+    "preset",
+    "config_hash",
+    "read_record",
+    "write_record",
+    "ClipRecord",
+    "GateRecord",
+    "BackgroundSummary",
+    "FamilySummary",
+    "PairRecord",
+    "FitSummary",
+    "MatchArrays",
+    "ObjectSummary",
+    "ObjectEntry",
+    "Category",
+    "PointCloud",
+    "ClipInfo",
+    "ClipError",
+    "PoseEstimate",
+]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'geocon_core' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

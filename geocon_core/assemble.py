@@ -84,7 +84,7 @@ def _gate_record(
         margin=v.margin,
         backend=backend,
         thresholds={"tau_t": cfg.tau_t, "low": cfg.tau_t_low, "high": cfg.tau_t_high},
-        pose=pose.to_dict(),
+        pose=pose,
         timeline=tuple(timeline),
     )
 
@@ -176,7 +176,7 @@ def assemble_record(
     pairs, arrays = zip(*(_pair_record(i, r) for i, r in enumerate(scored)), strict=True) if scored else ((), ())
     return ClipRecord(
         clip=clip,
-        video=info.to_dict(),
+        video=info,
         config=cfg,
         config_hash=config_hash(cfg),
         versions=software_versions(),

@@ -1,11 +1,5 @@
-"""``geocon bench``: score every clip of a dataset in worker processes, resumably.
-
-Results layout (see ``docs/bench-tables.md``)::
-
-    RESULTS/bench.json                 dataset, full config, config hash, versions
-    RESULTS/clips/<clip_id>/           record.json, matches.npz, overlays/, audit.rrd (flagged clips),
-                                       status.json (written last: ok or failed, with the reason)
-    RESULTS/tables/*.parquet           flat tables, rebuilt from clips/ at the end of every run
+"""``geocon bench``: score every clip of a dataset in worker processes, resumably, into a
+results folder laid out as :mod:`geocon_core.layout` describes.
 
 A clip is finished when its ``status.json`` exists; a restarted run skips finished clips, so a
 killed run loses at most the clips that were in flight and never scores a clip twice. A clip that
@@ -15,7 +9,6 @@ reason and counted, never dropped; ``retry_failed`` scores failed clips again.
 
 from __future__ import annotations
 
-import importlib
 import json
 import multiprocessing
 import os
@@ -30,22 +23,29 @@ from typing import Any, Callable
 
 from .config import ScoreConfig, config_hash
 from .dataset import ClipEntry, load_dataset
+from .layout import (
+    BENCH_FORMAT,
+    CLIPS_DIR,
+    RRD_NAME,
+    STATUS_FORMAT,
+    clip_dir,
+    manifest_path,
+    read_manifest,
+    read_status,
+    write_manifest,
+    write_status,
+)
+from .tables import write_tables
+from .verdict import is_flagged
 
 __all__ = [
-    "BENCH_FORMAT",
-    "STATUS_FORMAT",
     "BenchError",
     "BenchSummary",
-    "clip_dir",
+    "RecordRenderer",
     "run_bench",
-    "read_status",
     "score_to_folder",
 ]
 
-BENCH_FORMAT = "geocon-bench/1"
-STATUS_FORMAT = "geocon-bench-clip/1"
-CLIPS_DIR = "clips"
-RRD_NAME = "audit.rrd"
 MAX_CRASHES = 2
 """A clip in flight when a worker process dies this many times is recorded as failed."""
 
@@ -68,32 +68,8 @@ class BenchSummary:
     tables: tuple[Path, ...] = field(default_factory=tuple)
 
 
-def clip_dir(results: Path, clip_id: str) -> Path:
-    return results / CLIPS_DIR / clip_id
-
-
-def read_status(folder: Path) -> dict[str, Any] | None:
-    """The ``status.json`` of a clip folder, or None when the clip is not finished."""
-    path = folder / "status.json"
-    if not path.is_file():
-        return None
-    try:
-        status = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    return status if status.get("format") == STATUS_FORMAT else None
-
-
-def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False) + "\n")
-    tmp.replace(path)
-
-
 def _flagged(record: Any, expected_model: str | None) -> bool:
     """Whether a scored clip gets an audit recording (:func:`geocon_core.verdict.is_flagged`)."""
-    from .verdict import is_flagged
-
     return is_flagged(
         consistent=record.background.consistent,
         pose_present=record.gate.pose_present,
@@ -136,15 +112,13 @@ def score_to_folder(
     return record
 
 
-def _load_renderer(spec: str | None) -> Callable[[Path, Path], Any] | None:
-    if spec is None:
-        return None
-    module, _, name = spec.partition(":")
-    return getattr(importlib.import_module(module), name)
+RecordRenderer = Callable[[Path, Path], Any]
+"""Renders a saved record: called as ``render(record_dir, output_path)``. Passed to worker
+processes, so it must be picklable (a module-level function)."""
 
 
 def _score_one(
-    entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: str | None, threads: int
+    entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: RecordRenderer | None, threads: int
 ) -> dict[str, Any]:
     """Worker: score one clip into its folder and write its status (ok or failed)."""
     import cv2
@@ -170,25 +144,24 @@ def _score_one(
     }
     try:
         record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
-        render = _load_renderer(renderer)
-        if render is not None and _flagged(record, EXPECTED_MODEL.get(entry.category)):
-            render(out, out / RRD_NAME)
+        if renderer is not None and _flagged(record, EXPECTED_MODEL.get(entry.category)):
+            renderer(out, out / RRD_NAME)
             status["rrd"] = RRD_NAME
     except Exception as exc:  # every failure is recorded with its reason, never dropped
         status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
     status["seconds"] = round(time.perf_counter() - start, 3)
-    _write_json(out / "status.json", status)
+    write_status(out, status)
     return status
 
 
 def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
     from .scorer import software_versions
 
-    manifest = results / "bench.json"
+    manifest = manifest_path(results)
     digest = config_hash(cfg)
     if manifest.is_file():
         try:
-            old = json.loads(manifest.read_text())
+            old = read_manifest(results)
         except json.JSONDecodeError:
             raise BenchError(f"{manifest} is not valid JSON; remove it or choose another --out") from None
         if old.get("format") != BENCH_FORMAT:
@@ -196,13 +169,14 @@ def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
         if old.get("config_hash") != digest:
             raise BenchError(
                 f"{results} was scored with another configuration (hash {old.get('config_hash')}, preset "
-                f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another --out"
+                f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another "
+                "--out"
             )
         return
     results.mkdir(parents=True, exist_ok=True)
     (results / CLIPS_DIR).mkdir(exist_ok=True)
-    _write_json(
-        manifest,
+    write_manifest(
+        results,
         {
             "format": BENCH_FORMAT,
             "dataset": str(dataset.resolve()),
@@ -219,7 +193,7 @@ def run_bench(
     config: ScoreConfig | None = None,
     *,
     workers: int = 1,
-    rrd_renderer: str | None = None,
+    rrd_renderer: RecordRenderer | None = None,
     retry_failed: bool = False,
     on_clip: Callable[[dict[str, Any], int, int, int], None] | None = None,
     on_start: Callable[[int, int], None] | None = None,
@@ -227,9 +201,9 @@ def run_bench(
 ) -> BenchSummary:
     """Score every clip of ``dataset`` into ``results`` with ``workers`` processes.
 
-    ``rrd_renderer`` (``"module:function"``, called as ``f(record_dir, rrd_path)``) writes a Rerun
-    recording for flagged clips (:func:`geocon_core.verdict.is_flagged`). ``on_start(to_score,
-    skipped)`` is called once; ``on_clip(status, done, total, failed)`` after each clip. Raises
+    ``rrd_renderer`` (a module-level function, called as ``f(record_dir, rrd_path)``) writes a Rerun
+    recording for flagged clips (:func:`geocon_core.verdict.is_flagged`). ``on_start(to_score, skipped)`` is called once;
+    ``on_clip(status, done, total, failed)`` after each clip. Raises
     :class:`~geocon_core.dataset.DatasetError` or :class:`BenchError` before scoring anything."""
     cfg = config or ScoreConfig()
     if workers < 1:
@@ -238,65 +212,22 @@ def run_bench(
     entries = load_dataset(data)
     _prepare_results(out, data, cfg)
     start = time.perf_counter()
-    todo, failed_before = [], 0
-    for entry in entries:
-        status = read_status(clip_dir(out, entry.clip_id))
-        if status is None or (retry_failed and status["status"] == "failed"):
-            todo.append(entry)
-        elif status["status"] == "failed":
-            failed_before += 1
+    todo, failed_before = _unfinished(entries, out, retry_failed)
     skipped = len(entries) - len(todo)
     if on_start is not None:
         on_start(len(todo), skipped)
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    renderer = rrd_renderer
     done, failed = skipped, failed_before
-    crashes: dict[str, int] = {}
-    queue = list(todo)
-    ctx = multiprocessing.get_context("spawn")
-    while queue:
-        limit = 1 if crashes else workers  # after a worker died, suspects run alone
-        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
-        inflight: dict[Future, ClipEntry] = {}
-        broken = False
-        try:
-            while queue or inflight:
-                while queue and len(inflight) < limit and not broken:
-                    entry = queue.pop(0)
-                    fut = pool.submit(
-                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), renderer, threads
-                    )
-                    inflight[fut] = entry
-                if not inflight:
-                    break
-                finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    entry = inflight.pop(fut)
-                    try:
-                        status = fut.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        crashes[entry.clip_id] = crashes.get(entry.clip_id, 0) + 1
-                        if crashes[entry.clip_id] < MAX_CRASHES:
-                            queue.insert(0, entry)
-                            continue
-                        status = _crashed(out, entry, cfg)
-                    done += 1
-                    failed += status["status"] == "failed"
-                    if on_clip is not None:
-                        on_clip(status, done, len(entries), failed)
-                if broken and not inflight:
-                    break
-        except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.terminate()
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
+
+    def finished(status: dict[str, Any]) -> None:
+        nonlocal done, failed
+        done += 1
+        failed += status["status"] == "failed"
+        if on_clip is not None:
+            on_clip(status, done, len(entries), failed)
+
+    _score_all(todo, out, cfg, workers, rrd_renderer, finished)
     paths: tuple[Path, ...] = ()
     if tables:
-        from .tables import write_tables
-
         paths = write_tables(out)
     return BenchSummary(
         results=out,
@@ -309,6 +240,71 @@ def run_bench(
     )
 
 
+def _unfinished(entries: list[ClipEntry], out: Path, retry_failed: bool) -> tuple[list[ClipEntry], int]:
+    """The clips still to score (unfinished, or failed when ``retry_failed``) and how many failed
+    clips are kept as they are."""
+    todo, failed_before = [], 0
+    for entry in entries:
+        status = read_status(clip_dir(out, entry.clip_id))
+        if status is None or (retry_failed and status["status"] == "failed"):
+            todo.append(entry)
+        elif status["status"] == "failed":
+            failed_before += 1
+    return todo, failed_before
+
+
+def _score_all(
+    todo: list[ClipEntry],
+    out: Path,
+    cfg: ScoreConfig,
+    workers: int,
+    rrd_renderer: RecordRenderer | None,
+    finished: Callable[[dict[str, Any]], None],
+) -> None:
+    """Score ``todo`` in worker processes, calling ``finished(status)`` per clip. A clip in flight
+    when a worker dies is retried alone, and recorded as failed after :data:`MAX_CRASHES` deaths."""
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    crashes: dict[str, int] = {}
+    queue = list(todo)
+    ctx = multiprocessing.get_context("spawn")
+    while queue:
+        limit = 1 if crashes else workers  # after a worker died, suspects run alone
+        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
+        inflight: dict[Future[dict[str, Any]], ClipEntry] = {}
+        broken = False
+        try:
+            while queue or inflight:
+                while queue and len(inflight) < limit and not broken:
+                    entry = queue.pop(0)
+                    fut = pool.submit(
+                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), rrd_renderer, threads
+                    )
+                    inflight[fut] = entry
+                if not inflight:
+                    break
+                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    entry = inflight.pop(fut)
+                    try:
+                        status = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        crashes[entry.clip_id] = crashes.get(entry.clip_id, 0) + 1
+                        if crashes[entry.clip_id] < MAX_CRASHES:
+                            queue.insert(0, entry)
+                            continue
+                        status = _crashed(out, entry, cfg)
+                    finished(status)
+                if broken and not inflight:
+                    break
+        except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+
+
 def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any]:
     folder = clip_dir(results, entry.clip_id)
     folder.mkdir(parents=True, exist_ok=True)
@@ -318,11 +314,12 @@ def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any
         "status": "failed",
         "traceback": None,
         "rrd": None,
-        "error": f"the worker process died {MAX_CRASHES} times while scoring this clip (out of memory or a crash in a native library)",
+        "error": f"the worker process died {MAX_CRASHES} times while scoring this clip "
+        "(out of memory or a crash in a native library)",
         "config_hash": config_hash(cfg),
         "meta": entry.meta,
         "video": str(entry.video),
         "seconds": None,
     }
-    _write_json(folder / "status.json", status)
+    write_status(folder, status)
     return status

@@ -101,7 +101,7 @@ def categorize_record(record: ClipRecord, object_frames: list[int]) -> Category:
         gate_model=record.gate.model,
         pose_present=record.gate.pose_present,
         t_inf=record.gate.t_inf,
-        rotation_deg=record.gate.pose.get("rotation_deg"),
+        rotation_deg=record.gate.pose.rotation_deg,
         background_motion_px=float(np.median(motions)) if motions else None,
         valid_share=bg.valid_pairs / bg.total_pairs if bg.total_pairs else 0.0,
         median_matches=float(np.median(matches)) if matches else None,

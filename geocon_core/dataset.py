@@ -27,11 +27,27 @@ from typing import Any
 
 from .reader import ClipError, check_clip
 
-__all__ = ["CATEGORIES", "EXPECTED_MODEL", "REQUIRED_FIELDS", "ClipEntry", "DatasetError", "load_dataset"]
+__all__ = [
+    "CATEGORIES",
+    "EXPECTED_MODEL",
+    "REQUIRED_FIELDS",
+    "ClipEntry",
+    "DatasetError",
+    "expected_model",
+    "load_dataset",
+]
 
 CATEGORIES = ("C1", "C2", "C3", "C4", "C5", "C6")
 EXPECTED_MODEL = {"C1": "H", "C2": "H", "C4": "H", "C3": "F", "C5": "F", "C6": "F"}
 """The expected rule (SPEC section 6): the background model each category should gate to."""
+
+
+def expected_model(category: object) -> str | None:
+    """The family a clip of ``category`` should be gated to (:data:`EXPECTED_MODEL`), or None for
+    a missing or unknown category."""
+    return EXPECTED_MODEL.get(category) if isinstance(category, str) else None
+
+
 REQUIRED_FIELDS = (
     "clip_id",
     "prompt",
@@ -128,6 +144,36 @@ def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
     return problems
 
 
+def _read_sidecar(sidecar: Path, name: str) -> tuple[dict[str, Any] | None, str]:
+    """The parsed sidecar, or None and the problem with it."""
+    try:
+        meta = json.loads(sidecar.read_text())
+    except (OSError, UnicodeDecodeError) as exc:
+        return None, f"{name}: cannot be read ({exc})"
+    except json.JSONDecodeError as exc:
+        return None, f"{name}: not valid JSON ({exc.msg} at line {exc.lineno})"
+    if not isinstance(meta, dict):
+        return None, f"{name}: must hold a JSON object"
+    return meta, ""
+
+
+def _video_problems(name: str, sidecar: Path, meta: dict[str, Any], video: Path | None, check_clips: bool) -> list[str]:
+    """What is wrong with a sidecar's clip file (missing, or with ``check_clips`` unreadable)."""
+    if video is None:
+        return [
+            f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another "
+            "video, or a 'video' field)"
+        ]
+    if not video.exists():
+        return [f"{name}: clip file {meta.get('video')} does not exist"]
+    if check_clips:
+        try:
+            check_clip(video)
+        except ClipError as exc:
+            return [f"{name}: unreadable clip ({exc})"]
+    return []
+
+
 def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntry]:
     """Every clip of the dataset at ``root``, sorted by clip_id, after validating all sidecars:
     required fields and their types, known categories, unique clip ids, the clip file present
@@ -144,33 +190,16 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
     seen: dict[str, Path] = {}
     for sidecar in sidecars:
         name = str(sidecar.relative_to(base))
-        try:
-            meta = json.loads(sidecar.read_text())
-        except (OSError, UnicodeDecodeError) as exc:
-            problems.append(f"{name}: cannot be read ({exc})")
-            continue
-        except json.JSONDecodeError as exc:
-            problems.append(f"{name}: not valid JSON ({exc.msg} at line {exc.lineno})")
-            continue
-        if not isinstance(meta, dict):
-            problems.append(f"{name}: must hold a JSON object")
+        meta, problem = _read_sidecar(sidecar, name)
+        if meta is None:
+            problems.append(problem)
             continue
         mine = _field_problems(name, meta)
         cid = meta.get("clip_id")
         if isinstance(cid, str) and cid in seen:
             mine.append(f"{name}: clip_id {cid!r} is also used by {seen[cid].relative_to(base)}")
         video = _find_video(sidecar, meta)
-        if video is None:
-            mine.append(
-                f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another video, or a 'video' field)"
-            )
-        elif not video.exists():
-            mine.append(f"{name}: clip file {meta.get('video')} does not exist")
-        elif check_clips:
-            try:
-                check_clip(video)
-            except ClipError as exc:
-                mine.append(f"{name}: unreadable clip ({exc})")
+        mine += _video_problems(name, sidecar, meta, video, check_clips)
         masks = None
         if isinstance(meta.get("masks_path"), str):
             masks = sidecar.parent / meta["masks_path"]
@@ -179,8 +208,8 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
         if mine:
             problems.extend(mine)
             continue
+        assert isinstance(cid, str) and video is not None  # checked by _field_problems and above
         seen[cid] = sidecar
-        assert video is not None
         entries.append(
             ClipEntry(
                 clip_id=cid,

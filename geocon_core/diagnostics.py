@@ -37,6 +37,8 @@ __all__ = [
     "FrameDiagnostics",
     "flow_hue",
     "OverlayWriter",
+    "OverlayFlow",
+    "OverlayFrame",
     "Overlays",
     "read_overlays",
     "OVERLAYS_FORMAT",
@@ -103,6 +105,56 @@ def flow_hue(flow: np.ndarray, valid: np.ndarray, max_magnitude: float | None = 
     return rgba, max_magnitude
 
 
+@dataclass(frozen=True)
+class OverlayFlow:
+    """An entry of ``index.json``: the flow-hue slice file of object ``object_id`` on the pair
+    (t0, t1), covering ``box`` (x0, y0, x1, y1, working px, half-open); ``max_magnitude`` (px) is
+    the flow magnitude shown at full brightness."""
+
+    object_id: int
+    t0: int
+    t1: int
+    box: tuple[int, int, int, int]
+    file: str
+    max_magnitude: float
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "object_id": self.object_id,
+            "t0": self.t0,
+            "t1": self.t1,
+            "box": list(self.box),
+            "file": self.file,
+            "max_magnitude": self.max_magnitude,
+        }
+
+    @classmethod
+    def from_json_dict(cls, d: dict[str, Any]) -> "OverlayFlow":
+        x0, y0, x1, y1 = (int(v) for v in d["box"])
+        return cls(int(d["object_id"]), int(d["t0"]), int(d["t1"]), (x0, y0, x1, y1), d["file"], d["max_magnitude"])
+
+
+@dataclass(frozen=True)
+class OverlayFrame:
+    """The ``index.json`` entry of one frame: the masked share of the content (0..1), the labels
+    file (None for a frame without objects) and the flow slices of its objects."""
+
+    masked_share: float
+    labels: str | None
+    flows: tuple[OverlayFlow, ...] = ()
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "masked_share": self.masked_share,
+            "labels": self.labels,
+            "flows": [f.to_json_dict() for f in self.flows],
+        }
+
+    @classmethod
+    def from_json_dict(cls, d: dict[str, Any]) -> "OverlayFrame":
+        return cls(d["masked_share"], d["labels"], tuple(OverlayFlow.from_json_dict(f) for f in d["flows"]))
+
+
 class OverlayWriter:
     """Writes the ``overlays/`` folder of a record as frames stream in (use as ``on_frame``)."""
 
@@ -111,34 +163,26 @@ class OverlayWriter:
         self.dir.mkdir(parents=True, exist_ok=True)
         for old in self.dir.glob("*.png"):
             old.unlink()
-        self.frames: dict[str, dict[str, Any]] = {}
+        self.frames: dict[int, OverlayFrame] = {}
 
     def __call__(self, fd: FrameDiagnostics) -> None:
-        entry: dict[str, Any] = {"masked_share": float(fd.masked_share), "labels": None, "flows": []}
+        labels = None
         if fd.labels is not None and fd.labels.any():
-            name = f"labels-{fd.index:05d}.png"
-            _imwrite(self.dir / name, fd.labels.astype(np.uint16))
-            entry["labels"] = name
+            labels = f"labels-{fd.index:05d}.png"
+            _imwrite(self.dir / labels, fd.labels.astype(np.uint16))
+        flows = []
         for of in fd.flows:
             rgba, vmax = flow_hue(of.flow, of.reliable & of.mask)
             name = f"flow-{fd.index:05d}-{of.object_id:03d}.png"
             _imwrite(self.dir / name, cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA))
-            entry["flows"].append(
-                {
-                    "object_id": of.object_id,
-                    "t0": of.t0,
-                    "t1": of.t1,
-                    "box": list(of.box),
-                    "file": name,
-                    "max_magnitude": vmax,
-                }
-            )
-        self.frames[str(fd.index)] = entry
+            flows.append(OverlayFlow(of.object_id, of.t0, of.t1, of.box, name, vmax))
+        self.frames[fd.index] = OverlayFrame(float(fd.masked_share), labels, tuple(flows))
 
     def close(self) -> Path:
         path = self.dir / "index.json"
         tmp = self.dir / ".index.json.part"
-        tmp.write_text(json.dumps({"format": OVERLAYS_FORMAT, "frames": self.frames}, indent=1) + "\n")
+        frames = {str(t): entry.to_json_dict() for t, entry in self.frames.items()}
+        tmp.write_text(json.dumps({"format": OVERLAYS_FORMAT, "frames": frames}, indent=1) + "\n")
         tmp.replace(path)
         return path
 
@@ -165,32 +209,35 @@ class Overlays:
 
     def __init__(self, folder: Path, index: dict[str, Any]) -> None:
         self.folder = folder
-        self._frames = index["frames"]
+        self.entries: dict[int, OverlayFrame] = {
+            int(t): OverlayFrame.from_json_dict(e) for t, e in index["frames"].items()
+        }
 
     @property
     def frames(self) -> list[int]:
-        return sorted(int(k) for k in self._frames)
+        return sorted(self.entries)
 
     def masked_share(self, t: int) -> float | None:
-        e = self._frames.get(str(t))
-        return None if e is None else e["masked_share"]
+        e = self.entries.get(t)
+        return None if e is None else e.masked_share
 
     def labels(self, t: int) -> np.ndarray | None:
         """(H, W) uint16 object ids of frame t, or None when the frame has no object."""
-        e = self._frames.get(str(t))
-        if e is None or e["labels"] is None:
+        e = self.entries.get(t)
+        if e is None or e.labels is None:
             return None
-        return cv2.imread(str(self.folder / e["labels"]), cv2.IMREAD_UNCHANGED)
+        labels = cv2.imread(str(self.folder / e.labels), cv2.IMREAD_UNCHANGED)
+        return None if labels is None else np.asarray(labels)
 
     def flows(self, t: int) -> list[FlowSlice]:
-        e = self._frames.get(str(t))
+        e = self.entries.get(t)
         out = []
-        for f in [] if e is None else e["flows"]:
-            raw = cv2.imread(str(self.folder / f["file"]), cv2.IMREAD_UNCHANGED)
-            if raw is None:
-                raise OSError(f"cannot read the flow image {self.folder / f['file']}")
-            img = cv2.cvtColor(raw, cv2.COLOR_BGRA2RGBA)
-            out.append(FlowSlice(f["object_id"], f["t0"], f["t1"], tuple(f["box"]), f["max_magnitude"], img))
+        for f in () if e is None else e.flows:
+            bgra = cv2.imread(str(self.folder / f.file), cv2.IMREAD_UNCHANGED)
+            if bgra is None:
+                raise OSError(f"could not read {self.folder / f.file}")
+            img = cv2.cvtColor(bgra, cv2.COLOR_BGRA2RGBA)
+            out.append(FlowSlice(f.object_id, f.t0, f.t1, f.box, f.max_magnitude, img))
         return out
 
 

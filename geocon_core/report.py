@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import json
 import os
 from dataclasses import dataclass, field
@@ -29,12 +28,29 @@ import numpy as np
 import pandas as pd
 
 from . import stats
+from .report_figures import (
+    FigureBuilder,
+    fig_calibration,
+    fig_dynamic,
+    fig_effects,
+    fig_margins,
+    fig_ridgelines,
+    fig_sensitivity,
+    fig_tinf,
+)
 from .tables import read_tables
 from .verdict import flag_reasons
 
 __all__ = ["ReportResult", "build_report"]
 
-_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+
+def _gate_lines(config: dict[str, Any]) -> tuple[float, float, float]:
+    """The gate thresholds (tau_t_low, tau_t, tau_t_high) of the benchmark's configuration, drawn
+    as the t_inf lines of the gate figures."""
+    from .config import ScoreConfig
+
+    cfg = ScoreConfig.from_dict(config) if config else ScoreConfig()
+    return (cfg.tau_t_low, cfg.tau_t, cfg.tau_t_high)
 
 
 @dataclass(frozen=True)
@@ -44,352 +60,6 @@ class ReportResult:
     figures: tuple[Path, ...]
     tables: tuple[Path, ...]
     warnings: tuple[str, ...] = field(default_factory=tuple)
-
-
-@dataclass
-class _Figure:
-    name: str
-    title: str
-    caption: str
-    png: bytes
-
-
-class _Builder:
-    def __init__(self, out: Path, footer: str, formats: Sequence[str]) -> None:
-        import matplotlib
-
-        matplotlib.use("Agg", force=True)
-        self.out, self.footer, self.formats = out, footer, tuple(formats)
-        (out / "figures").mkdir(parents=True, exist_ok=True)
-        (out / "tables").mkdir(parents=True, exist_ok=True)
-        self.figures: list[_Figure] = []
-        self.paths: list[Path] = []
-        self.tables: list[Path] = []
-        self.skipped: list[str] = []
-
-    def figure(self, ncols: int = 1, nrows: int = 1, size: tuple[float, float] = (7.0, 4.0)):
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=size, dpi=110, layout="constrained")
-        axes = fig.subplots(nrows, ncols, squeeze=False)
-        return fig, axes
-
-    def save(self, fig, name: str, title: str, caption: str) -> None:
-        fig.get_layout_engine().set(rect=(0, 0.035, 1, 0.965))  # room for the footer
-        fig.text(0.995, 0.004, self.footer, ha="right", va="bottom", fontsize=6, color="#666666")
-        for fmt in self.formats:
-            path = self.out / "figures" / f"{name}.{fmt}"
-            meta = {"Software": None} if fmt == "png" else {"Date": None, "Creator": None}
-            fig.savefig(path, format=fmt, metadata=meta)
-            self.paths.append(path)
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", metadata={"Software": None})
-        self.figures.append(_Figure(name, title, caption, buf.getvalue()))
-
-    def skip(self, title: str, reason: str) -> None:
-        self.skipped.append(f"{title}: {reason}")
-
-    def table(self, df: pd.DataFrame, name: str) -> None:
-        path = self.out / "tables" / f"{name}.csv"
-        df.to_csv(path, index=False)
-        self.tables.append(path)
-
-
-def _color(i: int) -> str:
-    return _COLORS[i % len(_COLORS)]
-
-
-def _violins(ax, groups: list[tuple[str, np.ndarray]]) -> None:
-    data = [(label, v[np.isfinite(v)]) for label, v in groups]
-    data = [(label, v) for label, v in data if v.size]
-    pos = np.arange(1, len(data) + 1)
-    multi = [v if v.size > 1 else np.repeat(v, 2) for _, v in data]
-    parts = ax.violinplot(multi, positions=pos, showmedians=True, widths=0.8)
-    for i, body in enumerate(parts["bodies"]):
-        body.set_facecolor(_color(i))
-        body.set_alpha(0.4)
-    rng = np.random.default_rng(0)
-    for p, (_, v) in zip(pos, data):
-        ax.scatter(p + rng.uniform(-0.12, 0.12, v.size), v, s=8, color="k", alpha=0.6, zorder=3)
-    ax.set_xticks(pos, [label for label, _ in data])
-
-
-def _gate_lines(config: dict[str, Any]) -> tuple[float, float, float]:
-    """The gate thresholds (tau_t_low, tau_t, tau_t_high) of the benchmark's configuration."""
-    from .config import ScoreConfig
-
-    cfg = ScoreConfig.from_dict(config) if config else ScoreConfig()
-    return (cfg.tau_t_low, cfg.tau_t, cfg.tau_t_high)
-
-
-def _fig_tinf(b: _Builder, ok: pd.DataFrame, gate_lines: tuple[float, float, float]) -> None:
-    t = ok["t_inf"].to_numpy(float)
-    fin = np.isfinite(t)
-    if not fin.any():
-        return b.skip("t_inf distributions", "no clip has a pose")
-    is_f = (ok["expected_model"] == "F").to_numpy()
-    fig, ax = b.figure(2, 1, (10, 4))
-    edges = np.linspace(0, max(0.1, float(np.nanmax(t)) * 1.05), 31)
-    for label, sel, col in (
-        ("expected H (C1/C2/C4)", ~is_f & fin, _color(0)),
-        ("expected F (C3/C5/C6)", is_f & fin, _color(1)),
-    ):
-        if sel.any():
-            ax[0, 0].hist(t[sel], edges, alpha=0.55, color=col, label=f"{label}, n={int(sel.sum())}")
-    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
-        ax[0, 0].axvline(x, color="k", ls=ls, lw=1)
-    lines = " / ".join(f"{x:g}" for x in gate_lines)
-    ax[0, 0].set(xlabel="t_inf", ylabel="clips", title=f"t_inf by expected class (gate lines {lines})")
-    ax[0, 0].legend(fontsize=7)
-    cats = sorted(ok["category"].dropna().unique())
-    _violins(ax[0, 1], [(c, ok.loc[ok["category"] == c, "t_inf"].to_numpy(float)) for c in cats])
-    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
-        ax[0, 1].axhline(x, color="k", ls=ls, lw=1)
-    ax[0, 1].set(ylabel="t_inf", title="t_inf per family")
-    b.save(
-        fig,
-        "tinf",
-        "Translation statistic",
-        f"Where clips fall against the gate: expected-H clips should sit left of {gate_lines[0]:g}, expected-F clips "
-        f"right of {gate_lines[2]:g}; the gray zone between fits both models.",
-    )
-
-
-def _fig_margins(b: _Builder, ok: pd.DataFrame) -> None:
-    models = sorted(ok["model"].unique())
-    groups = [(m, ok.loc[ok["model"] == m, "margin"].to_numpy(float)) for m in models]
-    if not any(np.isfinite(v).any() for _, v in groups):
-        return b.skip("Gate margins", "no clip has a pose")
-    fig, ax = b.figure(size=(7, 3.6))
-    _violins(ax[0, 0], groups)
-    ax[0, 0].axhline(0, color="k", lw=1)
-    ax[0, 0].set(ylabel="gate margin (t_inf units)", title="Gate margins per platform")
-    b.save(
-        fig,
-        "margins",
-        "Gate margins",
-        "Distance of t_inf to the nearer gate threshold; values near 0 are thin decisions that flip with small pose errors.",
-    )
-
-
-def _fig_calibration(
-    b: _Builder, ok: pd.DataFrame, seed: int, gate_lines: tuple[float, float, float]
-) -> dict[str, Any] | None:
-    t = ok["t_inf"].to_numpy(float)
-    is_f = (ok["expected_model"] == "F").to_numpy()
-    fin = np.isfinite(t)
-    if not (is_f[fin].any() and (~is_f[fin]).any()):
-        b.skip("Gate calibration", "needs clips of both expected classes with a pose")
-        return None
-    bins = stats.calibration_bins(t, is_f, K=12)
-    b.table(bins, "calibration_bins")
-    fig, ax = b.figure(size=(6, 4))
-    a = ax[0, 0]
-    a.fill_between(bins["t_mid"], bins["low"], bins["high"], color=_color(0), alpha=0.25, label="Wilson 95%")
-    a.plot(bins["t_mid"], bins["p"], "o-", color=_color(0), label="P(F | t_inf), 12 equal-count bins")
-    for x, ls in zip(gate_lines, (":", "--", ":"), strict=True):
-        a.axvline(x, color="k", ls=ls, lw=1)
-    a.set(xlabel="t_inf (bin median)", ylabel="share expected F", ylim=(-0.02, 1.02), title="Gate calibration")
-    a.legend(fontsize=7)
-    b.save(
-        fig,
-        "calibration",
-        "Gate calibration",
-        "Share of expected-F clips per t_inf bin; a well-placed gate has the curve rise across the gray zone.",
-    )
-    taus = np.linspace(0.0, max(0.1, float(np.nanmax(t))), 101)
-    nb = stats.net_benefit(t, is_f, taus)
-    boot = stats.bootstrap_tau(t, is_f, B=400, seed=seed)
-    fig, ax = b.figure(3, 1, (12, 3.8))
-    for i, c in enumerate((0.5, 1.0, 2.0)):
-        sel = nb[nb["c"] == c]
-        ax[0, 0].plot(sel["tau"], sel["net_benefit"], color=_color(i), label=f"c = {c:g}")
-    for g in stats.TAU_GRID:
-        ax[0, 0].axvline(g, color="#999999", lw=0.6)
-    ax[0, 0].set(xlabel="tau_t", ylabel="net benefit", title="Net benefit (TP - c FP) / N")
-    ax[0, 0].legend(fontsize=7)
-    x = np.arange(len(boot.grid))
-    ax[0, 1].errorbar(x, boot.mean, yerr=[boot.mean - boot.low, boot.high - boot.mean], fmt="o", capsize=3)
-    ax[0, 1].set_xticks(x, [f"{g:g}" for g in boot.grid])
-    ax[0, 1].set(xlabel="tau_t", ylabel="balanced accuracy", title=f"Bootstrap (B = {boot.B}) mean and 95% CI")
-    ax[0, 2].bar(x, boot.argmax_counts, color=_color(2))
-    ax[0, 2].set_xticks(x, [f"{g:g}" for g in boot.grid])
-    ax[0, 2].set(xlabel="tau_t", ylabel="replicates", title=f"argmax histogram (best {boot.best_tau:g})")
-    b.save(
-        fig,
-        "net_benefit_bootstrap",
-        "Threshold choice",
-        "Net benefit of calling F above tau_t for three false-positive costs, and which tau_t of the grid maximises balanced accuracy across bootstrap replicates.",
-    )
-    return {"best_tau": boot.best_tau, "grid": list(boot.grid), "argmax_counts": boot.argmax_counts.tolist()}
-
-
-def _fig_ridgelines(b: _Builder, ok: pd.DataFrame) -> None:
-    cats = sorted(ok["category"].dropna().unique())
-    if not cats:
-        return b.skip("IR/GE ridgelines", "no scored clips")
-    fig, ax = b.figure(2, 1, (10, 1.0 + 0.9 * len(cats)))
-    for j, (metric, lo_hi) in enumerate((("ir", (0.0, 1.0)), ("ge", None))):
-        vals = ok[[f"{metric}_h", f"{metric}_f"]].to_numpy(float)
-        top = lo_hi or (0.0, max(1e-3, float(np.nanpercentile(vals, 98)) if np.isfinite(vals).any() else 1.0))
-        edges = np.linspace(*top, 41)
-        for i, c in enumerate(cats):
-            g = ok[ok["category"] == c]
-            for fam, col in (("h", _color(0)), ("f", _color(1))):
-                v = g[f"{metric}_{fam}"].to_numpy(float)
-                v = v[np.isfinite(v)]
-                if not v.size:
-                    continue
-                h, _ = np.histogram(np.clip(v, *top), edges)
-                h = 0.8 * h / max(1, h.max())
-                ax[0, j].fill_between(
-                    edges[:-1],
-                    i,
-                    i + h,
-                    step="post",
-                    alpha=0.5,
-                    color=col,
-                    label=f"{fam.upper()} fit" if i == 0 else None,
-                )
-        ax[0, j].set_yticks(np.arange(len(cats)) + 0.3, cats)
-        ax[0, j].set(xlabel="IR" if metric == "ir" else "GE (px)", title=f"{metric.upper()} per family, H vs F fit")
-        ax[0, j].legend(fontsize=7)
-    b.save(
-        fig,
-        "ridgelines",
-        "IR/GE ridgelines",
-        "Distribution of each family's clip IR and GE under the homography and the fundamental-matrix fit; translation families should separate H from F.",
-    )
-
-
-def _fig_effects(b: _Builder, ok: pd.DataFrame, boot: int, seed: int) -> pd.DataFrame | None:
-    models = sorted(ok["model"].unique())
-    if len(models) < 2:
-        b.skip("Effect sizes", "needs at least two platforms")
-        return None
-    rows = []
-    for metric in ("ir", "ge"):
-        for m in models:
-            a, o = ok[ok["model"] == m], ok[ok["model"] != m]
-            ci = stats.median_difference_ci(a[metric], a["scene_id"], o[metric], o["scene_id"], B=boot, seed=seed)
-            rows.append({"metric": metric, "model": m, "difference": ci.estimate, "low": ci.low, "high": ci.high})
-    df = pd.DataFrame(rows)
-    b.table(df, "effect_sizes")
-    fig, ax = b.figure(2, 1, (9, 0.8 + 0.5 * len(models)))
-    for j, metric in enumerate(("ir", "ge")):
-        d = df[df["metric"] == metric]
-        y = np.arange(len(d))
-        ax[0, j].errorbar(
-            d["difference"], y, xerr=[d["difference"] - d["low"], d["high"] - d["difference"]], fmt="o", capsize=3
-        )
-        ax[0, j].axvline(0, color="k", lw=1)
-        ax[0, j].set_yticks(y, d["model"])
-        ax[0, j].set(xlabel=f"median {metric.upper()} difference vs. the other platforms", title=metric.upper())
-    b.save(
-        fig,
-        "effect_sizes",
-        "Effect sizes",
-        "Scene-balanced median difference of each platform against the pooled others, with 95% bootstrap CIs (resampling scenes); an interval clear of 0 is a real gap.",
-    )
-    return df
-
-
-def _fig_dynamic(b: _Builder, objects: pd.DataFrame, frames: pd.DataFrame) -> list[dict[str, Any]]:
-    obj = objects[np.isfinite(objects["adap90"].astype(float))]
-    if obj.empty:
-        b.skip("Dynamic coherence (AdaP90)", "no moving objects were scored")
-        return []
-    summ = stats.adap90_summary(obj)
-    b.table(summ, "adap90_summary")
-    models = sorted(obj["model"].unique())
-    cats = sorted(obj["category"].unique())
-    fig, ax = b.figure(3, 1, (13, 4))
-    rng = np.random.default_rng(0)
-    ticks, labels = [], []
-    for i, (m, c) in enumerate((m, c) for m in models for c in cats):
-        v = obj[(obj["model"] == m) & (obj["category"] == c)]["adap90"].to_numpy(float)
-        if not v.size:
-            continue
-        ax[0, 0].scatter(i + rng.uniform(-0.2, 0.2, v.size), v, s=10, color=_color(models.index(m)), alpha=0.7)
-        p80 = float(np.percentile(v, 80))
-        ax[0, 0].hlines([p80], i - 0.3, i + 0.3, colors="k", linestyles="--", lw=1)
-        ax[0, 0].hlines([np.median(v)], i - 0.15, i + 0.15, colors="k", lw=2)
-        ticks.append(i)
-        labels.append(f"{m}\n{c}")
-    ax[0, 0].set_xticks(ticks, labels, fontsize=7)
-    ax[0, 0].set_yscale("symlog", linthresh=1.0)
-    ax[0, 0].set(ylabel="AdaP90 (px²)", title="AdaP90 per object (dashed: P80, bar: median)")
-    for k, m in enumerate(models):
-        v = np.sort(obj[obj["model"] == m]["adap90"].to_numpy(float))
-        ax[0, 1].step(v, np.arange(1, v.size + 1) / v.size, where="post", color=_color(k), label=m)
-    ax[0, 1].set_xscale("symlog", linthresh=1.0)
-    ax[0, 1].set(xlabel="AdaP90 (px²)", ylabel="ECDF", title="ECDF per platform")
-    ax[0, 1].legend(fontsize=7)
-    x = np.arange(len(summ))
-    ax[0, 2].bar(x, summ["rate_above_p80"], color=[_color(models.index(m)) for m in summ["model"]])
-    ax[0, 2].set_xticks(x, [f"{m}\n{c}" for m, c in zip(summ["model"], summ["category"])], fontsize=7)
-    ax[0, 2].set(ylabel="share above P80", title="Share above P80 (~20% by construction)")
-    b.save(
-        fig,
-        "adap90",
-        "Dynamic coherence",
-        "Per-object AdaP90 (90th percentile of the per-frame AdaDFRC): severity and tail shape matter, not the rate above P80, which is near 20% by construction.",
-    )
-    top = stats.top_hardest(obj, frames, n=8)
-    if top:
-        fig, ax = b.figure(1, len(top), (7, 0.75 * len(top) + 0.6))
-        for i, t in enumerate(top):
-            a = ax[i, 0]
-            if t["trace"]:
-                xs, ys = zip(*t["trace"])
-                a.plot(xs, ys, color=_color(models.index(t["model"])), lw=1)
-            a.set_yticks([])
-            a.text(
-                1.01,
-                0.5,
-                f"{t['clip_id']} #{t['object_id']}  P50 {t['p50']:.2f}  P90 {t['p90']:.2f}  n={t['frames']}",
-                transform=a.transAxes,
-                fontsize=7,
-                va="center",
-            )
-            if i < len(top) - 1:
-                a.set_xticks([])
-        ax[-1, 0].set_xlabel("frame")
-        b.save(
-            fig,
-            "top_objects",
-            "Hardest objects",
-            "Per-frame AdaDFRC (D_t, px²) of the objects with the highest AdaP90: a sustained plateau is a deforming object, a lone spike a segmentation glitch.",
-        )
-    return top
-
-
-def _fig_sensitivity(b: _Builder, sens: pd.DataFrame, config: dict[str, Any]) -> None:
-    if sens.empty or not sens["chosen"].any():
-        return b.skip("Sensitivity curves", "no sensitivity scan in the results")
-    tab = stats.sensitivity_table(sens)
-    b.table(tab, "sensitivity")
-    fig, ax = b.figure(2, 2, (10, 6))
-    models = sorted(tab["model"].unique())
-    for j, (fam, recorded) in enumerate((("H", config.get("tau_h", 2.0)), ("F", config.get("tau_f", 0.1)))):
-        for r, metric in enumerate(("ir", "ge")):
-            a = ax[r, j]
-            for k, m in enumerate(models):
-                d = tab[(tab["model"] == m) & (tab["family"] == fam)]
-                a.plot(d["tau"], d[metric], "o-", color=_color(k), label=m, ms=3)
-            a.axvline(recorded, color="k", ls="--", lw=1)
-            a.set(
-                xlabel=f"tau_{fam} ({'px' if fam == 'H' else 'normalised Sampson'})",
-                ylabel=metric.upper(),
-                title=f"{metric.upper()} vs tau_{fam} (clips gated {fam})",
-            )
-            a.legend(fontsize=7)
-    b.save(
-        fig,
-        "sensitivity",
-        "Threshold-score sensitivity",
-        "Scene-balanced median IR and GE re-gated from stored residuals at other thresholds (dashed: the recorded one); rankings that survive the sweep are robust.",
-    )
 
 
 def _html_table(df: pd.DataFrame, floats: str = "{:.4g}") -> str:
@@ -460,11 +130,15 @@ def _flagged(ok: pd.DataFrame, top: list[dict[str, Any]], rel: str) -> str:
     )
 
 
-_CSS = """body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1180px;margin:2em auto;padding:0 1em;color:#222}
+_CSS = """body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1180px;margin:2em auto;padding:0 1em;
+color:#222}
 h1{margin-bottom:0}h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:2em}.meta{color:#555;font-size:.9em}
-table{border-collapse:collapse;font-size:.85em;margin:.5em 0}th,td{border:1px solid #ddd;padding:3px 7px;text-align:left}td.n{text-align:right}
+table{border-collapse:collapse;font-size:.85em;margin:.5em 0}
+th,td{border:1px solid #ddd;padding:3px 7px;text-align:left}
+td.n{text-align:right}
 th{background:#f4f4f4}figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
-figcaption{color:#444;font-size:.9em}.warn{color:#a33}nav a{margin-right:1em}code{background:#f4f4f4;padding:0 3px;font-size:.9em}"""
+figcaption{color:#444;font-size:.9em}.warn{color:#a33}nav a{margin-right:1em}
+code{background:#f4f4f4;padding:0 3px;font-size:.9em}"""
 
 
 def build_report(
@@ -493,10 +167,11 @@ def build_report(
     clips = tables["clips"]
     ok = clips[clips["status"] == "ok"].copy()
     footer = (
-        f"config {bench.get('config_hash')} · geocon {versions.get('geocon', '?')} · opencv {versions.get('opencv', '?')} · "
+        f"config {bench.get('config_hash')} · geocon {versions.get('geocon', '?')} · opencv "
+        f"{versions.get('opencv', '?')} · "
         f"n = {len(ok)} clips"
     )
-    b = _Builder(target, footer, formats)
+    b = FigureBuilder(target, footer, formats, _gate_lines(bench.get("config", {})))
     warnings: list[str] = []
     sections: list[tuple[str, str]] = []
 
@@ -533,7 +208,8 @@ def build_report(
             + "<h3>F-rates and anomaly rates (expected rule C1/C2/C4 → H, C3/C5/C6 → F)</h3>"
             + "<p>Present-only: clips with a pose and a decided gate; fail→F: every clip, no pose counted as F.</p>"
             + _html_table(rates[[c for c in rates.columns if not c.endswith(("_low", "_high"))]])
-            + f"<p>Cross-platform consensus: {cons.attrs['n_unanimous']} of {cons.attrs['n_tuples']} (scene, category) tuples "
+            + f"<p>Cross-platform consensus: {cons.attrs['n_unanimous']} of {cons.attrs['n_tuples']} "
+            "(scene, category) tuples "
             f"with at least two decided platforms are unanimous ({cons.attrs['consensus_rate']:.1%}).</p>"
             + "<h3>Gate margins</h3>"
             + _html_table(margins)
@@ -543,10 +219,9 @@ def build_report(
     )
 
     say("figures")
-    gate_lines = _gate_lines(bench.get("config", {}))
-    _fig_tinf(b, ok, gate_lines)
-    _fig_margins(b, ok)
-    calib = _fig_calibration(b, ok, seed, gate_lines)
+    fig_tinf(b, ok)
+    fig_margins(b, ok)
+    calib = fig_calibration(b, ok, seed)
     if calib is not None:
         sections.append(
             (
@@ -555,10 +230,10 @@ def build_report(
                 f"(argmax counts {calib['argmax_counts']}).</p>",
             )
         )
-    _fig_ridgelines(b, ok)
-    _fig_effects(b, ok, bootstrap, seed)
-    top = _fig_dynamic(b, tables["objects"], tables["object_frames"])
-    _fig_sensitivity(b, tables["sensitivity"], bench.get("config", {}))
+    fig_ridgelines(b, ok)
+    fig_effects(b, ok, bootstrap, seed)
+    top = fig_dynamic(b, tables["objects"], tables["object_frames"])
+    fig_sensitivity(b, tables["sensitivity"], bench.get("config", {}))
 
     say("html")
     failed = clips[clips["status"] == "failed"]
@@ -585,9 +260,11 @@ def build_report(
     body = "".join(f'<h2 id="s{i}">{html.escape(t)}</h2>{content}' for i, (t, content) in enumerate(sections))
     ver = ", ".join(f"{html.escape(k)} {html.escape(str(v))}" for k, v in sorted(versions.items()))
     page = (
-        f'<!doctype html><html lang="en"><head><meta charset="utf-8"><title>GeoCon benchmark report</title><style>{_CSS}</style></head><body>'
+        '<!doctype html><html lang="en"><head><meta charset="utf-8"><title>GeoCon benchmark report</title>'
+        f"<style>{_CSS}</style></head><body>"
         f'<h1>GeoCon benchmark report</h1><p class="meta">dataset {html.escape(str(bench.get("dataset")))} · config '
-        f"<b>{html.escape(str(bench.get('config_hash')))}</b> (preset {html.escape(str(bench.get('config', {}).get('preset')))}) · {ver}</p>"
+        f"<b>{html.escape(str(bench.get('config_hash')))}</b> (preset "
+        f"{html.escape(str(bench.get('config', {}).get('preset')))}) · {ver}</p>"
         f'<p>{len(clips)} clips: {len(ok)} scored, <span class="warn">{len(failed)} failed</span>; '
         f"{ok['model'].nunique()} platforms, {ok['scene_id'].nunique()} scenes.</p><nav>{nav}</nav>{body}</body></html>"
     )

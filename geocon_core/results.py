@@ -20,9 +20,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from .bench import BENCH_FORMAT, CLIPS_DIR, read_status
 from .config import ScoreConfig
-from .dataset import EXPECTED_MODEL
+from .dataset import expected_model
+from .layout import (
+    BENCH_FORMAT,
+    MANIFEST_NAME,
+    RRD_NAME,
+    STATUS_NAME,
+    clip_folders,
+    read_manifest,
+    read_status,
+    tables_dir,
+)
+from .record import read_record_json
 from .regate import Residuals, load_residuals, regate_family
 from .verdict import ClipVerdict, Thresholds, clip_verdict, is_flagged
 
@@ -129,23 +139,22 @@ def _num(v: Any) -> float | None:
 def _from_record_json(
     clip_id: str, status: dict[str, Any], folder: Path, d: dict[str, Any] | None = None
 ) -> ResultClip:
-    """A clip's triage numbers from its ``record.json`` (no arrays read; ``d`` when already parsed)."""
+    """A clip's triage numbers from its ``record.json`` (no arrays read; ``d`` when already parsed
+    by :func:`~geocon_core.record.read_record_json`, which checks the record format)."""
     if d is None:
-        d = json.loads((folder / "record.json").read_text())
+        _, d = read_record_json(folder)
     bg, gate = d["background"], d["gate"]
     fam = {bg["chosen"]["family"]: bg["chosen"], bg["other"]["family"]: bg["other"]}
     adap90 = [o["adap90"] for o in d.get("objects", []) if o.get("adap90") is not None]
     meta = status.get("meta") or {}
     rrd = (
-        folder / status["rrd"]
-        if status.get("rrd")
-        else (folder / "audit.rrd" if (folder / "audit.rrd").is_file() else None)
+        folder / status["rrd"] if status.get("rrd") else (folder / RRD_NAME if (folder / RRD_NAME).is_file() else None)
     )
     return ResultClip(
         clip_id=clip_id,
         platform=str(meta.get("model", "-")),
         category=meta.get("category"),
-        expected_model=EXPECTED_MODEL.get(meta.get("category")),
+        expected_model=expected_model(meta.get("category")),
         status="ok",
         error=None,
         folder=folder,
@@ -168,7 +177,7 @@ def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultCl
         clip_id=clip_id,
         platform=str(meta.get("model", "-")),
         category=meta.get("category"),
-        expected_model=EXPECTED_MODEL.get(meta.get("category")),
+        expected_model=expected_model(meta.get("category")),
         status="failed",
         error=status.get("error") or "unknown error",
         folder=folder,
@@ -188,7 +197,7 @@ def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultCl
 def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]]:
     """Rows of ``tables/clips.parquet`` by clip id when the table is newer than every clip status
     (else empty: the records are read instead)."""
-    path = results / "tables" / "clips.parquet"
+    path = tables_dir(results) / "clips.parquet"
     try:
         if not path.is_file() or path.stat().st_mtime < newest_status:
             return {}
@@ -225,19 +234,20 @@ class ResultsIndex:
         root = Path(path)
         if not root.exists():
             raise ResultsError(
-                f"{root} does not exist: give a results folder from `geocon bench` or a record folder from `geocon score`"
+                f"{root} does not exist: give a results folder from `geocon bench` or a record folder from `geocon "
+                "score`"
             )
         if root.is_file() and root.name == "record.json":
             root = root.parent
-        if (root / "bench.json").is_file():
+        if (root / MANIFEST_NAME).is_file():
             return cls._open_bench(root)
         if (root / "record.json").is_file():
             status = {"meta": {"model": "-", "category": None}, "rrd": None}
             try:
-                d = json.loads((root / "record.json").read_text())
+                _, d = read_record_json(root)
                 clip = _from_record_json(root.name, status, root, d)
                 config = ScoreConfig.from_dict(d["config"])
-            except (json.JSONDecodeError, KeyError, TypeError) as exc:
+            except (ValueError, KeyError, TypeError) as exc:  # not JSON, another format, missing fields
                 raise ResultsError(
                     f"{root / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc})"
                 ) from None
@@ -249,25 +259,20 @@ class ResultsIndex:
     @classmethod
     def _open_bench(cls, root: Path) -> "ResultsIndex":
         try:
-            manifest = json.loads((root / "bench.json").read_text())
+            manifest = read_manifest(root)
         except json.JSONDecodeError:
-            raise ResultsError(f"{root / 'bench.json'} is not valid JSON") from None
+            raise ResultsError(f"{root / MANIFEST_NAME} is not valid JSON") from None
         if manifest.get("format") != BENCH_FORMAT:
             raise ResultsError(
-                f"{root / 'bench.json'} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})"
+                f"{root / MANIFEST_NAME} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})"
             )
-        folders = (
-            sorted((p for p in (root / CLIPS_DIR).iterdir() if p.is_dir()), key=lambda p: p.name)
-            if (root / CLIPS_DIR).is_dir()
-            else []
-        )
         statuses = []
         newest = 0.0
-        for folder in folders:
+        for folder in clip_folders(root):
             status = read_status(folder)
             if status is None:
                 continue  # in flight or never started
-            newest = max(newest, (folder / "status.json").stat().st_mtime)
+            newest = max(newest, (folder / STATUS_NAME).stat().st_mtime)
             statuses.append((folder, status))
         table = _table_rows(root, newest)
         clips = []
@@ -286,7 +291,7 @@ class ResultsIndex:
                     clip_id=cid,
                     platform=str(meta.get("model", "-")),
                     category=meta.get("category"),
-                    expected_model=EXPECTED_MODEL.get(meta.get("category")),
+                    expected_model=expected_model(meta.get("category")),
                     status="ok",
                     error=None,
                     folder=folder,

@@ -11,8 +11,8 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .bench import CLIPS_DIR, read_status
-from .dataset import EXPECTED_MODEL
+from .dataset import expected_model
+from .layout import CLIPS_DIR, clip_folders, read_status, tables_dir
 from .record import ClipRecord, read_record
 from .regate import sensitivity_scan
 
@@ -42,7 +42,7 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         "model_version": None if meta.get("model_version") is None else str(meta["model_version"]),
         "prompt": meta.get("prompt"),
         "seed": None if meta.get("seed") is None else str(meta["seed"]),
-        "expected_model": EXPECTED_MODEL.get(meta.get("category")),
+        "expected_model": expected_model(meta.get("category")),
         "status": status["status"],
         "error": status.get("error"),
         "record": folder if record is not None else None,
@@ -82,7 +82,7 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
     adap90 = [o.adap90 for o in record.objects if o.adap90 is not None]
     row.update(
         preset=record.config.preset,
-        frames=int(record.video.get("num_frames") or 0),
+        frames=record.video.num_frames,
         gate_label=gate.label,
         gate_model=gate.model,
         binary_label=gate.binary_label,
@@ -123,12 +123,7 @@ def collect_rows(results: str | Path) -> dict[str, list[dict[str, Any]]]:
     """The rows of every table, from the finished clips of a results folder."""
     base = Path(results)
     rows: dict[str, list[dict[str, Any]]] = {name: [] for name in TABLES}
-    folders = (
-        sorted((p for p in (base / CLIPS_DIR).iterdir() if p.is_dir()), key=lambda p: p.name)
-        if (base / CLIPS_DIR).is_dir()
-        else []
-    )
-    for folder in folders:
+    for folder in clip_folders(base):
         status = read_status(folder)
         if status is None:
             continue
@@ -321,10 +316,11 @@ def write_tables(results: str | Path) -> tuple[Path, ...]:
         import pyarrow  # noqa: F401
     except ImportError:
         raise ImportError(
-            "writing Parquet tables needs the bench extra: pip install 'geocon[bench]' (or bash scripts/bootstrap.sh bench)"
+            "writing Parquet tables needs the bench extra: pip install 'geocon[bench]' (or bash scripts/bootstrap.sh "
+            "bench)"
         ) from None
     base = Path(results)
-    folder = base / "tables"
+    folder = tables_dir(base)
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
     for name, rows in collect_rows(base).items():
@@ -340,7 +336,7 @@ def read_tables(results: str | Path) -> dict[str, Any]:
     """Every table of a results folder as a pandas DataFrame, by name."""
     import pandas as pd
 
-    folder = Path(results) / "tables"
+    folder = tables_dir(Path(results))
     missing = [n for n in TABLES if not (folder / f"{n}.parquet").is_file()]
     if missing:
         raise FileNotFoundError(

@@ -6,6 +6,7 @@ from __future__ import annotations
 from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 import numpy as np
 
@@ -25,7 +26,7 @@ class Mp4Writer:
             raise ValueError(f"H.264 (yuv420p) needs an even width and height, got {width}x{height}")
         self.path = Path(path)
         self.width, self.height = width, height
-        self._container = av.open(str(self.path), mode="w", format="mp4")
+        self._container: Any = av.open(str(self.path), mode="w", format="mp4")
         rate = Fraction(fps).limit_denominator(1001)
         self._stream = self._container.add_stream("libx264", rate=rate, options={"crf": str(crf), "preset": "medium"})
         self._stream.width, self._stream.height = width, height

@@ -21,87 +21,43 @@ tab connected to the server. The server binds to 127.0.0.1 unless told otherwise
 
 from __future__ import annotations
 
-import math
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import viser
-import viser.transforms as vtf
-import viser.uplot as uplot
 
-from geocon_core.diagnostics import Overlays, read_overlays
-from geocon_core.record import ClipRecord, read_record
-from geocon_core.regate import pair_inliers, regate_pairs
+from geocon_core.diagnostics import read_overlays
+from geocon_core.reader import DEFAULT_FPS
+from geocon_core.record import read_record
+from geocon_core.regate import pair_inliers
+from geocon_core.verdict import ClipVerdict, Thresholds
 from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
 from geocon_core.verdict import ClipVerdict, Thresholds
 
+from .audit_triage import LIST_ROWS, THRESHOLD_LABELS, rrd_text, thresholds_text, triage_summary, triage_table
+from .audit_views import (
+    ClipView,
+    Plots,
+    clip_card,
+    draw_frame,
+    empty_plot,
+    frame_text,
+    render_plots,
+    render_scene,
+    thumb,
+)
+
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 
-LIST_ROWS = 12
-"""Rows of the triage table shown at once (the clip picker holds all of them)."""
 DISPLAY_WIDTH = 640
 """Width (px) the frames are shown at."""
 ANY = "any"
 FLAGGED = "flagged"
-INLIER = (60, 200, 90)
-OUTLIER = (235, 60, 50)
-_STATE_MARK = {"fails": "FAIL", "not judged": "n/j", "error": "ERROR", "passes": "ok"}
-_THRESHOLD_LABELS = {
-    "tau_h": ("tau_H (px)", 0.05, "Symmetric transfer error threshold of the homography."),
-    "tau_f": ("tau_F", 0.005, "Normalised Sampson threshold of the fundamental matrix."),
-    "ir_gate": ("IR gate", 0.005, "Report gate: a clip passes when IR >= this ..."),
-    "ge_gate": ("GE gate (px)", 0.1, "... and GE <= this (px)."),
-    "tau_t_low": ("gate low", 0.005, "Hysteresis gate: H when t_inf <= this."),
-    "tau_t_high": ("gate high", 0.005, "Hysteresis gate: F when t_inf >= this; U in between."),
-}
-
-
-def _fmt(v: float | None, spec: str = ".3f") -> str:
-    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:{spec}}"
-
-
-def _thumb(img: np.ndarray) -> np.ndarray:
-    """A frame at the frustums' thumbnail width (256 px)."""
-    return cv2.resize(img, (256, max(1, round(256 * img.shape[0] / img.shape[1]))), interpolation=cv2.INTER_AREA)
-
-
-def _object_color(object_id: int) -> tuple[int, int, int]:
-    import colorsys
-
-    r, g, b = colorsys.hsv_to_rgb((object_id * 0.618034) % 1.0, 0.75, 1.0)
-    return int(r * 255), int(g * 255), int(b * 255)
-
-
-@dataclass(eq=False)
-class ClipView:
-    """What the app holds for the selected clip: its record, overlays, and the frames decoded at
-    display size (filled by a background thread; ``frames_ready`` is set when done)."""
-
-    clip_id: str
-    folder: Path
-    record: ClipRecord
-    overlays: Overlays | None
-    display_scale: float
-    frames: dict[int, np.ndarray] = field(default_factory=dict)
-    frames_ready: threading.Event = field(default_factory=threading.Event)
-    frames_error: str | None = None
-    cancel: threading.Event = field(default_factory=threading.Event)
-    frustums: dict[int, Any] = field(default_factory=dict)
-    """Scene handles of the first/last camera by frame index (their images arrive with the frames)."""
-
-    @property
-    def num_frames(self) -> int:
-        return int(self.record.video.get("num_frames") or 0)
-
-    @property
-    def working_size(self) -> tuple[int, int]:
-        w, h = self.record.video["working_size"]
-        return int(w), int(h)
 
 
 class AuditApp:
@@ -192,7 +148,7 @@ class AuditApp:
             buttons = gui.add_button_group("", ["◀ more severe", "less severe ▶"])
         with gui.add_folder("Thresholds"):
             self.number: dict[str, Any] = {}
-            for name, (label, step, hint) in _THRESHOLD_LABELS.items():
+            for name, (label, step, hint) in THRESHOLD_LABELS.items():
                 self.number[name] = gui.add_number(label, getattr(self.thresholds, name), min=0.0, step=step, hint=hint)
             self.reset = gui.add_button("Reset to the recorded thresholds")
             self.thresholds_md = gui.add_markdown("")
@@ -226,29 +182,23 @@ class AuditApp:
         self.frame_panel.dock_left()
         self.frame_panel.set_width(470)
         self.slider.on_update(lambda e: self._on_frame(int(e.target.value)))
-        for handle in (self.show_matches, self.show_masks):
-            handle.on_update(lambda _: self._render_frame())
-        self.rrd_button.on_click(lambda _: self.write_rrd(background=True))
+        for box in (self.show_matches, self.show_masks):
+            box.on_update(lambda _: self._render_frame())
+
+        def on_rrd(_: object) -> None:
+            self.write_rrd(background=True)
+
+        self.rrd_button.on_click(on_rrd)
 
         self.plot_panel = gui.add_panel()
         with self.plot_panel.add_tab("Background"):
-            self.ir_plot = self._empty_plot("IR per pair")
-            self.ge_plot = self._empty_plot("GE per pair (px)")
+            self.ir_plot = empty_plot(self.server, "IR per pair")
+            self.ge_plot = empty_plot(self.server, "GE per pair (px)")
         with self.plot_panel.add_tab("Objects"):
-            self.obj_plot = self._empty_plot("AdaDFRC D_t per object (px²)")
+            self.obj_plot = empty_plot(self.server, "AdaDFRC D_t per object (px²)")
         with self.plot_panel.add_tab("Gate"):
-            self.gate_plot = self._empty_plot("t_inf per window")
+            self.gate_plot = empty_plot(self.server, "t_inf per window")
         self.plot_panel.dock_below(self.frame_panel)
-
-    def _empty_plot(self, title: str):
-        x = np.zeros(1)
-        return self.server.gui.add_uplot(
-            (x, x),
-            (uplot.Series(label="frame"), uplot.Series(label="-")),
-            title=title,
-            aspect=2.2,
-            scales={"x": uplot.Scale(time=False)},
-        )
 
     # --- triage list ---------------------------------------------------------------------------
     def _filters(self) -> dict[str, Any]:
@@ -276,44 +226,21 @@ class AuditApp:
             self._render_summary()
             self._render_table()
             if self.clip.value != target:
-                self.clip.value = target  # runs _on_clip
+                self.clip.value = target  # type: ignore[misc]  # runs _on_clip; viser setter typing gap
             elif self.view is None or self.view.clip_id != target:
                 self._on_clip(target)
             else:
                 self._refresh_selected()
 
     def _render_summary(self) -> None:
-        counts = self.index.counts(self.rows)
-        total = len(self.index.clips)
-        parts = ", ".join(f"{k} {v}" for k, v in counts.items() if v)
-        shown = f"{len(self.rows)} of {total} clips" if len(self.rows) != total else f"{total} clips"
-        self.summary_md.content = f"{shown} — {parts or 'none'}"
+        self.summary_md.content = triage_summary(self.rows, self.index.counts(self.rows), len(self.index.clips))
 
     def _render_table(self) -> None:
-        pages = max(1, math.ceil(len(self.rows) / LIST_ROWS))
-        page = min(max(1, int(self.page.value)), pages)
-        start = (page - 1) * LIST_ROWS
-        lines = ["| # | clip | plat. | cat | gate | IR | GE | |", "|---|---|---|---|---|---|---|---|"]
-        for i, r in enumerate(self.rows[start : start + LIST_ROWS], start=start + 1):
-            v = r.verdict
-            gate = "–" if v is None else f"{v.label}→{v.model}" + ("≠" if r.gate_mismatch else "")
-            mark = _STATE_MARK[r.state]
-            name = r.clip_id if len(r.clip_id) <= 28 else r.clip_id[:12] + "…" + r.clip_id[-14:]
-            if self.view is not None and r.clip_id == self.view.clip_id:
-                name = f"**{name}**"
-            ir = "–" if v is None else _fmt(v.ir)
-            ge = "–" if v is None else _fmt(v.ge, ".2f")
-            lines.append(
-                f"| {i} | {name} | {r.clip.platform} | {r.clip.category or '–'} | {gate} | {ir} | {ge} | {mark} |"
-            )
-        if not self.rows:
-            lines.append("| | no clip matches the filters | | | | | | |")
-        self.table_md.content = (
-            "\n".join(lines) + f"\n\npage {page} of {pages} · ≠: gate differs from the category's expected model"
-        )
+        selected = None if self.view is None else self.view.clip_id
+        self.table_md.content = triage_table(self.rows, int(self.page.value), selected)
 
     def _on_filters(self) -> None:
-        self.page.value = 1
+        self.page.value = 1  # type: ignore[misc]  # viser setter typing gap
         self.refresh()
 
     def _step(self, delta: int) -> None:
@@ -321,7 +248,7 @@ class AuditApp:
         if not ids:
             return
         i = ids.index(self.clip.value) if self.clip.value in ids else 0
-        self.clip.value = ids[min(max(i + delta, 0), len(ids) - 1)]
+        self.clip.value = ids[min(max(i + delta, 0), len(ids) - 1)]  # type: ignore[misc]  # viser setter typing gap
 
     # --- thresholds ----------------------------------------------------------------------------
     def _on_threshold(self, name: str, value: float) -> None:
@@ -345,24 +272,14 @@ class AuditApp:
         self.refresh()
 
     def _render_thresholds(self) -> None:
-        changed = self.thresholds.changed(self.index.recorded)
-        if not changed:
-            text = "All thresholds as recorded" + (
-                f" (config `{self.index.config_hash}`)." if self.index.config_hash else "."
-            )
-        else:
-            text = "**Differs from the recorded config:** " + ", ".join(
-                f"{_THRESHOLD_LABELS[k][0]} {now:g} (recorded {old:g})" for k, (old, now) in changed.items()
-            )
-            text += ". Scores are re-gated from the stored residuals (models not re-fitted)."
-        self.thresholds_md.content = text
+        self.thresholds_md.content = thresholds_text(self.thresholds, self.index.recorded, self.index.config_hash)
 
     def _preload_residuals(self) -> None:
         bar = self.preload_bar
         bar.visible = True
 
         def progress(done: int, total: int) -> None:
-            bar.value = 100.0 * done / max(total, 1)
+            bar.value = 100.0 * done / max(total, 1)  # type: ignore[misc]  # viser setter typing gap
 
         try:
             self.index.preload(progress=progress, stop=self._stop)
@@ -384,7 +301,7 @@ class AuditApp:
                 self._show_failed(clip_id)
                 return
             record = read_record(clip.folder)
-            w, _ = record.video["working_size"]
+            w, _ = record.video.working_size
             view = ClipView(
                 clip_id, clip.folder, record, read_overlays(clip.folder), display_scale=min(1.0, DISPLAY_WIDTH / w)
             )
@@ -392,7 +309,7 @@ class AuditApp:
             n = view.num_frames
             self.slider.max = max(1, n - 1)
             self.frame = min(self.frame, n - 1)
-            self._render_scene()
+            self.cloud_handle = render_scene(self.server, self.view)
             self._refresh_selected()
             self.rrd_md.content = self._rrd_text()
         self._decoder = threading.Thread(target=self._decode_frames, args=(view,), name="geocon-frames", daemon=True)
@@ -414,17 +331,19 @@ class AuditApp:
         self._render_thresholds()
         if view is None:
             return
-        self.verdict = self.index.verdict(view.clip_id, self.thresholds)
-        self.card_md.content = self._card()
-        self._render_plots()
+        self.verdict = v = self.index.verdict(view.clip_id, self.thresholds)
+        assert v is not None, "a clip with a record has a verdict"
+        self.card_md.content = clip_card(view, v, self.index.by_id[view.clip_id], self.thresholds, self.index.recorded)
+        plots = Plots(self.ir_plot, self.ge_plot, self.obj_plot, self.gate_plot)
+        render_plots(plots, view, v, self.thresholds)
         self._render_frame()
         self._render_table()
 
     def _decode_frames(self, view: ClipView) -> None:
-        from geocon_core.reader import ClipError, ClipInfo, iter_frames
+        from geocon_core.reader import ClipError, iter_frames
 
         try:
-            info = ClipInfo.from_dict(view.record.video)
+            info = view.record.video
             for f in iter_frames(info):
                 if view.cancel.is_set() or self._stop.is_set():
                     return
@@ -437,7 +356,7 @@ class AuditApp:
                 if view is not self.view:
                     continue
                 if f.index in view.frustums:
-                    view.frustums[f.index].image = _thumb(img)
+                    view.frustums[f.index].image = thumb(img)
                 if f.index == self.frame:
                     self._render_frame()
         except (ClipError, OSError, ValueError) as exc:
@@ -454,10 +373,10 @@ class AuditApp:
     def _play_loop(self) -> None:
         while not self._stop.wait(0.0):
             view = self.view
-            fps = float(view.record.video.get("fps") or 12.0) if view is not None else 12.0
+            fps = view.record.video.fps if view is not None else DEFAULT_FPS
             time.sleep(1.0 / min(max(fps, 1.0), 12.0))
             if self.play.value and view is not None and view.num_frames > 1:
-                self.slider.value = (int(self.slider.value) + 1) % view.num_frames
+                self.slider.value = (int(self.slider.value) + 1) % view.num_frames  # type: ignore[misc]  # viser setter typing gap
 
     # --- drawing -------------------------------------------------------------------------------
     def frame_matches(self, t: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -483,30 +402,11 @@ class AuditApp:
         view = self.view
         if view is None or t not in view.frames:
             return None
-        img = view.frames[t].copy()
-        k = view.display_scale
-        if self.show_masks.value and view.overlays is not None:
-            labels = view.overlays.labels(t)
-            if labels is not None:
-                small = cv2.resize(labels, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_NEAREST)
-                for oid in np.unique(small[small > 0]):
-                    m = small == oid
-                    img[m] = (0.5 * img[m] + 0.5 * np.array(_object_color(int(oid)))).astype(np.uint8)
         if self.show_matches.value and matches is None:
             matches = self.frame_matches(t)
-        if self.show_matches.value and matches is not None:
-            xy, inl = matches
-            r = max(2, round(3 * k * 1.5))
-            for (x, y), ok in zip(xy * k, inl):
-                cv2.circle(
-                    img,
-                    (int(round(x)), int(round(y))),
-                    r,
-                    INLIER if ok else OUTLIER,
-                    -1 if ok else 1,
-                    lineType=cv2.LINE_AA,
-                )
-        return img
+        return draw_frame(
+            view, t, masks=bool(self.show_masks.value), matches=matches if self.show_matches.value else None
+        )
 
     def _render_frame(self) -> None:
         view, t = self.view, self.frame
@@ -516,201 +416,11 @@ class AuditApp:
         img = self.frame_image(t, matches)
         if img is not None:
             self.image.image = img
-        share = view.overlays.masked_share(t) if view.overlays is not None else None
-        text = f"frame {t} of {view.num_frames - 1}"
-        if matches is not None:
-            k = int(matches[1].sum())
-            text += f" · pair ({t}, {t + min(view.record.config.gaps)}): {k} of {len(matches[1])} matches inliers under {self.verdict.model}"
-        if share is not None:
-            text += f" · masked {share:.1%}"
-        if view.frames_error:
-            text += f"\n\n⚠ {view.frames_error}"
-        elif img is None:
-            text += " · decoding…"
-        self.frame_md.content = text
-
-    def _render_scene(self) -> None:
-        """Point cloud and both cameras of the selected clip."""
-        scene = self.server.scene
-        scene.reset()
-        view = self.view
-        if view is None:
-            return
-        rec = view.record
-        w, h = view.working_size
-        fy = float(np.asarray(rec.intrinsics)[1, 1]) * float(rec.gate.pose.get("focal_scale") or 1.0)
-        fov = 2.0 * math.atan(h / 2.0 / fy)
-        cloud = rec.cloud
-        depth = 1.0
-        self.cloud_handle = None
-        if cloud is not None and len(cloud.xyz):
-            depth = float(np.median(cloud.xyz[:, 2])) or 1.0
-            self.cloud_handle = scene.add_point_cloud(
-                "/cloud",
-                points=cloud.xyz.astype(np.float32),
-                colors=cloud.rgb,
-                point_size=0.012 * depth,
-                precision="float32",
-                point_shape="circle",
-            )
-
-        def frustum(name: str, t: int, color: tuple[int, int, int], **pose: Any) -> None:
-            img = view.frames.get(t)
-            view.frustums[t] = scene.add_camera_frustum(
-                name,
-                fov=fov,
-                aspect=w / h,
-                scale=0.08 * depth,
-                thickness=0.004 * depth,
-                color=color,
-                image=None if img is None else _thumb(img),
-                format="jpeg",
-                jpeg_quality=80,
-                **pose,
-            )
-
-        frustum("/cam_first", 0, (90, 200, 255))
-        T = rec.gate.pose.get("T_cam0_camT")
-        if T is not None:
-            T = np.asarray(T, dtype=float)
-            frustum(
-                "/cam_last",
-                view.num_frames - 1,
-                (255, 180, 60),
-                wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz,
-                position=T[:3, 3],
-            )
-            if np.linalg.norm(T[:3, 3]) > 0:
-                scene.add_line_segments(
-                    "/baseline",
-                    np.array([[[0, 0, 0], T[:3, 3]]], np.float32),
-                    colors=(255, 255, 255),
-                    thickness=2.0,
-                    thickness_units="screen",
-                )
-        note = "no point cloud" if cloud is None else cloud.note
-        scene.add_label("/note", note, position=(0.0, -0.12 * depth, 0.0))
-        cam = self.server.initial_camera
-        cam.look_at = (0.0, 0.0, depth)
-        cam.position = (0.3 * depth, -0.45 * depth, -0.7 * depth)
-        cam.up = (0.0, -1.0, 0.0)
-        for client in self.server.get_clients().values():
-            client.camera.look_at = cam.look_at
-            client.camera.position = cam.position
-            client.camera.up_direction = cam.up
-
-    def _render_plots(self) -> None:
-        view, v = self.view, self.verdict
-        if view is None or v is None:
-            return
-        rec = view.record
-        s = max(rec.config.scales)
-        tau = self.thresholds.tau_h if v.model == "H" else self.thresholds.tau_f
-        n = max(view.num_frames, 1)
-        x = np.arange(n, dtype=np.float64)
-        ir = np.full(n, np.nan)
-        ge = np.full(n, np.nan)
-        g0 = min(rec.config.gaps)
-        for p, row in regate_pairs(rec, v.model, tau):
-            if p.gap == g0 and p.scale == s and row.valid:
-                ir[p.t0], ge[p.t0] = row.ir, row.ge
-        th = self.thresholds
-        line = {"width": 2}
-        self.ir_plot.data = (x, ir, np.full(n, th.ir_gate))
-        self.ir_plot.series = (
-            uplot.Series(label="frame"),
-            uplot.Series(label=f"IR {v.model} (scale {s:g})", stroke="#1f77b4", **line),
-            uplot.Series(label=f"gate {th.ir_gate:g}", stroke="#d62728", dash=(6, 4)),
-        )
-        self.ir_plot.title = f"IR per pair ({v.model}, tau {tau:g})"
-        self.ge_plot.data = (x, ge, np.full(n, th.ge_gate))
-        self.ge_plot.series = (
-            uplot.Series(label="frame"),
-            uplot.Series(label=f"GE {v.model} px", stroke="#ff7f0e", **line),
-            uplot.Series(label=f"gate {th.ge_gate:g} px", stroke="#d62728", dash=(6, 4)),
-        )
-        objects = sorted(rec.objects, key=lambda o: -(o.adap90 or 0.0))[:6]
-        s_obj = max((e.scale for e in rec.object_entries), default=s)
-        ys = []
-        for o in objects:
-            y = np.full(n, np.nan)
-            for e in rec.object_entries:
-                if e.object_id == o.object_id and e.scale == s_obj and e.valid and e.d_t is not None:
-                    y[e.t0] = e.d_t
-            ys.append(y)
-        if objects:
-            self.obj_plot.data = (x, *ys)
-            self.obj_plot.series = (
-                uplot.Series(label="frame"),
-                *[
-                    uplot.Series(
-                        label=f"object {o.object_id}", stroke="#%02x%02x%02x" % _object_color(o.object_id), width=2
-                    )
-                    for o in objects
-                ],
-            )
-            self.obj_plot.title = f"AdaDFRC D_t (px²), {len(objects)} of {len(rec.objects)} objects by AdaP90"
-        else:
-            self.obj_plot.data = (x, np.full(n, np.nan))
-            self.obj_plot.series = (uplot.Series(label="frame"), uplot.Series(label="no objects"))
-            self.obj_plot.title = "AdaDFRC: no moving objects in this clip"
-        wins = [w for w in rec.gate.timeline if w.t_inf is not None and (w.start, w.end) != (0, n - 1)]
-        if wins:
-            gx = np.array([w.end for w in wins], np.float64)
-            gy = np.array([w.t_inf for w in wins], np.float64)
-        else:
-            gx, gy = np.array([0.0, n - 1.0]), np.full(2, np.nan)
-        clip_t = np.full(len(gx), np.nan if rec.gate.t_inf is None else rec.gate.t_inf)
-        self.gate_plot.data = (gx, gy, np.full(len(gx), th.tau_t_low), np.full(len(gx), th.tau_t_high), clip_t)
-        self.gate_plot.series = (
-            uplot.Series(label="window end"),
-            uplot.Series(label="t_inf per window", stroke="#9467bd", width=2),
-            uplot.Series(label=f"low {th.tau_t_low:g}", stroke="#2ca02c", dash=(6, 4)),
-            uplot.Series(label=f"high {th.tau_t_high:g}", stroke="#d62728", dash=(6, 4)),
-            uplot.Series(label="first→last", stroke="#555555", dash=(2, 3)),
-        )
-        self.gate_plot.title = f"Gate t_inf: {v.label} (margin {_fmt(v.margin, '+.4f')})"
-
-    def _card(self) -> str:
-        view, v = self.view, self.verdict
-        assert view is not None and v is not None
-        rec, clip = view.record, self.index.by_id[view.clip_id]
-        bg, g = rec.background, rec.gate
-        state = {True: "passes", False: "FAILS", None: "cannot be judged"}[v.consistent]
-        lines = [
-            f"### {view.clip_id}",
-            f"platform **{clip.platform}** · category **{clip.category or '–'}** (expects {clip.expected_model or '–'})"
-            + (f" · {clip.prompt}" if clip.prompt else ""),
-            "",
-            f"**Background {state}** the report gate: model **{v.model}**, IR **{_fmt(v.ir)}** (gate ≥ {self.thresholds.ir_gate:g}), "
-            f"GE **{_fmt(v.ge, '.2f')} px** (gate ≤ {self.thresholds.ge_gate:g}).",
-            f"- gate: t_inf {_fmt(g.t_inf, '.4f')} → **{v.label}**, margin {_fmt(v.margin, '+.4f')}"
-            + ("" if g.pose_present else f" (no pose: {g.pose.get('reason')}; fail → F)"),
-            f"- H: IR {_fmt(v.ir_h)}, GE {_fmt(v.ge_h, '.2f')} · F: IR {_fmt(v.ir_f)}, GE {_fmt(v.ge_f, '.2f')}",
-        ]
-        if self.thresholds != self.index.recorded:
-            rec_state = {True: "passed", False: "failed", None: "was not judged"}[bg.consistent]
-            lines.append(f"- as recorded: model {bg.model}, IR {_fmt(bg.ir)}, GE {_fmt(bg.ge, '.2f')}, {rec_state}")
-        lines.append(f"- valid pairs {bg.valid_pairs} of {bg.total_pairs}; masks: {rec.masks_source}")
-        if rec.objects:
-            worst = max(rec.objects, key=lambda o: o.adap90 or 0.0)
-            lines.append(
-                f"- {len(rec.objects)} objects; worst AdaP90 {_fmt(worst.adap90, '.3g')} px² (object {worst.object_id})"
-            )
-        if rec.warnings:
-            lines += ["", *[f"⚠ {w}" for w in rec.warnings]]
-        lines += ["", f"`{rec.clip}`", f"record `{view.folder}`"]
-        return "\n".join(lines)
+        self.frame_md.content = frame_text(view, t, matches, self.verdict, shown=img is not None)
 
     # --- recordings ----------------------------------------------------------------------------
     def _rrd_text(self) -> str:
-        view = self.view
-        if view is None:
-            return ""
-        rrd = view.folder / "audit.rrd"
-        if rrd.is_file():
-            return f"recording: `{rrd}` ({rrd.stat().st_size / 1e6:.1f} MB); open it with `rerun {rrd.name}`"
-        return "no recording yet"
+        return "" if self.view is None else rrd_text(self.view.folder)
 
     def write_rrd(self, *, background: bool = False) -> Path | None:
         """Write the selected clip's Rerun recording to ``audit.rrd`` in its record folder and

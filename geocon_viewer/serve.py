@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from .screenshot import ScreenshotError, _free_port, _kill_group, _start_rerun, find_rerun_binary
+from .processes import ScreenshotError, find_rerun_binary, free_port, kill_group, start_rerun
 
 __all__ = ["open_native", "serve_web"]
 
@@ -29,7 +29,7 @@ def open_native(rrd: Path, *, frame: int | None = None, timeout_s: float = 20.0)
     """Start the native viewer on ``rrd`` (its server bound to 127.0.0.1 on a free port) and return
     once it shows the recording, with the time cursor on ``frame`` when given (best effort: an
     older viewer simply opens at the start). The viewer keeps running after this process ends."""
-    port = _free_port()
+    port = free_port()
     cmd = [_binary(), "--bind", "127.0.0.1", "--port", str(port), str(Path(rrd).resolve())]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True)
     if frame is None:
@@ -56,7 +56,7 @@ def serve_web(rrd: Path, *, announce: Callable[[str], None], timeout_s: float = 
     keep serving until interrupted (Ctrl-C)."""
     with tempfile.TemporaryDirectory(prefix="geocon-serve-") as tmp:
         try:
-            proc, url, _ = _start_rerun(_binary(), Path(rrd).resolve(), Path(tmp), time.monotonic() + timeout_s)
+            proc, url, _ = start_rerun(_binary(), Path(rrd).resolve(), Path(tmp), time.monotonic() + timeout_s)
         except ScreenshotError as exc:
             raise RuntimeError(str(exc)) from None
         try:
@@ -66,4 +66,4 @@ def serve_web(rrd: Path, *, announce: Callable[[str], None], timeout_s: float = 
         except KeyboardInterrupt:
             pass
         finally:
-            _kill_group(proc)
+            kill_group(proc)

@@ -18,7 +18,7 @@ import pytest
 pd = pytest.importorskip("pandas")
 pytest.importorskip("pyarrow")
 
-from geocon_core.bench import read_status  # noqa: E402
+from geocon_core.layout import read_status  # noqa: E402
 from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
 from geocon_core.tables import COLUMNS, read_tables  # noqa: E402
 from geocon_core.verdict import is_flagged  # noqa: E402

@@ -7,8 +7,8 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.cli import app
 from geocon_core.synth import ClipPlan, write_clip
+from geocon_viewer.cli import app
 
 runner = CliRunner()
 

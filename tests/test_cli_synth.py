@@ -8,8 +8,8 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
-from geocon_core.cli import app
 from geocon_core.synth import FAMILIES, load_ground_truth
+from geocon_viewer.cli import app
 
 runner = CliRunner()
 

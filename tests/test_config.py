@@ -13,7 +13,6 @@ import pytest
 from typer.testing import CliRunner
 
 from geocon_core.category import categorize
-from geocon_core.cli import app
 from geocon_core.config import (
     PRESETS,
     SUB_CONFIGS,
@@ -32,6 +31,7 @@ from geocon_core.flow import DisFlow, make_flow_backend
 from geocon_core.masks import MotionSegmenter, make_mask_source
 from geocon_core.pose import ClassicalPose, make_pose_backend
 from geocon_core.reader import ClipInfo, _hard_cuts
+from geocon_viewer.cli import app
 
 # other valid values of the string fields (free names: any other name is valid)
 _STRINGS = {

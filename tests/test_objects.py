@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.cli import app
 from geocon_core.config import ScoreConfig, preset
 from geocon_core.record import read_record, write_record
 from geocon_core.scorer import score_clip
 from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
+from geocon_viewer.cli import app
 
 FAST = ScoreConfig(scales=(0.5, 1.0))
 SIZE = dict(width=640, height=360, num_frames=16)

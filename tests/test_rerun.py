@@ -103,7 +103,7 @@ def test_entity_paths_present(objects_run):
 
 def test_frames_on_timeline_equal_clip(objects_run):
     record, _, rows = objects_run
-    n = record.video["num_frames"]
+    n = record.video.num_frames
     refs = [r for r in rows["/frame/image"] if r.get("frame") is not None]
     assert sorted(r["frame"] for r in refs) == list(range(n))
     # one static video asset holding exactly n frames; each reference points at a distinct frame
@@ -185,7 +185,7 @@ def test_point_cloud_and_cameras(parallax_run):
         row = next(r for r in rows[cam] if r.get("Pinhole:image_from_camera") is not None)
         K = np.array(row["Pinhole:image_from_camera"][0]).reshape(3, 3).T  # stored column-major
         assert np.allclose(K[:2, 2], np.asarray(record.intrinsics)[:2, 2])
-    T = np.asarray(record.gate.pose["T_cam0_camT"])
+    T = np.asarray(record.gate.pose.T_cam0_camT)
     tr = next(r for r in rows["/world/cam_last"] if r.get("Transform3D:translation") is not None)[
         "Transform3D:translation"
     ]
@@ -318,4 +318,4 @@ def test_flow_hue_is_one_frame_sized_layer_inside_the_masks(objects_run):
         assert np.all(labels[drawn] > 0), f"hue drawn outside the object masks on frame {r['frame']}"
     assert len(shapes) == 1
     (shape,) = shapes
-    assert shape[:2] == tuple(record.video["working_size"][::-1])
+    assert shape[:2] == tuple(record.video.working_size[::-1])

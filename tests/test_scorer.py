@@ -43,7 +43,7 @@ def test_static_and_rotation_gate_h_and_are_consistent(scored, clips, cid):
     assert rec.background.ir >= 0.97 and rec.background.ge <= 1.0
     assert rec.background.consistent is True
     assert rec.background.valid_pairs == rec.background.total_pairs == 19 * 2
-    assert rec.video["duplicates"] == [] and rec.video["cuts"] == []
+    assert rec.video.duplicates == () and rec.video.cuts == ()
 
 
 def test_translation_gates_f(scored, clips):
@@ -130,12 +130,12 @@ def test_graf_homography_matches_the_true_one(tmp_path):
     pair = next(p for p in rec.pairs if p.scale == 1.0)
     assert pair.h.valid
     H_work = np.array(pair.h.model)
-    s, (ox, oy) = rec.video["scale"], rec.video["offset"]
+    s, (ox, oy) = rec.video.scale, rec.video.offset
     S = np.array([[s, 0, ox + 0.5 * s - 0.5], [0, s, oy + 0.5 * s - 0.5], [0, 0, 1]])
     H_src = np.linalg.inv(S) @ H_work @ S
     fs = cv2.FileStorage(str(src / "H1to3p.xml"), cv2.FILE_STORAGE_READ)
     H_true = fs.getFirstTopLevelNode().mat()
-    w, h = rec.video["source_size"]
+    w, h = rec.video.source_size
     gx, gy = np.meshgrid(np.linspace(0, w - 1, 20), np.linspace(0, h - 1, 16))
     pts = np.column_stack([gx.ravel(), gy.ravel()])
     diff = np.linalg.norm(apply_homography(H_src, pts) - apply_homography(H_true, pts), axis=1)

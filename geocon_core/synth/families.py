@@ -163,10 +163,13 @@ def _objects(rng: np.random.Generator, K: np.ndarray, n: int) -> tuple[ObjectTra
     us = [i / max(1, n - 1) for i in range(n)]
     y1, z1, spin = 0.25 + _jit(rng, 0.1), 3.0 + _jit(rng, 0.2), 40 + _jit(rng, 10)
     disc = [
-        make_pose(rotation_xyz(roll_deg=spin * u), (-1.1 + 2.2 * u, y1 + 0.1 * math.sin(math.pi * u), z1)) for u in us
+        make_pose(rotation_xyz(roll_deg=spin * u), np.array((-1.1 + 2.2 * u, y1 + 0.1 * math.sin(math.pi * u), z1)))
+        for u in us
     ]
     x2, y2, turn = 0.9 + _jit(rng, 0.1), -0.55 + _jit(rng, 0.1), 25 + _jit(rng, 8)
-    card = [make_pose(rotation_xyz(yaw_deg=turn * u), (x2 - 1.3 * u, y2 + 0.7 * u, 4.2 + 0.4 * u)) for u in us]
+    card = [
+        make_pose(rotation_xyz(yaw_deg=turn * u), np.array((x2 - 1.3 * u, y2 + 0.7 * u, 4.2 + 0.4 * u))) for u in us
+    ]
     return (
         _object(rng, K, 1, "disc", (0.64, 0.64), z1, "disc", disc),
         _object(rng, K, 2, "card", (0.7, 0.45), 4.4, "card", card),

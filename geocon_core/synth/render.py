@@ -6,17 +6,14 @@ that object is the visible surface there."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterator
+from typing import Iterator, Protocol
 
 import cv2
 import numpy as np
 
 from .scene import Scene, SurfaceView, plane_view
 
-if TYPE_CHECKING:
-    from .failures import Failure
-
-__all__ = ["RenderedFrame", "render_frame", "surface_views"]
+__all__ = ["RenderedFrame", "RenderHooks", "render_frame", "surface_views"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,6 +32,15 @@ class RenderedFrame:
     depth: np.ndarray
     surface: np.ndarray
     surfaces: tuple[str, ...]
+
+
+class RenderHooks(Protocol):
+    """What :func:`render_frame` asks of an injected failure (see :mod:`.failures`): change each
+    surface before it is drawn, then the finished frame."""
+
+    def adjust_view(self, scene: Scene, t: int, view: SurfaceView) -> SurfaceView: ...
+
+    def post_process(self, scene: Scene, t: int, frame: RenderedFrame) -> RenderedFrame: ...
 
 
 def surface_views(scene: Scene, t: int, *, with_objects: bool = True) -> Iterator[SurfaceView]:
@@ -59,7 +65,15 @@ def _pixel_rays(K: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> tuple[np.ndarr
     return rx, ry, rz
 
 
-def render_frame(scene: Scene, t: int, failure: "Failure | None" = None, *, with_objects: bool = True) -> RenderedFrame:
+def _dot(v: np.ndarray, rays: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """``v . ray`` per pixel for a 3-vector ``v`` and per-pixel ray components."""
+    rx, ry, rz = rays
+    return v[0] * rx + v[1] * ry + v[2] * rz
+
+
+def render_frame(
+    scene: Scene, t: int, failure: RenderHooks | None = None, *, with_objects: bool = True
+) -> RenderedFrame:
     """Render frame ``t`` of ``scene``, with ``failure`` injected if given."""
     if not 0 <= t < scene.num_frames:
         raise IndexError(f"frame {t} out of range 0..{scene.num_frames - 1}")
@@ -79,19 +93,15 @@ def render_frame(scene: Scene, t: int, failure: "Failure | None" = None, *, with
         if view.query_offset is not None:
             qx = gx + view.query_offset[..., 0]
             qy = gy + view.query_offset[..., 1]
-        rx, ry, rz = _pixel_rays(scene.K, qx, qy)
-
-        def lin(v: np.ndarray) -> np.ndarray:
-            return v[0] * rx + v[1] * ry + v[2] * rz
-
-        den = lin(view.depth_den)
-        num = lin(view.depth_num)
-        hw = lin(view.H_tex_ray[2])
-        ok = (lin(view.front) > 0) & (den > 0) & (num > 0) & (np.abs(hw) > 1e-15)
+        rays = _pixel_rays(scene.K, qx, qy)
+        den = _dot(view.depth_den, rays)
+        num = _dot(view.depth_num, rays)
+        hw = _dot(view.H_tex_ray[2], rays)
+        ok = (_dot(view.front, rays) > 0) & (den > 0) & (num > 0) & (np.abs(hw) > 1e-15)
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = np.where(ok, num / den, np.inf)
-            a = np.where(ok, lin(view.H_tex_ray[0]) / hw, -1e9)
-            b = np.where(ok, lin(view.H_tex_ray[1]) / hw, -1e9)
+            a = np.where(ok, _dot(view.H_tex_ray[0], rays) / hw, -1e9)
+            b = np.where(ok, _dot(view.H_tex_ray[1], rays) / hw, -1e9)
         th, tw = view.texture.shape[:2]
         ok &= (a >= -0.5) & (a <= tw - 0.5) & (b >= -0.5) & (b <= th - 0.5)
         ok &= depth < zbuf

@@ -46,7 +46,7 @@ def procedural_texture(rng: np.random.Generator, height: int, width: int, *, con
     sizes = np.exp(rng.uniform(math.log(3), math.log(40), n_shapes))
     colours = rng.integers(0, 256, (n_shapes, 3))
     angles = rng.uniform(0, 2 * math.pi, n_shapes)
-    for kind, (cx, cy), size, colour, ang in zip(kinds, centers, sizes, colours, angles):
+    for kind, (cx, cy), size, colour, ang in zip(kinds, centers, sizes, colours, angles, strict=True):
         c = tuple(int(v) for v in colour)
         p = (int(cx), int(cy))
         if kind == 0:

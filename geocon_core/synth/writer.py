@@ -221,7 +221,7 @@ def _ground_truth(
         objects=objects,
         masks_path=masks_name,
         masked_share=masked_share,
-        content_box=tuple(int(v) for v in content),
+        content_box=(int(content[0]), int(content[1]), int(content[2]), int(content[3])),
         failure=fail,
         video_path=video_name,
         sensor_noise_sigma=float(noise),

@@ -1,37 +1,20 @@
-"""The ``geocon`` command line with the viewers: the core commands plus ``geocon view`` and the
-``--rrd`` recorder of ``geocon score`` (registered here, so the core never imports a viewer)."""
+"""``geocon view`` and ``geocon serve``: a saved record in the Rerun viewer, a results folder in the
+Viser audit app. The viewer modules load only when these commands run."""
 
 from __future__ import annotations
 
-import importlib.util
 import os
+import signal
+import time
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from geocon_core.cli import (
-    FRAME_SINKS,
-    RECORD_RENDERERS,
-    _default_out,
-    _fail,
-    _rerun_version,
-    _score_with_progress,
-    app,
-    err,
-    out,
-)
+from .commands_score import is_input_error, score_with_progress
+from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, rerun_version
 
-
-def _rrd_sink(path: Path):
-    from .rerun_log import RrdSink
-
-    return RrdSink(path)
-
-
-if importlib.util.find_spec("rerun") is not None:  # the viewer extra is installed
-    FRAME_SINKS["rrd"] = _rrd_sink
-    RECORD_RENDERERS["rrd"] = "geocon_viewer.rerun_log:write_rrd"
+__all__ = ["view", "serve"]
 
 
 def _has_display() -> bool:
@@ -46,28 +29,33 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
     if target.name == "record.json" and target.exists():
         return target.parent
     if not target.exists():
-        raise _fail(f"{target} does not exist: give a clip or a record folder (one with record.json)")
-    folder = _default_out(target)
+        raise fail(f"{target} does not exist: give a clip or a record folder (one with record.json)")
+    folder = default_out(target)
     if (folder / "record.json").exists():
         err.print(f"using the saved record {folder} (delete it or run `geocon score` to re-score)")
         return folder
     from geocon_core.config import preset
-    from geocon_core.reader import ClipError
 
+    try:
+        cfg = preset(preset_name)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
     err.print(f"no saved record for {target}: scoring it first (record: {folder})")
     try:
-        _score_with_progress(target, preset(preset_name), out_dir=folder)
-    except (ClipError, ValueError) as exc:
-        raise _fail(str(exc)) from None
+        score_with_progress(target, cfg, out_dir=folder)
+    except ValueError as exc:
+        if not is_input_error(exc):
+            raise
+        raise fail(str(exc)) from None
     return folder
 
 
-@app.command()
 def view(
     target: Annotated[
         Path,
         typer.Argument(
-            help="A record folder (from `geocon score`/`geocon demo`) or a clip (its saved record is used, or it is scored first)."
+            help="A record folder (from `geocon score`/`geocon demo`) or a clip (its saved record is used, or it "
+            "is scored first)."
         ),
     ],
     save: Annotated[
@@ -86,7 +74,8 @@ def view(
         Optional[Path],
         typer.Option(
             "--screenshot",
-            help="Save a PNG of the default layout at --at: the headless native viewer (needs a Vulkan driver, e.g. Debian mesa-vulkan-drivers), else the web viewer in headless Chromium.",
+            help="Save a PNG of the default layout at --at: the headless native viewer (needs a Vulkan driver, "
+            "e.g. Debian mesa-vulkan-drivers), else the web viewer in headless Chromium.",
         ),
     ] = None,
     at: Annotated[
@@ -98,16 +87,15 @@ def view(
 ) -> None:
     """Re-render the Rerun recording of a saved record without re-scoring, then open it: the
     native viewer when a display is available, otherwise the web viewer served on 127.0.0.1."""
-    if "rrd" not in FRAME_SINKS:
-        raise _fail(
-            "geocon view needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)"
-        )
+    if not has_viewer_extra("rerun"):
+        raise fail(f"geocon view needs the viewer extra: {VIEWER_EXTRA}")
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from geocon_core.record import read_record
 
-    from .rerun_log import worst_frame, write_rrd
+    from ..rerun_log import quiet_encoder_logs, worst_frame, write_rrd
 
+    quiet_encoder_logs()
     folder = _resolve_record(target, preset_name)
     rrd = save or folder / "audit.rrd"
     try:
@@ -119,22 +107,23 @@ def view(
                 folder, rrd, connect=connect, progress=lambda done, total: bar.update(task, completed=done, total=total)
             )
     except ValueError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     frame = at if at is not None else worst_frame(read_record(folder))
     out.print(
-        f"recording: {rrd} ({rrd.stat().st_size / 1e6:.1f} MB, Rerun {_rerun_version()}: open it with a viewer of the same version)"
+        f"recording: {rrd} ({rrd.stat().st_size / 1e6:.1f} MB, Rerun {rerun_version()}: open it with a viewer "
+        "of the same version)"
     )
     if screenshot is not None:
-        from .screenshot import ScreenshotError, screenshot_rrd
+        from ..screenshot import ScreenshotError, screenshot_rrd
 
         try:
             screenshot_rrd(rrd, screenshot, at=f"frame@{frame}")
         except ScreenshotError as exc:
-            raise _fail(str(exc)) from None
+            raise fail(str(exc)) from None
         out.print(f"screenshot: {screenshot}")
     if headless or connect is not None or screenshot is not None:
         return
-    from .serve import open_native, serve_web
+    from ..serve import open_native, serve_web
 
     if _has_display() and not serve:
         open_native(rrd, frame=frame)
@@ -148,10 +137,9 @@ def view(
             ),
         )
     except RuntimeError as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
 
 
-@app.command()
 def serve(
     results: Annotated[
         Path, typer.Argument(help="A results folder from `geocon bench`, or a record folder from `geocon score --out`.")
@@ -179,46 +167,46 @@ def serve(
 ) -> None:
     """Browse a benchmark's clips in the Viser audit app: the triage list (most severe first), live
     re-gating at other thresholds, the 3D scene, frames with overlays and the IR/GE/AdaDFRC plots."""
-    if importlib.util.find_spec("viser") is None:
-        raise _fail(
-            "geocon serve needs the viewer extra: pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)"
-        )
-    import time
-
+    if not has_viewer_extra("viser"):
+        raise fail(f"geocon serve needs the viewer extra: {VIEWER_EXTRA}")
     from geocon_core.results import ResultsError
 
-    from .audit_app import AuditApp
+    from ..audit_app import AuditApp
+    from ..rerun_video import quiet_encoder_logs
+
+    quiet_encoder_logs()  # the app writes recordings on request
 
     start = time.perf_counter()
     try:
         audit = AuditApp(results, host=host, port=port)
     except (ResultsError, ValueError) as exc:
-        raise _fail(str(exc)) from None
+        raise fail(str(exc)) from None
     except OSError as exc:
-        raise _fail(f"could not serve on {host}:{port}: {exc}") from None
+        raise fail(f"could not serve on {host}:{port}: {exc}") from None
     try:
         if clip is not None:
             if clip not in audit.index.by_id:
-                raise _fail(f"no clip {clip!r} in {results}")
-            audit.clip.value = clip
+                raise fail(f"no clip {clip!r} in {results}")
+            audit.clip.value = clip  # type: ignore[misc]  # viser setter typing gap
         n = len(audit.index.clips)
+        reach = "this machine only" if audit.host in ("127.0.0.1", "localhost", "::1") else "reachable from the network"
+        ready = time.perf_counter() - start
         out.print(
-            f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {time.perf_counter() - start:.1f} s; "
-            f"{'this machine only' if audit.host in ('127.0.0.1', 'localhost', '::1') else 'reachable from the network'}; Ctrl-C to stop)",
+            f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {ready:.1f} s; {reach}; "
+            "Ctrl-C to stop)",
             soft_wrap=True,
         )
         if screenshot is not None:
-            from .screenshot import ScreenshotError, screenshot_url
+            from ..screenshot import ScreenshotError, screenshot_url
 
             if audit.view is not None:
                 audit.view.frames_ready.wait(60)
             try:
                 screenshot_url(audit.url, screenshot)
             except ScreenshotError as exc:
-                raise _fail(str(exc)) from None
+                raise fail(str(exc)) from None
             out.print(f"screenshot: {screenshot}")
             return
-        import signal
 
         def on_term(*_: object) -> None:
             raise KeyboardInterrupt
@@ -230,11 +218,3 @@ def serve(
         err.print("stopping")
     finally:
         audit.stop()
-
-
-def main() -> None:
-    app()
-
-
-if __name__ == "__main__":
-    main()

@@ -1,0 +1,165 @@
+"""``geocon bench``, ``geocon report`` and ``geocon presets``: many clips at once, their tables and
+report, and the named settings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+from rich.table import Table
+
+from .console import VIEWER_EXTRA, err, fail, has_viewer_extra, out, parse_size
+
+__all__ = ["bench", "report", "presets", "render_audit_rrd"]
+
+
+def render_audit_rrd(record_dir: Path, rrd_path: Path) -> Path | None:
+    """Write the Rerun recording of a saved record (the renderer ``geocon bench`` gives its worker
+    processes for flagged clips: a module-level function, so it pickles by name)."""
+    from ..rerun_log import quiet_encoder_logs, write_rrd
+
+    quiet_encoder_logs()
+    return write_rrd(record_dir, rrd_path)
+
+
+def bench(
+    dataset: Annotated[
+        Path, typer.Argument(help="Dataset folder: clips with sidecar <name>.meta.json files (see the README).")
+    ],
+    out_dir: Annotated[Path, typer.Option("--out", help="Results folder (created; rerun the same command to resume).")],
+    preset_name: Annotated[str, typer.Option("--preset", help="Named settings; see `geocon presets`.")] = "paper",
+    workers: Annotated[int, typer.Option(min=1, help="Worker processes scoring clips in parallel.")] = 1,
+    retry_failed: Annotated[
+        bool, typer.Option("--retry-failed", help="Score clips that failed in an earlier run again.")
+    ] = False,
+    rrd: Annotated[
+        bool,
+        typer.Option(
+            "--rrd/--no-rrd", help="Write a Rerun recording (audit.rrd) for each flagged clip (needs the viewer extra)."
+        ),
+    ] = True,
+    working_size: Annotated[
+        Optional[str],
+        typer.Option(
+            "--working-size", help="Working resolution WxH clips are fitted into (default: the preset's, 1024x720)."
+        ),
+    ] = None,
+) -> None:
+    """Score every clip of a dataset (in parallel, resumable) and write per-clip records plus flat
+    Parquet tables (clip, pair, object level) into the results folder."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from geocon_core.bench import BenchError, run_bench
+    from geocon_core.config import preset
+    from geocon_core.dataset import DatasetError
+
+    try:
+        cfg = preset(preset_name)
+        if working_size is not None:
+            cfg = cfg.with_(working_size=parse_size(working_size))
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    renderer = render_audit_rrd if rrd and has_viewer_extra("rerun") else None
+    if rrd and renderer is None:
+        err.print(
+            f"note: Rerun recordings of flagged clips need the viewer extra ({VIEWER_EXTRA}); scoring without them"
+        )
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("clips"),
+        TextColumn("[red]{task.fields[failed]} failed"),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=err, transient=False) as bar:
+        task = bar.add_task("benchmark", total=None, failed=0, visible=False)
+
+        def on_start(todo: int, skipped: int) -> None:
+            if skipped:
+                err.print(f"resuming: {skipped} clip(s) already finished in {out_dir}, {todo} to score")
+            bar.update(task, total=todo + skipped, completed=skipped, visible=True)
+
+        def on_clip(status: dict[str, Any], done: int, total: int, failed: int) -> None:
+            if status["status"] == "failed":
+                bar.console.print(
+                    f"[red]failed[/] {status['clip_id']}: {status['error']}",
+                    soft_wrap=True,
+                    markup=True,
+                    highlight=False,
+                )
+            bar.update(task, completed=done, failed=failed)
+
+        try:
+            summary = run_bench(
+                dataset,
+                out_dir,
+                cfg,
+                workers=workers,
+                rrd_renderer=renderer,
+                retry_failed=retry_failed,
+                on_start=on_start,
+                on_clip=on_clip,
+            )
+        except DatasetError as exc:
+            raise fail(str(exc)) from None
+        except (BenchError, ImportError) as exc:
+            raise fail(str(exc)) from None
+        except KeyboardInterrupt:
+            err.print(f"interrupted: finished clips are kept in {out_dir}; run the same command again to resume")
+            raise typer.Exit(code=130) from None
+    ok = summary.total - summary.failed
+    out.print(
+        f"{summary.total} clips: {ok} scored, {summary.failed} failed ({summary.scored} in this run, "
+        f"{summary.skipped} finished earlier) in {summary.seconds:.1f} s",
+        soft_wrap=True,
+    )
+    out.print(
+        f"records: {out_dir}/clips/<clip_id>/   tables: {out_dir}/tables/*.parquet   report: geocon report {out_dir}",
+        soft_wrap=True,
+    )
+
+
+def report(
+    results: Annotated[Path, typer.Argument(help="Results folder written by `geocon bench`.")],
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="Report folder (default: RESULTS/report).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the bootstrap resampling.")] = 0,
+) -> None:
+    """The paper's tables and figures from benchmark results: PNG/SVG figures and one
+    self-contained HTML report that opens offline."""
+    try:
+        from geocon_core.report import build_report
+    except ImportError as exc:
+        raise fail(f"the report needs the bench extra: pip install 'geocon[bench]' ({exc})") from None
+    try:
+        result = build_report(
+            results, out_dir, seed=seed, progress=lambda what: err.print(f"report: {what}", highlight=False)
+        )
+    except (ValueError, FileNotFoundError) as exc:
+        raise fail(str(exc)) from None
+    for warning in result.warnings:
+        err.print(f"note: {warning}", soft_wrap=True, highlight=False)
+    out.print(f"report: {result.html} ({len(result.figures)} figure files in {result.out})", soft_wrap=True)
+
+
+def presets() -> None:
+    """List the named scoring presets and every setting, stage settings as dotted names (``motion.min_area``)."""
+    from geocon_core.config import PRESETS, config_hash, config_items
+
+    for name, (text, cfg) in PRESETS.items():
+        table = Table(title=f"{name}: {text} (hash {config_hash(cfg)})", title_justify="left", show_header=False)
+        table.add_column(style="bold", no_wrap=True)
+        table.add_column()
+        for key, value in config_items(cfg):
+            table.add_row(key, str(list(value) if isinstance(value, tuple) else value))
+        out.print(table)

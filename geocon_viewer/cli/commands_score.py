@@ -1,0 +1,249 @@
+"""``geocon score`` and ``geocon demo``: score one clip, print its summary, write its record and,
+on request, a Rerun recording of the audit."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Callable, Optional
+
+import typer
+from rich.table import Table
+
+import geocon_core
+
+from ..style import fmt
+from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, rerun_version
+
+if TYPE_CHECKING:
+    from geocon_core.config import ScoreConfig
+    from geocon_core.record import ClipRecord
+
+__all__ = ["score", "score_with_progress", "print_record", "is_input_error", "MAX_OBJECT_ROWS"]
+
+MAX_OBJECT_ROWS = 12
+"""The summary table lists at most this many objects (the longest-lived ones)."""
+_CORE_DIR = Path(geocon_core.__file__).resolve().parent
+
+
+def is_input_error(exc: BaseException) -> bool:
+    """Whether ``exc`` is one of GeoCon's own one-sentence errors about unusable input or settings:
+    a ``ValueError`` (``ClipError``, ``DatasetError``, ``BenchError`` and the checks of masks, pose
+    logs and settings are ``ValueError``) raised by a ``raise`` statement in :mod:`geocon_core`
+    itself. A ``ValueError`` raised inside numpy, OpenCV or another library is an internal bug:
+    the command lets it through with its traceback."""
+    if not isinstance(exc, ValueError):
+        return False
+    tb = exc.__traceback__
+    if tb is None:
+        return False
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    return Path(tb.tb_frame.f_code.co_filename).resolve().is_relative_to(_CORE_DIR)
+
+
+def _rrd_sink_factory(rrd: Path) -> Callable[[Path], Any]:
+    """A sink factory for :func:`~geocon_core.bench.score_to_folder` that records the audit into
+    ``rrd``; fails before scoring when the viewer extra is missing."""
+    if not has_viewer_extra("rerun"):
+        raise fail(f"writing a Rerun recording needs the viewer extra: {VIEWER_EXTRA}")
+    from ..rerun_log import RrdSink, quiet_encoder_logs
+
+    quiet_encoder_logs()
+    return lambda _folder: RrdSink(rrd)
+
+
+def score_with_progress(
+    clip: Path,
+    cfg: ScoreConfig,
+    *,
+    out_dir: Path,
+    pose_log: Path | None = None,
+    masks: Path | None = None,
+    quiet: bool = False,
+    rrd: Path | None = None,
+) -> ClipRecord:
+    """Score a clip with a progress bar on stderr that appears once the clip is readable; write
+    the record (with its overlays) into ``out_dir`` and, with ``rrd``, a Rerun recording."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from geocon_core.bench import score_to_folder
+
+    sinks = [] if rrd is None else [_rrd_sink_factory(rrd)]
+    columns = (
+        TextColumn("scoring"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("frames"),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=err, disable=quiet) as bar:
+        task = bar.add_task("score", total=None, visible=False)
+        return score_to_folder(
+            clip,
+            cfg,
+            out_dir,
+            pose_log=pose_log,
+            masks=masks,
+            sinks=sinks,
+            progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
+        )
+
+
+def _gate_row(record: ClipRecord) -> str:
+    g = record.gate
+    if g.pose_present:
+        return (
+            f"{g.label} -> model {g.model}   t_inf {fmt(g.t_inf, '.4f')}   margin {fmt(g.margin, '+.4f')}   "
+            f"({g.backend} pose, {g.pose.method})"
+        )
+    return f"F (no pose: {g.pose.reason}; fail->F)   backend {g.backend}"
+
+
+def _verdict_row(record: ClipRecord) -> str:
+    bg, cfg = record.background, record.config
+    if bg.consistent is None:
+        return "[yellow]not judged[/] (no valid pair)"
+    if bg.consistent:
+        return f"[green]consistent[/] (IR >= {cfg.ir_gate:g} and GE <= {cfg.ge_gate:g} px)"
+    return f"[red]inconsistent[/] (needs IR >= {cfg.ir_gate:g} and GE <= {cfg.ge_gate:g} px)"
+
+
+def _object_rows(table: Table, record: ClipRecord) -> None:
+    share = max(record.masked_share) if record.masked_share else 0.0
+    table.add_row(
+        "objects",
+        f"{len(record.objects)} from {record.masks_source} masks (masked share up to {share:.1%} of the content)",
+    )
+    # Long-lived objects first; a clip with dozens of short motion blobs keeps a readable table.
+    shown = sorted(record.objects, key=lambda o: (-o.frames, o.object_id))[:MAX_OBJECT_ROWS]
+    for o in sorted(shown, key=lambda o: o.object_id):
+        table.add_row(
+            f"  object {o.object_id}",
+            f"frames {o.first_frame}-{o.last_frame} ({o.frames}), AdaDFRC {fmt(o.adadfrc, '.3f')} px², "
+            f"W2 {fmt(o.adadfrc_w2, '.3f')} px², AdaP90 {fmt(o.adap90, '.3f')} px², masked {o.masked_share:.1%}",
+        )
+    if len(record.objects) > len(shown):
+        table.add_row(
+            "", f"... {len(record.objects) - len(shown)} shorter-lived objects not listed (all are in record.json)"
+        )
+
+
+def print_record(record: ClipRecord, out_dir: Path | None) -> None:
+    """The readable summary of a scored clip."""
+    bg, cfg = record.background, record.config
+    table = Table(title=f"GeoCon: {record.clip}", title_justify="left", show_header=False)
+    table.add_column(style="bold")
+    table.add_column()
+    table.add_row("gate", _gate_row(record))
+    tau = f"tau_H {cfg.tau_h:g} px" if bg.model == "H" else f"tau_F {cfg.tau_f:g} (~{fmt(bg.tau_f_px, '.1f')} px)"
+    table.add_row("background", f"{bg.model}: IR {fmt(bg.ir, '.3f')}   GE {fmt(bg.ge, '.2f')} px   ({tau})")
+    if len(bg.chosen.per_gap) > 1:
+        table.add_row(
+            "per gap",
+            "   ".join(f"gap {p.gap}: IR {fmt(p.ir, '.3f')} GE {fmt(p.ge, '.2f')}" for p in bg.chosen.per_gap),
+        )
+    table.add_row(
+        "other family",
+        f"{bg.other.family}: IR {fmt(bg.other.ir, '.3f')}   GE {fmt(bg.other.ge, '.2f')} px (best-of, not the score)",
+    )
+    reasons = ", ".join(f"{k} {v}" for k, v in bg.chosen.invalid_reasons.items()) or "none"
+    table.add_row(
+        "coverage",
+        f"{bg.valid_pairs}/{bg.total_pairs} pair-scales valid; {record.video.num_frames} frames; invalid: {reasons}",
+    )
+    table.add_row("verdict", _verdict_row(record))
+    if record.category is not None:
+        table.add_row("category", f"{record.category.label}: {record.category.rule}")
+    _object_rows(table, record)
+    table.add_row("config", f"{cfg.preset} preset, hash {record.config_hash}")
+    for w in record.warnings:
+        table.add_row("[yellow]warning[/]", w)
+    if out_dir is not None:
+        table.add_row("record", f"{out_dir}/record.json (+ matches.npz)")
+    out.print(table)
+
+
+def _config(preset_name: str, matcher: str | None, fov: float | None, masks: Path | None, no_masks: bool) -> Any:
+    from geocon_core.config import preset
+    from geocon_core.features import make_matcher
+
+    cfg = preset(preset_name)
+    overrides: dict[str, Any] = {k: v for k, v in (("matcher", matcher), ("fov_x_deg", fov)) if v is not None}
+    if no_masks:
+        if masks is not None:
+            raise ValueError("--masks and --no-masks exclude each other")
+        overrides["masks"] = "none"
+    if overrides:
+        cfg = cfg.with_(**overrides)
+    make_matcher(cfg.matcher)
+    return cfg
+
+
+def score(
+    clip: Annotated[Path, typer.Argument(help="Video (mp4, avi, mov, webm, gif) or a folder of PNG/JPEG frames.")],
+    out_dir: Annotated[
+        Optional[Path], typer.Option("--out", help="Folder for the record (default: geocon-out/<clip name>).")
+    ] = None,
+    preset_name: Annotated[str, typer.Option("--preset", help="Named settings; see `geocon presets`.")] = "paper",
+    pose_log: Annotated[
+        Optional[Path],
+        typer.Option(
+            help="External first->last pose (geocon-pose/1 JSON, e.g. from DUSt3R) instead of the classical pose."
+        ),
+    ] = None,
+    masks: Annotated[
+        Optional[Path],
+        typer.Option(
+            help="External object masks: a folder of label PNGs, per-object folders, or an .npz (see the README)."
+        ),
+    ] = None,
+    no_masks: Annotated[
+        bool, typer.Option("--no-masks", help="Do not separate moving objects (score the whole content as background).")
+    ] = False,
+    matcher: Annotated[Optional[str], typer.Option(help="Correspondences: sift (default), orb, klt.")] = None,
+    fov: Annotated[
+        Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
+    rrd: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--rrd",
+            help="Also write a Rerun recording (.rrd) of the audit: frames, matches, residual maps, objects, "
+            "time series, 3D.",
+        ),
+    ] = None,
+) -> None:
+    """Score a clip: translation gate (H/F), background inlier ratio (IR) and geometric error
+    (GE) per frame pair and scale, the report verdict; writes the audit record."""
+    target = out_dir or default_out(clip)
+    try:
+        cfg = _config(preset_name, matcher, fov, masks, no_masks)
+    except ValueError as exc:  # settings given on the command line
+        raise fail(str(exc)) from None
+    try:
+        record = score_with_progress(clip, cfg, out_dir=target, pose_log=pose_log, masks=masks, quiet=as_json, rrd=rrd)
+    except ValueError as exc:
+        if not is_input_error(exc):
+            raise
+        raise fail(str(exc)) from None
+    if rrd is not None and not as_json:
+        err.print(
+            f"Rerun recording written to {rrd} (rerun-sdk {rerun_version()}; open it with `geocon view {target}` "
+            f"or `rerun {rrd}`)"
+        )
+    if as_json:
+        sys.stdout.write(json.dumps(record.summary(), indent=1) + "\n")
+    else:
+        print_record(record, target)

@@ -1,0 +1,56 @@
+"""What every ``geocon`` command shares: the consoles, the one-sentence failure, argument parsing
+helpers."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+__all__ = ["err", "out", "fail", "parse_size", "rerun_version", "default_out", "has_viewer_extra", "VIEWER_EXTRA"]
+
+err = Console(stderr=True)
+out = Console()
+
+VIEWER_EXTRA = "pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh viewer)"
+"""How to install the viewers, quoted when a command needs them."""
+
+
+def fail(message: str) -> typer.Exit:
+    """Print ``message`` as an error on stderr; the caller raises the returned exit (code 2)."""
+    err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
+    return typer.Exit(code=2)
+
+
+def parse_size(size: str) -> tuple[int, int]:
+    """``"640x360"`` -> (640, 360); even sizes of at least 16 px (H.264 4:2:0)."""
+    try:
+        w, h = (int(v) for v in size.lower().split("x"))
+    except ValueError:
+        raise fail(f"--size must look like 640x360, got {size!r}") from None
+    if w % 2 or h % 2 or w < 16 or h < 16:
+        raise fail(f"--size needs an even width and height of at least 16 (H.264 4:2:0), got {size!r}")
+    return w, h
+
+
+def rerun_version() -> str:
+    """The installed rerun-sdk version (without importing it), or ``"?"``."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("rerun-sdk")
+    except PackageNotFoundError:
+        return "?"
+
+
+def has_viewer_extra(module: str = "rerun") -> bool:
+    """Whether ``module`` (a viewer dependency) is installed, without importing it."""
+    return importlib.util.find_spec(module) is not None
+
+
+def default_out(clip: Path) -> Path:
+    """Where ``geocon score`` writes the record of ``clip`` by default."""
+    return Path("geocon-out") / (clip.name if clip.is_dir() else clip.stem)

@@ -1,0 +1,162 @@
+"""The child processes behind the viewers: the ``rerun`` executable serving a recording on
+127.0.0.1, free loopback ports, private config dirs, and clean-up. Every child is started in its
+own session (process group) and stopped with its whole group (:func:`kill_group`)."""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import time
+import urllib.parse
+import urllib.request
+from pathlib import Path
+
+__all__ = [
+    "ScreenshotError",
+    "find_rerun_binary",
+    "free_port",
+    "private_env",
+    "kill_group",
+    "log_tail",
+    "rerun_import_error",
+    "start_rerun",
+]
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+_NO_PROXY = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+
+
+class ScreenshotError(RuntimeError):
+    """Chromium or the rerun executable is missing, or the capture failed."""
+
+
+def find_rerun_binary() -> str | None:
+    """Path of the real ``rerun`` binary inside the rerun-sdk wheel (``rerun_cli/rerun``), or None.
+
+    ``$RERUN_CLI_PATH`` wins when set; a ``rerun`` on ``PATH`` is the fallback."""
+    env = os.environ.get("RERUN_CLI_PATH")
+    if env and os.access(env, os.X_OK):
+        return env
+    spec = importlib.util.find_spec("rerun_cli")
+    for folder in (spec.submodule_search_locations or []) if spec is not None else []:
+        candidate = Path(folder) / "rerun"
+        if candidate.is_file() and os.access(candidate, os.X_OK):
+            return str(candidate)
+    # Last resort: the `rerun` console script, a wrapper around the real binary (its whole process group is
+    # killed on clean-up, so the binary goes too).
+    return shutil.which("rerun")
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def private_env(workdir: Path, **extra: str) -> dict[str, str]:
+    """The environment for a child, with config/cache/data dirs inside ``workdir`` (nothing lands in $HOME)."""
+    env = dict(os.environ, **extra)
+    for var in ("XDG_CONFIG_HOME", "XDG_CACHE_HOME", "XDG_DATA_HOME"):
+        folder = workdir / "xdg" / var.lower()
+        folder.mkdir(parents=True, exist_ok=True)
+        env[var] = str(folder)
+    return env
+
+
+def kill_group(proc: subprocess.Popen[bytes] | None) -> None:
+    """Stop ``proc`` and everything in its process group (it was started with a new session)."""
+    if proc is None:
+        return
+    for sig, wait_s in ((signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, sig)
+        try:
+            proc.wait(timeout=wait_s)
+        except subprocess.TimeoutExpired:
+            continue
+        # The leader is gone; make sure no child of it lingers in the group.
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        return
+
+
+def log_tail(path: Path, n_chars: int = 600) -> str:
+    try:
+        text = path.read_text(errors="replace")
+    except OSError:
+        return ""
+    return " ".join(text[-n_chars:].split())
+
+
+def rerun_import_error(log_path: Path) -> str | None:
+    """The rerun server's complaint about the recording (e.g. not an RRD file), if it logged one."""
+    try:
+        text = _ANSI.sub("", log_path.read_text(errors="replace"))
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if "Failed to import" in line or "Not an RRD file" in line:
+            return " ".join(line.split())[-300:]
+    return None
+
+
+def start_rerun(rerun_bin: str, rrd: Path, workdir: Path, deadline: float) -> tuple[subprocess.Popen[bytes], str, Path]:
+    """Serve ``rrd`` on loopback; return the process, the viewer URL that opens the recording and the log."""
+    last_error = "no attempt"
+    for attempt in range(3):
+        grpc_port, web_port = free_port(), free_port()
+        while web_port == grpc_port:
+            web_port = free_port()
+        log_path = workdir / f"rerun-{attempt}.log"
+        env = private_env(workdir, RERUN_ANALYTICS="0", RUST_LOG=os.environ.get("RUST_LOG", "warn,re_sdk=info"))
+        env.pop("RERUN_CLI_PATH", None)  # a wrapper must not be sent back to itself
+        cmd = [
+            rerun_bin,
+            "--serve-web",
+            "--bind",
+            "127.0.0.1",
+            "--port",
+            str(grpc_port),
+            "--web-viewer-port",
+            str(web_port),
+            "--hide-welcome-screen",
+            str(rrd),
+        ]
+        with open(log_path, "wb") as log:
+            proc: subprocess.Popen[bytes] = subprocess.Popen(
+                cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+            )
+        web_url = f"http://127.0.0.1:{web_port}/"
+        try:
+            while time.monotonic() < deadline:
+                if proc.poll() is not None:
+                    last_error = f"rerun exited with code {proc.returncode}: {log_tail(log_path)}"
+                    break
+                try:
+                    with _NO_PROXY.open(web_url, timeout=2) as resp:
+                        ready = resp.status == 200
+                    with socket.create_connection(("127.0.0.1", grpc_port), timeout=2):
+                        pass
+                except OSError:
+                    ready = False
+                if ready:
+                    proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+                    return proc, f"{web_url}?url={urllib.parse.quote(proxy, safe='')}", log_path
+                time.sleep(0.2)
+            else:
+                last_error = f"rerun did not start serving in time: {log_tail(log_path)}"
+        except BaseException:
+            kill_group(proc)
+            raise
+        kill_group(proc)
+        if time.monotonic() >= deadline:
+            break
+    raise ScreenshotError(f"Could not serve the recording with the rerun executable ({last_error}).")

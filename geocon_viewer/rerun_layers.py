@@ -1,0 +1,401 @@
+"""The parts of a Rerun audit recording that come from the finished record: matches and residual
+maps per pair, per-cell object vectors, time series, and the 3D world. :class:`RecordLayers`
+writes them into an explicit recording stream (see :mod:`geocon_viewer.rerun_log` for the
+entity paths)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+import rerun as rr
+
+from geocon_core.record import ClipRecord
+
+from .style import object_color
+
+__all__ = ["RecordLayers", "residual_map", "png_bytes", "object_rgba", "ARROW_GAIN", "INLIER", "OUTLIER"]
+
+INLIER = (60, 200, 90, 255)
+OUTLIER = (235, 60, 50, 255)
+ARROW_GAIN = 4.0
+# Screen-space sizes (negative radii are UI points in Rerun): matches stay visible at any zoom.
+MATCH_RADIUS = rr.Radius.ui_points(1.6)
+OUTLIER_RADIUS = rr.Radius.ui_points(2.2)
+LINE_RADIUS = rr.Radius.ui_points(0.6)
+"""Cell flow vectors are drawn this many times longer than they are (labelled so)."""
+
+
+def _colormap(values: np.ndarray, vmax: float) -> np.ndarray:
+    """Inferno colours (N, 4) uint8 of values in [0, vmax]."""
+    v = np.clip(np.asarray(values, np.float64) / max(vmax, 1e-9), 0.0, 1.0)
+    idx = np.round(v * 255).astype(np.uint8).reshape(-1, 1)
+    bgr = cv2.applyColorMap(idx, cv2.COLORMAP_INFERNO).reshape(-1, 3)
+    out = np.full((len(v), 4), 255, np.uint8)
+    out[:, :3] = bgr[:, ::-1]
+    return out
+
+
+def object_rgba(object_id: int) -> tuple[int, int, int, int]:
+    """An object's colour with full opacity."""
+    return (*object_color(object_id), 255)
+
+
+def png_bytes(image: np.ndarray, level: int = 6) -> bytes:
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_RGBA2BGRA)
+    elif image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, level])
+    assert ok
+    return buf.tobytes()
+
+
+def residual_map(
+    xy: np.ndarray, residuals: np.ndarray, size: tuple[int, int], vmax: float, *, cell: int = 8, sigma_px: float = 24.0
+) -> np.ndarray:
+    """A low-resolution RGBA picture (h/cell, w/cell, 4) of per-match residuals spread over an
+    image of ``size`` (w, h): a Gaussian-weighted mean of the residuals around each point,
+    inferno-coloured over [0, vmax], opaque where matches are dense and transparent where there
+    are none. ``xy`` are the matches' working pixels."""
+    w, h = size
+    gw, gh = max(1, math.ceil(w / cell)), max(1, math.ceil(h / cell))
+    num = np.zeros((gh, gw), np.float64)
+    den = np.zeros((gh, gw), np.float64)
+    finite = np.isfinite(residuals)
+    r = np.clip(residuals[finite], 0, 4 * vmax)
+    gx = np.clip((xy[finite, 0] / cell).astype(int), 0, gw - 1)
+    gy = np.clip((xy[finite, 1] / cell).astype(int), 0, gh - 1)
+    np.add.at(num, (gy, gx), r)
+    np.add.at(den, (gy, gx), 1.0)
+    s = sigma_px / cell
+    num_b = np.asarray(cv2.GaussianBlur(num, (0, 0), s))
+    den_b = np.asarray(cv2.GaussianBlur(den, (0, 0), s))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(den_b > 1e-9, num_b / den_b, 0.0)
+    # one match within ~sigma gives about 1 / (2 pi s^2) density: call 3 matches full evidence
+    alpha = np.clip(den_b * (2 * math.pi * s * s) / 3.0, 0.0, 1.0)
+    rgba = _colormap(mean.ravel(), vmax).reshape(gh, gw, 4)
+    rgba[..., 3] = np.round(alpha * 220).astype(np.uint8)
+    return rgba
+
+
+def _clean_cloud(xyz: np.ndarray, rgb: np.ndarray, *, max_points: int = 20000) -> tuple[np.ndarray, np.ndarray]:
+    """Statistical outlier removal and, for large clouds, voxel downsampling (open3d)."""
+    if len(xyz) < 20:
+        return xyz, rgb
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz.astype(np.float64)))
+    pc.colors = o3d.utility.Vector3dVector(rgb.astype(np.float64) / 255.0)
+    if len(xyz) > max_points:
+        extent = float(np.linalg.norm(np.ptp(xyz, axis=0)))
+        pc = pc.voxel_down_sample(extent / math.sqrt(max_points) / 4)
+    pc, _ = pc.remove_statistical_outlier(nb_neighbors=16, std_ratio=2.5)
+    return np.asarray(pc.points, np.float32), np.round(np.asarray(pc.colors) * 255).astype(np.uint8)
+
+
+class RecordLayers:
+    """Logs the record-derived layers into ``rec``; the pair (t, t+k) is logged at frame t on both
+    timelines (``video_time`` = t / ``fps``). ``scale`` is the scale whose matches are drawn
+    (default: the largest)."""
+
+    def __init__(self, rec: rr.RecordingStream, fps: float, scale: float | None) -> None:
+        self.rec, self.fps, self.scale = rec, fps, scale
+
+    def log_all(self, record: ClipRecord) -> None:
+        self._log_matches(record)
+        self._log_cells(record)
+        self._log_series(record)
+        self._log_world(record)
+
+    def _time(self, t: int) -> None:
+        self.rec.set_time("frame", sequence=int(t))
+        self.rec.set_time("video_time", duration=t / self.fps)
+
+    def _draw_scale(self, record: ClipRecord) -> float:
+        return self.scale if self.scale is not None else max(record.config.scales)
+
+    def _log_matches(self, record: ClipRecord) -> None:
+        rec, fam = self.rec, record.background.model
+        s = self._draw_scale(record)
+        w, h = record.video.working_size
+        for p in record.pairs:
+            if p.gap != 1 or p.scale != s:
+                continue
+            self._time(p.t0)
+            fit = p.fit(fam)
+            if p.skip is not None or fit is None:
+                rec.log("frame/matches", rr.Clear(recursive=True))
+                continue
+            a = record.matches.pair(p.index)
+            # working pixels of the scale's coordinates (cv2.resize pixel-centre convention)
+            x1 = (a["x1"].astype(np.float64) + 0.5) / s - 0.5
+            x2 = (a["x2"].astype(np.float64) + 0.5) / s - 0.5
+            r1, r2 = x1 + 0.5, x2 + 0.5  # Rerun puts pixel centres at +0.5
+            if fam == "H":
+                res_px, inl, rule = a["h_res"] / s, a["h_inl"], f"H: symmetric transfer error <= {fit.tau:g} px"
+                vmax = 2.0 * fit.tau / s
+            else:
+                res_px, inl, rule = (
+                    a["f_res_px"] / s,
+                    a["f_inl"],
+                    f"F: normalised Sampson <= {fit.tau:g} (~{(fit.tau_px or 0) / s:.2f} px)",
+                )
+                vmax = 2.0 * (fit.tau_px or 1.0) / s
+            ir = "invalid" if fit.ir is None else f"IR {fit.ir:.3f}"
+            ge = "" if fit.ge is None else f", GE {fit.ge / s:.2f} px"
+            rec.log(
+                "frame/matches/inliers",
+                rr.Points2D(
+                    r1[inl],
+                    radii=MATCH_RADIUS,
+                    colors=INLIER,
+                    labels=f"inliers ({rule}); {ir}{ge}",
+                    show_labels=False,
+                    draw_order=3.0,
+                ),
+            )
+            rec.log(
+                "frame/matches/outliers",
+                rr.Points2D(
+                    r1[~inl],
+                    radii=OUTLIER_RADIUS,
+                    colors=OUTLIER,
+                    labels=f"outliers ({rule})",
+                    show_labels=False,
+                    draw_order=3.1,
+                ),
+            )
+            strips = np.stack([r1, r2], axis=1)
+            rec.log(
+                "frame/matches/lines",
+                rr.LineStrips2D(
+                    strips.astype(np.float32),
+                    radii=LINE_RADIUS,
+                    colors=_colormap(res_px, vmax),
+                    labels=f"x_t -> x_t+1, colour = residual 0..{vmax:.2f} px",
+                    show_labels=False,
+                    draw_order=2.9,
+                ),
+            )
+            heat = residual_map(x1, res_px, (w, h), vmax)
+            cell = 8
+            # cell i covers working pixels [i*cell, (i+1)*cell) -> Rerun coordinates + 0.5
+            rec.log("frame/residual_map", rr.Transform3D(scale=[cell, cell, 1.0], translation=[0.5, 0.5, 0.0]))
+            rec.log(
+                "frame/residual_map",
+                rr.EncodedImage(
+                    contents=png_bytes(heat),
+                    media_type="image/png",
+                    opacity=0.85,
+                    draw_order=4.0,
+                    magnification_filter="Linear",
+                ),
+            )
+        n = record.video.num_frames
+        if n:  # the last frame starts no pair
+            self._time(n - 1)
+            rec.log("frame/matches", rr.Clear(recursive=True))
+            rec.log("frame/residual_map", rr.Clear(recursive=False))
+
+    def _log_cells(self, record: ClipRecord) -> None:
+        if record.cells is None:
+            return
+        rec, s_max = self.rec, max(record.config.scales)
+        seen: dict[int, set[int]] = {}
+        for e in record.object_entries:
+            if e.scale != s_max:
+                continue
+            self._time(e.t0)
+            base = f"frame/cells/{e.object_id}"
+            cells = record.cells.entry(e.index)
+            if not e.valid or len(cells["weights"]) == 0:
+                rec.log(base, rr.Clear(recursive=True))
+                continue
+            pos = (cells["positions"].astype(np.float64) + 0.5) / s_max  # working pixels, Rerun's +0.5 centres
+            obs, pred = cells["observed"] / s_max, cells["predicted"] / s_max
+            color = object_rgba(e.object_id)
+            rec.log(
+                f"{base}/observed",
+                rr.Arrows2D(
+                    origins=pos,
+                    vectors=ARROW_GAIN * obs,
+                    colors=color,
+                    radii=1.2,
+                    labels=f"object {e.object_id}: median cell flow x{ARROW_GAIN:g}",
+                    show_labels=False,
+                    draw_order=5.0,
+                ),
+            )
+            rec.log(
+                f"{base}/predicted",
+                rr.Arrows2D(
+                    origins=pos,
+                    vectors=ARROW_GAIN * pred,
+                    colors=(255, 255, 255, 255),
+                    radii=0.8,
+                    labels=f"object {e.object_id}: affine prediction x{ARROW_GAIN:g}; D_t {e.d_t:.3g} px^2",
+                    show_labels=False,
+                    draw_order=5.1,
+                ),
+            )
+            seen.setdefault(e.object_id, set()).add(e.t0)
+        for oid, ts in seen.items():  # no stale arrows once an object is gone
+            for t in sorted(ts):
+                if t + 1 not in ts:
+                    self._time(t + 1)
+                    rec.log(f"frame/cells/{oid}", rr.Clear(recursive=True))
+
+    def _cols(self, t: Sequence[int] | np.ndarray) -> list[Any]:
+        ts = np.asarray(t, np.int64)
+        return [rr.TimeColumn("frame", sequence=ts), rr.TimeColumn("video_time", duration=ts / self.fps)]
+
+    def _line(self, path: str, name: str, color: Any, width: float = 1.5) -> None:
+        self.rec.log(path, rr.SeriesLines(colors=[color], names=[name], widths=[width]), static=True)
+
+    def _constant(self, path: str, n: int, value: float) -> None:
+        self.rec.send_columns(
+            path, indexes=self._cols(np.arange(n)), columns=rr.Scalars.columns(scalars=np.full(n, value))
+        )
+
+    def _log_series(self, record: ClipRecord) -> None:
+        self._log_background_series(record)
+        self._log_object_series(record)
+        self._log_gate_series(record)
+
+    def _log_background_series(self, record: ClipRecord) -> None:
+        rec, cfg, bg = self.rec, record.config, record.background
+        fam = bg.model
+        n = record.video.num_frames
+        flagged_t, flagged_v = [], []
+        for gap in cfg.gaps:
+            for si, s in enumerate(cfg.scales):
+                rows = [p for p in record.pairs if p.gap == gap and p.scale == s]
+                fits = [(p, p.fit(fam)) for p in rows]
+                ok = [(p, f) for p, f in fits if p.skip is None and f is not None and f.valid]
+                shade = 120 + int(135 * (si + 1) / len(cfg.scales))
+                for metric in ("ir", "ge"):
+                    path = f"series/background/{metric}/gap{gap}/scale{s:g}"
+                    color = (40, 110, shade, 255) if metric == "ir" else (shade, 90, 40, 255)
+                    self._line(path, f"{metric.upper()} {fam} gap {gap} scale {s:g}", color)
+                    if ok:
+                        vals = [getattr(f, metric) for _, f in ok]
+                        rec.send_columns(
+                            path, indexes=self._cols([p.t0 for p, _ in ok]), columns=rr.Scalars.columns(scalars=vals)
+                        )
+                for p, f in fits:
+                    bad = (
+                        p.skip is not None
+                        or f is None
+                        or not f.valid
+                        or f.ir is None
+                        or f.ge is None
+                        or f.ir < cfg.ir_gate
+                        or f.ge > cfg.ge_gate
+                    )
+                    if bad and gap == 1 and s == max(cfg.scales):
+                        flagged_t.append(p.t0)
+                        flagged_v.append(0.0 if f is None or f.ir is None else f.ir)
+        for path, name, value, color in (
+            ("series/background/ir/gate", f"IR gate {cfg.ir_gate:g}", cfg.ir_gate, (90, 160, 255, 255)),
+            ("series/background/ge/gate", f"GE gate {cfg.ge_gate:g} px", cfg.ge_gate, (255, 150, 80, 255)),
+        ):
+            self._line(path, name, color, 1.0)
+            self._constant(path, n, value)
+        rec.log(
+            "series/background/ir/flagged",
+            rr.SeriesPoints(colors=[OUTLIER], names=["flagged pair (gap 1)"], markers=["cross"], marker_sizes=[4.0]),
+            static=True,
+        )
+        if flagged_t:
+            rec.send_columns(
+                "series/background/ir/flagged",
+                indexes=self._cols(flagged_t),
+                columns=rr.Scalars.columns(scalars=flagged_v),
+            )
+
+    def _log_object_series(self, record: ClipRecord) -> None:
+        s_max = max(record.config.scales)
+        for o in record.objects:
+            path = f"series/objects/{o.object_id}"
+            self._line(path, f"AdaDFRC D_t object {o.object_id} (px^2)", object_rgba(o.object_id))
+            es = [
+                e
+                for e in record.object_entries
+                if e.object_id == o.object_id and e.scale == s_max and e.valid and e.d_t is not None
+            ]
+            if es:
+                self.rec.send_columns(
+                    path,
+                    indexes=self._cols([e.t0 for e in es]),
+                    columns=rr.Scalars.columns(scalars=[e.d_t for e in es if e.d_t is not None]),
+                )
+
+    def _log_gate_series(self, record: ClipRecord) -> None:
+        g, n = record.gate, record.video.num_frames
+        wins = [(w.end, w.t_inf) for w in g.timeline if w.t_inf is not None]
+        self._line("series/gate/t_inf", "t_inf per window (at its last frame)", (230, 230, 230, 255), 2.0)
+        if wins:
+            self.rec.send_columns(
+                "series/gate/t_inf",
+                indexes=self._cols([end for end, _ in wins]),
+                columns=rr.Scalars.columns(scalars=[t_inf for _, t_inf in wins]),
+            )
+        for name, value, color in (
+            ("low", g.thresholds["low"], (80, 200, 120, 255)),
+            ("high", g.thresholds["high"], (240, 90, 90, 255)),
+        ):
+            path = f"series/gate/{name}"
+            self._line(path, f"gate {name} {value:g}", color, 1.0)
+            self._constant(path, n, value)
+        if g.margin is not None:
+            self._line("series/gate/margin", f"clip margin {g.margin:+.4f} ({g.label})", (200, 200, 90, 255), 1.0)
+            self._constant("series/gate/margin", n, g.margin)
+
+    def _log_world(self, record: ClipRecord) -> None:
+        rec = self.rec
+        w, h = record.video.working_size
+        K = np.asarray(record.intrinsics, dtype=float).copy()
+        pose = record.gate.pose
+        fs = pose.focal_scale
+        K[0, 0] *= fs
+        K[1, 1] *= fs
+        rec.log("world", rr.ViewCoordinates.RDF, static=True)
+        T = None if pose.T_cam0_camT is None else np.asarray(pose.T_cam0_camT, dtype=float)
+        cloud = record.cloud
+        depth = 1.0
+        if cloud is not None and len(cloud.xyz):
+            xyz, rgb = _clean_cloud(cloud.xyz, cloud.rgb)
+            depth = float(np.median(xyz[:, 2])) if len(xyz) else 1.0
+            rec.log("world/points", rr.Points3D(xyz, colors=rgb, radii=0.004 * depth), static=True)
+        plane = 0.15 * depth
+        rec.log(
+            "world/cam_first",
+            rr.Pinhole(image_from_camera=K, resolution=[w, h], image_plane_distance=plane, color=(90, 200, 255, 255)),
+            static=True,
+        )
+        if T is not None:
+            rec.log("world/cam_last", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
+            rec.log(
+                "world/cam_last",
+                rr.Pinhole(
+                    image_from_camera=K, resolution=[w, h], image_plane_distance=plane, color=(255, 180, 60, 255)
+                ),
+                static=True,
+            )
+            if np.linalg.norm(T[:3, 3]) > 0:
+                rec.log(
+                    "world/baseline",
+                    rr.LineStrips3D(
+                        [[[0, 0, 0], T[:3, 3].tolist()]],
+                        colors=(255, 255, 255, 255),
+                        radii=0.002 * depth,
+                        labels=["baseline first -> last"],
+                    ),
+                    static=True,
+                )
+        note = "no point cloud" if cloud is None else cloud.note
+        rec.log("world/note", rr.TextDocument(note), static=True)
