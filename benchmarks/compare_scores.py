@@ -366,10 +366,24 @@ def main(argv: list[str] | None = None) -> int:
             note = f" FAILED: {err}" if err else ""
             print(f"  {side:<6} {job.name}: {time.monotonic() - t0:.1f} s{note}", flush=True)
 
-        with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        pool = ThreadPoolExecutor(max_workers=args.jobs)
+        try:
             list(pool.map(run, pending))
+        except KeyboardInterrupt:  # compare what has finished
+            print("interrupted: comparing the clips scored on both sides so far", flush=True)
+            pool.shutdown(wait=False, cancel_futures=True)
+        else:
+            pool.shutdown()
 
-        results = {job.name: compare(job.name, before_path(job), after_path(job)) for job in jobs}
+        def scored(path: Path) -> bool:
+            return path.exists() or path.with_suffix(".error").exists()
+
+        results = {
+            job.name: compare(job.name, before_path(job), after_path(job)) if scored(after_path(job)) else False
+            for job in jobs
+            if scored(before_path(job))
+        }
+        results.update({job.name: False for job in jobs if job.name not in results})
         for job in jobs:  # the BEFORE records next to the AFTER ones, under readable names
             src = before_path(job)
             for path in (src, src.with_suffix(".error")):
