@@ -383,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
             for job in jobs
             if scored(before_path(job))
         }
-        results.update({job.name: False for job in jobs if job.name not in results})
+        missing = [job.name for job in jobs if job.name not in results or not scored(after_path(job))]
         for job in jobs:  # the BEFORE records next to the AFTER ones, under readable names
             src = before_path(job)
             for path in (src, src.with_suffix(".error")):
@@ -391,14 +391,13 @@ def main(argv: list[str] | None = None) -> int:
                     target = out / "before" / (job.name.replace("/", "__") + path.suffix)
                     target.parent.mkdir(parents=True, exist_ok=True)
                     shutil.copyfile(path, target)
-    differing = [name for name, ok in results.items() if not ok]
-    print(
-        f"\n{len(results) - len(differing)}/{len(results)} clips IDENTICAL in every field "
-        f"({time.monotonic() - started:.0f} s)"
-    )
+    differing = [name for name, ok in results.items() if not ok and name not in missing]
+    print(f"\n{sum(results.values())}/{len(jobs)} clips IDENTICAL in every field ({time.monotonic() - started:.0f} s)")
     for name in differing:
         print(f"  DIFFERENT: {name}")
-    return 1 if differing else 0
+    for name in missing:
+        print(f"  NOT SCORED on both sides: {name}")
+    return 1 if differing or missing else 0
 
 
 def _size(path: Path) -> int:
