@@ -116,8 +116,9 @@ def main() -> None:
             for masks in ("none", "motion"):
                 r = _child(path, name, masks, args.matcher, "-")
                 print(
-                    f"{args.size} x {r['frames']} frames, {r['preset']:6} {args.matcher} masks={masks:6} ({r['objects']} objects): "
-                    f"{r['fps']:6.2f} frames/s  wall {r['wall_s']:6.1f} s  peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
+                    f"{args.size} x {r['frames']} frames, {r['preset']:6} {args.matcher} masks={masks:6} "
+                    f"({r['objects']} objects): {r['fps']:6.2f} frames/s  wall {r['wall_s']:6.1f} s  "
+                    f"peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
                     flush=True,
                 )
 

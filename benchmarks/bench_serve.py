@@ -113,7 +113,8 @@ def main() -> None:
             t0 = time.perf_counter()
             results = build_results(Path(tmp), args.clips, args.frames)
             print(
-                f"results: {args.clips} clips of {args.frames} frames (320x180) built in {time.perf_counter() - t0:.0f} s"
+                f"results: {args.clips} clips of {args.frames} frames (320x180) "
+                f"built in {time.perf_counter() - t0:.0f} s"
             )
 
         ready, page, line = time_cli(results)

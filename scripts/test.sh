@@ -1,6 +1,28 @@
 #!/usr/bin/env bash
-# Set up and run the test suite (extra arguments go to pytest, e.g. `-m slow`).
+# Set up, check lint and types, then run the test suite. Extra arguments go to pytest:
+#   bash scripts/test.sh                      # the default run (slow checks deselected)
+#   bash scripts/test.sh -m slow              # only the slow end-to-end checks
+#   bash scripts/test.sh -m "slow or not slow"  # everything
+#   bash scripts/test.sh tests/test_geometry.py -x
+# The lint and type checks run first and stop the run on the first finding.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 bash scripts/bootstrap.sh viewer bench test
+
+step() {
+    local what="$1" hint="$2"
+    shift 2
+    echo "geocon: $what" >&2
+    if ! "$@"; then
+        echo "geocon: $what failed; $hint" >&2
+        exit 1
+    fi
+}
+step "ruff check" "fix the findings above (many fix themselves with .venv/bin/ruff check --fix .)" \
+    .venv/bin/ruff check --quiet .
+step "ruff format --check" "run .venv/bin/ruff format . and commit the result" \
+    .venv/bin/ruff format --check --quiet .
+step "mypy" "fix the type errors above (configuration in pyproject.toml)" \
+    .venv/bin/mypy --no-error-summary
+echo "geocon: pytest" >&2
 exec .venv/bin/python -m pytest "$@"

@@ -47,11 +47,10 @@ def sift_matches(
 
 
 @pytest.fixture(scope="session")
-def synth_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def synth_dir(synth_clips) -> Path:
     """Clips rendered once per session (640x360, 24 frames, seed 3) by the public API."""
-    from geocon_core.synth import ClipPlan, write_clip
+    from geocon_core.synth import ClipPlan
 
-    out = tmp_path_factory.mktemp("synth")
     plans = [
         ClipPlan("C1"),
         ClipPlan("C2"),
@@ -60,6 +59,55 @@ def synth_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
         ClipPlan("C1", "breathing", 3.0),
         ClipPlan("C5", "letterbox", 0.1),
     ]
-    for plan in plans:
-        write_clip(plan, out, seed=3, num_frames=24)
-    return out
+    return synth_clips(plans, seed=3, width=640, height=360, num_frames=24)
+
+
+def _score_clip():
+    """The public scoring entry point (the package's top level where it exports it)."""
+    try:
+        from geocon_core import score_clip
+    except ImportError:
+        from geocon_core.scorer import score_clip
+    return score_clip
+
+
+@pytest.fixture(scope="session")
+def synth_clips(tmp_path_factory: pytest.TempPathFactory):
+    """``synth_clips(plans, seed=, width=, height=, num_frames=)`` -> folder holding those clips.
+
+    One folder per (seed, size, length); each clip is rendered at most once per test session,
+    however many modules ask for it, so modules that use the same settings share the files."""
+    from geocon_core.synth import write_clip
+
+    folders: dict[tuple[int, int, int, int], Path] = {}
+    done: set[tuple] = set()
+
+    def get(plans, *, seed: int = 0, width: int = 640, height: int = 360, num_frames: int = 48) -> Path:
+        key = (seed, width, height, num_frames)
+        if key not in folders:
+            folders[key] = tmp_path_factory.mktemp(f"synth-s{seed}-{width}x{height}-{num_frames}")
+        for plan in plans:
+            if (key, plan) not in done:
+                write_clip(plan, folders[key], seed=seed, width=width, height=height, num_frames=num_frames)
+                done.add((key, plan))
+        return folders[key]
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def scored_clip():
+    """``scored_clip(path, config, masks=None)`` -> ClipRecord, scored once per session.
+
+    For tests that only read a record: those scoring the same clip with the same configuration
+    share one run. Tests about scoring itself (determinism, callbacks) call ``score_clip``."""
+    score_clip = _score_clip()
+    cache: dict[tuple, object] = {}
+
+    def get(path: Path, config, masks: Path | None = None):
+        key = (str(path), config, None if masks is None else str(masks))
+        if key not in cache:
+            cache[key] = score_clip(path, config, masks=masks)
+        return cache[key]
+
+    return get

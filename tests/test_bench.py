@@ -154,6 +154,7 @@ def importlib_has_rerun() -> bool:
     return importlib.util.find_spec("rerun") is not None
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_without_losing_or_rescoring_a_clip(dataset, results, tmp_path):
     out = tmp_path / "r"
     proc = subprocess.Popen(
@@ -251,3 +252,28 @@ def test_report_is_self_contained_and_names_its_config(results, tmp_path):
     res = build_report(one, bootstrap=200)
     assert res.html.is_file()
     assert any("Effect sizes" in w for w in res.warnings) and any("AdaP90" in w for w in res.warnings)
+
+
+def test_clips_without_status_are_scored_again_and_the_tables_match(dataset, results, tmp_path):
+    """The resume rule on a copy of a finished run: clips whose ``status.json`` is missing (the
+    state a killed worker leaves) are scored again, every other clip is kept as it was, and the
+    tables equal those of the uninterrupted run. (The hard kill itself is the slow test above.)"""
+    out = tmp_path / "r"
+    shutil.copytree(results, out)
+    shutil.rmtree(out / "tables")
+    lost = sorted(out.glob("clips/clean-*/status.json"))[:2]
+    assert len(lost) == 2
+    for status in lost:
+        status.unlink()
+    kept = {p.parent.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in out.glob("clips/*/status.json")}
+    again = _run("bench", str(dataset), "--out", str(out), *BENCH_ARGS)
+    assert again.returncode == 0, again.stderr
+    assert f"resuming: {len(kept)} clip(s) already finished" in again.stderr
+    assert f"(2 in this run, {len(kept)} finished earlier)" in again.stdout
+    for name, (mtime, data) in kept.items():
+        status = out / "clips" / name / "status.json"
+        assert status.stat().st_mtime_ns == mtime and status.read_bytes() == data
+    assert all(p.is_file() for p in lost)
+    a, b = read_tables(results), read_tables(out)
+    for name in a:
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True)

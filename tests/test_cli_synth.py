@@ -6,6 +6,7 @@ import hashlib
 import json
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from geocon_core.synth import FAMILIES, load_ground_truth
@@ -62,9 +63,13 @@ def test_bad_input_gives_clear_errors(tmp_path):
     assert not any(tmp_path.iterdir())
 
 
-def test_failure_listing_and_demo(tmp_path):
+def test_failure_listing():
     res = runner.invoke(app, ["synth-failures"])
     assert res.exit_code == 0 and "missing_parallax" in res.output
+
+
+@pytest.mark.slow
+def test_demo(tmp_path):
     res = runner.invoke(app, ["demo", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
     gt = load_ground_truth(tmp_path / "c4_objects__elastic-s4.gt.json")

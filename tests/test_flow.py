@@ -91,7 +91,8 @@ def test_occluded_region_is_unreliable() -> None:
     far_bg[y - 30 : y + 110, x - 30 : x + 80 + d + 30] = False
     inside = field.reliable[y + 12 : y + 68, x + 12 : x + 68]
     print(
-        f"reliable: covered strip {covered.mean():.1%}, far background {field.reliable[far_bg].mean():.1%}, patch {inside.mean():.1%}"
+        f"reliable: covered strip {covered.mean():.1%}, far background {field.reliable[far_bg].mean():.1%}, "
+        f"patch {inside.mean():.1%}"
     )
     assert covered.mean() < 0.2
     assert field.reliable[far_bg].mean() > 0.95
@@ -125,7 +126,8 @@ def test_box_crop_matches_the_full_computation() -> None:
     diff = np.linalg.norm(part.flow - full.flow[y0:y1, x0:x1], axis=2)
     err = np.linalg.norm(part.flow - _true_flow(M, H, W)[y0:y1, x0:x1], axis=2)
     print(
-        f"box vs full: median {np.median(diff):.3f} px, p95 {np.percentile(diff, 95):.3f} px; box vs truth {np.median(err):.3f} px"
+        f"box vs full: median {np.median(diff):.3f} px, p95 {np.percentile(diff, 95):.3f} px; "
+        f"box vs truth {np.median(err):.3f} px"
     )
     assert np.median(diff) < 0.1
     assert np.percentile(diff, 95) < 0.5
@@ -168,7 +170,8 @@ def test_deterministic_across_instances_calls_and_threads() -> None:
     with ThreadPoolExecutor(max_workers=4) as pool:  # the scorer computes object flow in threads
         parallel = list(pool.map(lambda box: backend.compute(g0, g1, box), boxes))
     assert all(
-        np.array_equal(s.flow, p.flow) and np.array_equal(s.reliable, p.reliable) for s, p in zip(serial, parallel)
+        np.array_equal(s.flow, p.flow) and np.array_equal(s.reliable, p.reliable)
+        for s, p in zip(serial, parallel, strict=True)
     )
 
 

@@ -135,7 +135,8 @@ def test_external_label_images_map_into_the_canvas(small_c4) -> None:
         assert share == pytest.approx(gt.masked_share[t], rel=0.02)
         assert src.coverage[t] == share
     print(
-        f"external (a): masked share {[round(src.coverage[t], 4) for t in range(8)]} vs truth {np.round(gt.masked_share, 4).tolist()}"
+        f"external (a): masked share {[round(src.coverage[t], 4) for t in range(8)]} "
+        f"vs truth {np.round(gt.masked_share, 4).tolist()}"
     )
     assert src.warnings == []
 
@@ -152,19 +153,19 @@ def test_external_object_folders_and_npz_equal_label_images(small_c4, tmp_path: 
     (folders / "notes.txt").write_text("ignored")
     src = ExternalMasks(folders, info)
     assert src.layout == "object_folders"
-    assert all(np.array_equal(a, b) for a, b in zip(run_source(src, info), ref))
+    assert all(np.array_equal(a, b) for a, b in zip(run_source(src, info), ref, strict=True))
 
     npz = tmp_path / "labels.npz"
     np.savez_compressed(npz, labels=np.stack(pngs).astype(np.int32))
     src = make_mask_source("external", info, path=npz)
     assert src.layout == "npz"
-    assert all(np.array_equal(a, b) for a, b in zip(run_source(src, info), ref))
+    assert all(np.array_equal(a, b) for a, b in zip(run_source(src, info), ref, strict=True))
 
     flat = tmp_path / "flat16"  # 16-bit PNGs without zero-padding, numbered from 1
     flat.mkdir()
     for t, png in enumerate(pngs):
         cv2.imwrite(str(flat / f"mask{t + 1}.png"), png.astype(np.uint16))
-    assert all(np.array_equal(a, b) for a, b in zip(run_source(ExternalMasks(flat, info), info), ref))
+    assert all(np.array_equal(a, b) for a, b in zip(run_source(ExternalMasks(flat, info), info), ref, strict=True))
 
 
 def test_external_errors(small_c4, tmp_path: Path) -> None:
@@ -314,7 +315,8 @@ def test_motion_finds_the_two_objects_of_c4_with_stable_ids(synth) -> None:
     for k, s in stats.items():
         ious = np.array(s["iou"])
         print(
-            f"C4 object {k}: predicted ids {dict(Counter(s['ids']))}, IoU median {np.median(ious):.2f} min {ious.min():.2f}"
+            f"C4 object {k}: predicted ids {dict(Counter(s['ids']))}, "
+            f"IoU median {np.median(ious):.2f} min {ious.min():.2f}"
         )
     print(
         f"C4 masked share: predicted median {np.median(shares):.3f}, truth {np.median(true_shares):.3f}; "
@@ -322,7 +324,7 @@ def test_motion_finds_the_two_objects_of_c4_with_stable_ids(synth) -> None:
     )
     assert sorted(stats) == [1, 2]
     mapped = []
-    for k, s in stats.items():
+    for s in stats.values():
         ident, count = Counter(s["ids"]).most_common(1)[0]
         assert ident != 0 and count == len(s["ids"])  # one predicted id for the whole clip
         mapped.append(ident)
@@ -387,7 +389,8 @@ def test_motion_on_real_static_camera_footage(rel: str) -> None:
     counts = np.array([len(np.unique(p)) - 1 for p in pred])
     print(
         f"{rel}: {len(pred)} frames, objects in {np.mean(counts > 0):.0%} (median {np.median(counts):.0f} per frame), "
-        f"masked share median {np.median(shares):.3f} max {shares.max():.3f}, ids used {int(max(p.max() for p in pred))}, "
+        f"masked share median {np.median(shares):.3f} max {shares.max():.3f}, "
+        f"ids used {int(max(p.max() for p in pred))}, "
         f"regimes {dict(Counter(seg.regimes.values()))}, {ms:.0f} ms/frame incl. decoding at {info.content_box}"
     )
     assert np.mean(counts > 0) >= 0.8
@@ -404,7 +407,7 @@ def test_labels_are_final_deterministic_and_memory_is_bounded(small_c4) -> None:
     b_src = MotionSegmenter(info)
     b = run_source(b_src, info, release=False)  # read everything after finish(): same labels
     assert len(a) == len(b) == info.num_frames
-    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
     assert any(x.any() for x in a)
 
     seg = MotionSegmenter(info)
@@ -443,7 +446,7 @@ def test_any_flow_backend_without_compute_both_gives_the_same_labels(small_c4) -
 
     ref = run_source(MotionSegmenter(info), info)
     got = run_source(make_mask_source("motion", info, flow=ComputeOnly()), info)
-    assert all(np.array_equal(a, b) for a, b in zip(ref, got))
+    assert all(np.array_equal(a, b) for a, b in zip(ref, got, strict=True))
 
 
 def test_duplicates_copy_labels_and_cuts_restart_tracks(synth, tmp_path: Path) -> None:

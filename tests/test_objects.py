@@ -57,6 +57,7 @@ def test_rigid_objects_are_found_with_stable_ids(synth, c4):
         assert o.adadfrc is not None and o.adadfrc < 2.0, o
 
 
+@pytest.mark.slow
 def test_elastic_object_scores_much_higher_and_monotonically(synth):
     """Ground-truth masks isolate rigidity from segmentation. D_t grows with the square of the
     non-affine amplitude: monotone over 2, 4, 8 px, and >= 5x the rigid score at 8 px."""
@@ -75,9 +76,9 @@ def test_elastic_object_scores_much_higher_and_monotonically(synth):
     assert all(e[2] < disc[2] / 5 for e in elastic)
 
 
-def test_clips_without_objects_report_none(synth):
+def test_clips_without_objects_report_none(synth, scored_clip):
     for cid in ("c1_static", "c2_rotation", "c3_translation"):
-        rec = score_clip(synth / f"{cid}.mp4", FAST)
+        rec = scored_clip(synth / f"{cid}.mp4", FAST)
         assert rec.objects == (), (cid, [(o.object_id, o.frames) for o in rec.objects])
         assert max(rec.masked_share) < 0.02
 
@@ -94,10 +95,10 @@ def test_masks_raise_background_ir(synth, c4):
     assert unmasked.background.ir < c4.background.ir - 0.005, (unmasked.background.ir, c4.background.ir)
 
 
-def test_categories_of_the_synthetic_families(synth, c4):
+def test_categories_of_the_synthetic_families(synth, c4, scored_clip):
     assert c4.category.label == "C4" and c4.category.inputs["object_frames"]
     for cid, label in (("c1_static", "C1"), ("c2_rotation", "C2"), ("c3_translation", "C3"), ("c5_complex", "C5")):
-        rec = score_clip(synth / f"{cid}.mp4", FAST)
+        rec = scored_clip(synth / f"{cid}.mp4", FAST)
         assert rec.category.label == label, (cid, rec.category)
 
 

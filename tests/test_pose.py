@@ -106,7 +106,8 @@ def sweep() -> list[dict]:
             )
     print("\ntranslation sweep (C3 layout, 640x360, SIFT): true t_inf vs estimate (true K, fov 48, fov 72)")
     print(
-        f"{'motion':12s} {'truth':>7s} {'est':>7s} {'method':9s} {'inl':>4s} {'par_px':>6s} {'rot':>6s} {'rot_true':>8s} {'fov48':>7s} {'fov72':>7s}"
+        f"{'motion':12s} {'truth':>7s} {'est':>7s} {'method':9s} {'inl':>4s} {'par_px':>6s} {'rot':>6s} "
+        f"{'rot_true':>8s} {'fov48':>7s} {'fov72':>7s}"
     )
     for c in cases:
         e = c["est"][60.0]
@@ -443,14 +444,15 @@ def real_clip_table(video: Path, pose_file: Path) -> list[dict]:
 def print_real_table(title: str, rows: list[dict]) -> None:
     print(f"\n{title}")
     print(
-        f"{'clip':28s} {'k':>2s} {'n':>4s} {'t_pair':>7s} {'t_frame0':>8s} {'estimate':>8s} {'method':9s} {'reason':16s} "
-        f"{'rot':>6s} {'rot_est':>7s} truth->est"
+        f"{'clip':28s} {'k':>2s} {'n':>4s} {'t_pair':>7s} {'t_frame0':>8s} {'estimate':>8s} {'method':9s} "
+        f"{'reason':16s} {'rot':>6s} {'rot_est':>7s} truth->est"
     )
     for r in rows:
         e = r["est"]
         print(
             f"{r['clip']:28s} {r['k']:2d} {r['n']:4d} {fmt(r['t_pair'])} {r['t_frame0']:8.4f} {fmt(e.t_inf):>8s} "
-            f"{e.method:9s} {e.reason or '':16s} {r['rot']:6.2f} {fmt(e.rotation_deg)} {gate(r['truth'])}->{gate(e.t_inf)}"
+            f"{e.method:9s} {e.reason or '':16s} {r['rot']:6.2f} {fmt(e.rotation_deg)} "
+            f"{gate(r['truth'])}->{gate(e.t_inf)}"
         )
 
 

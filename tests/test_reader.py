@@ -54,7 +54,7 @@ def write_folder(folder: Path, frames: list[np.ndarray], names: list[str] | None
     """Write frames (BGR, grey or BGRA arrays) as image files; names default to frame_<t>.png."""
     folder.mkdir(parents=True, exist_ok=True)
     names = names or [f"frame_{t}.png" for t in range(len(frames))]
-    for img, name in zip(frames, names):
+    for img, name in zip(frames, names, strict=True):
         assert cv2.imwrite(str(folder / name), img)
     return folder
 
@@ -97,7 +97,7 @@ def test_iter_frames_letterboxes_the_decoded_frames(clips):
     frames = [first, *it]
     decoded = read_video(clips["C2"])
     assert [f.index for f in frames] == list(range(8)) == list(range(len(decoded)))
-    for f, src in zip(frames, decoded):
+    for f, src in zip(frames, decoded, strict=True):
         assert isinstance(f, Frame)
         assert f.rgb.shape == (720, 1024, 3) and f.rgb.dtype == np.uint8
         assert f.gray.shape == (720, 1024) and f.gray.dtype == np.uint8
@@ -117,7 +117,7 @@ def test_downscaling_uses_area_interpolation_and_centres_the_source(tmp_path):
     info = probe_clip(write_folder(tmp_path / "wide", wide))
     assert info.scale == pytest.approx(0.64) and info.offset == (0, 168)
     assert info.content_box == (0, 168, 1024, 552)
-    for f, src in zip(iter_frames(info), wide):
+    for f, src in zip(iter_frames(info), wide, strict=True):
         expected = cv2.cvtColor(cv2.resize(src, (1024, 384), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
         np.testing.assert_array_equal(f.rgb[168:552], expected)
     # portrait 360x640 -> scale 1.125 (height-bound), centred horizontally: 405 px wide at x = 309
@@ -204,7 +204,7 @@ def test_image_folder_natural_order_grey_and_alpha(tmp_path):
     assert info.kind == "images" and info.num_frames == 12 and info.fps == 24.0
     assert info.source_size == (80, 60)
     means = [float(f.gray[info.content_box[1] : info.content_box[3]].mean()) for f in iter_frames(info)]
-    assert all(b > a + 5 for a, b in zip(means, means[1:])), means  # frame_0 .. frame_11 in order
+    assert all(b > a + 5 for a, b in zip(means[:-1], means[1:], strict=True)), means  # frame_0 .. frame_11 in order
 
 
 def test_jpeg_folder(tmp_path):

@@ -245,6 +245,7 @@ def test_residual_map_tracks_residuals():
     assert rgba[12, 35:45, :3].mean() > 2 * rgba[12, 5:15, :3].mean()  # inferno: high residual is brighter
 
 
+@pytest.mark.slow
 def test_cli_score_rrd_and_view(synth_dir, tmp_path):
     """`geocon score --rrd` writes a recording; `geocon view --headless` re-renders it."""
     geocon = Path(sys.executable).parent / "geocon"

@@ -76,7 +76,7 @@ def check_cell_structure(
     bh, bw = ys.max() - r0 + 1, xs.max() - c0 + 1
     cv = res.cells
     assert cv.weights.sum() == res.n_pixels == use.sum()
-    for (i, j), (px, py), v, wgt in zip(cv.cells, cv.positions, cv.observed, cv.weights):
+    for (i, j), (px, py), v, wgt in zip(cv.cells, cv.positions, cv.observed, cv.weights, strict=True):
         col, row = int(round(px - origin[0])), int(round(py - origin[1]))
         assert px == col + float(origin[0]) and py == row + float(origin[1])  # pixel centre + origin
         assert use[row, col]

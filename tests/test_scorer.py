@@ -57,6 +57,7 @@ def test_translation_gates_f(scored, clips):
     assert rec.background.tau_f_px > 5
 
 
+@pytest.mark.slow
 def test_breathing_raises_ge_and_strict_gaps_expose_it(clips):
     """A 3 px rubber-sheet breathing (24-frame period): GE at least doubles under the paper
     preset while IR at gap 1 barely moves; the strict preset's long gaps drop IR below 0.9."""
@@ -70,6 +71,7 @@ def test_breathing_raises_ge_and_strict_gaps_expose_it(clips):
     assert set(per_gap) == {1, 4, 8} and per_gap[8].ir < per_gap[1].ir
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fov", [48.0, 72.0])
 def test_gate_decisions_survive_a_wrong_field_of_view(clips, scored, fov):
     for cid in ("c2_rotation", "c3_translation"):

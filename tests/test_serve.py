@@ -318,6 +318,7 @@ def test_bad_results_folders_are_refused(tmp_path):
 # --- in a browser ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_headless_chromium_shows_the_list_scene_and_plots(results, tmp_path):
     from geocon_viewer.screenshot import find_chromium
 
