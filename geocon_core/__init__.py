@@ -15,7 +15,8 @@ used):
 - errors: :class:`ClipError` (unusable input).
 
 The stage modules stay importable on their own: :mod:`geocon_core.geometry` (two-view geometry),
-:mod:`geocon_core.verdict` (the translation gate, the report gate and flags), :mod:`geocon_core.synth` (synthetic scenes),
+:mod:`geocon_core.verdict` (the translation gate, the report gate and flags),
+:mod:`geocon_core.synth` (synthetic scenes),
 :mod:`geocon_core.bench`, :mod:`geocon_core.tables`, :mod:`geocon_core.stats` and
 :mod:`geocon_core.report` (benchmarks of many clips).
 """

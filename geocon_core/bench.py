@@ -202,8 +202,8 @@ def run_bench(
     """Score every clip of ``dataset`` into ``results`` with ``workers`` processes.
 
     ``rrd_renderer`` (a module-level function, called as ``f(record_dir, rrd_path)``) writes a Rerun
-    recording for flagged clips (:func:`geocon_core.verdict.is_flagged`). ``on_start(to_score, skipped)`` is called once;
-    ``on_clip(status, done, total, failed)`` after each clip. Raises
+    recording for flagged clips (:func:`geocon_core.verdict.is_flagged`). ``on_start(to_score, skipped)``
+    is called once; ``on_clip(status, done, total, failed)`` after each clip. Raises
     :class:`~geocon_core.dataset.DatasetError` or :class:`BenchError` before scoring anything."""
     cfg = config or ScoreConfig()
     if workers < 1:

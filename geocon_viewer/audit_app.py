@@ -35,7 +35,6 @@ from geocon_core.diagnostics import read_overlays
 from geocon_core.reader import DEFAULT_FPS
 from geocon_core.record import read_record
 from geocon_core.regate import pair_inliers
-from geocon_core.verdict import ClipVerdict, Thresholds
 from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
 from geocon_core.verdict import ClipVerdict, Thresholds
 

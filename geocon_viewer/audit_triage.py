@@ -6,8 +6,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from geocon_core.verdict import Thresholds
 from geocon_core.results import TriageRow
+from geocon_core.verdict import Thresholds
 
 from .style import EMPTY, fmt
 

@@ -19,8 +19,8 @@ import viser.uplot as uplot
 from geocon_core.diagnostics import Overlays
 from geocon_core.record import ClipRecord
 from geocon_core.regate import regate_pairs
-from geocon_core.verdict import ClipVerdict, Thresholds
 from geocon_core.results import ResultClip
+from geocon_core.verdict import ClipVerdict, Thresholds
 
 from .style import EMPTY, fmt, object_color
 

@@ -7,7 +7,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geocon_core.verdict import binary_gate, hysteresis_gate
 from geocon_core.geometry import (
     apply_homography,
     fundamental_from_pose,
@@ -23,6 +22,7 @@ from geocon_core.geometry import (
     symmetric_transfer_error,
     t_inf_from_pose,
 )
+from geocon_core.verdict import binary_gate, hysteresis_gate
 
 K = intrinsics_from_fov(640, 360, 60.0)
 angles = st.floats(-20, 20)

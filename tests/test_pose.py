@@ -13,7 +13,6 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.verdict import hysteresis_gate
 from geocon_core.geometry import (
     fundamental_from_pose,
     intrinsics_from_fov,
@@ -38,6 +37,7 @@ from geocon_core.pose import (
 )
 from geocon_core.synth import ClipPlan, build_scene, mean_scene_distance, render_frame, write_clip
 from geocon_core.synth.scene import pose_from_center
+from geocon_core.verdict import hysteresis_gate
 
 from .conftest import SHARED_DATA, read_video, sift_matches
 

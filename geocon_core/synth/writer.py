@@ -24,8 +24,8 @@ import cv2
 import numpy as np
 
 from .._version import __version__
-from ..verdict import binary_gate, hysteresis_gate
 from ..geometry import relative_pose, rotation_angle_deg, t_inf_from_pose
+from ..verdict import binary_gate, hysteresis_gate
 from .failures import FAILURES, failure_spec, make_failure
 from .families import FAMILIES, build_scene, family_info
 from .render import render_frame
