@@ -36,9 +36,10 @@ Backends
     per direction at 512x288 and 23 ms at 1024x576 on an idle 2-core machine (``FAST``: 1.4 /
     5 ms, similar error on strong texture, worse on weak). Forward-backward threshold
     ``fb_abs`` px plus ``fb_rel`` of the flow length (flow errors grow with the displacement;
-    settings in :class:`~geocon_core.stage_configs.FlowConfig`). DIS is deterministic (also
-    across thread counts, and an instance's earlier calls do not change its results); each
-    thread gets its own OpenCV instance, so :meth:`DisFlow.compute` is thread-safe.
+    settings in :class:`~geocon_core.stage_configs.FlowConfig`). DIS is deterministic across
+    thread counts, but an OpenCV DIS object keeps state from its previous call, so every call
+    uses a fresh one: the flow of two images does not depend on what was computed before, and
+    :meth:`DisFlow.compute` is thread-safe.
 ``raft``
     Not available in this build: RAFT needs torch and a trained checkpoint, and
     :func:`make_flow_backend` says so instead of pretending.
@@ -47,7 +48,6 @@ Backends
 from __future__ import annotations
 
 import importlib.util
-import threading
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
@@ -173,7 +173,6 @@ class DisFlow:
         if "preset" in overrides:
             overrides["preset"] = str(overrides["preset"]).strip().lower()
         self.config = replace(config or FlowConfig(), **overrides)
-        self._local = threading.local()
 
     @property
     def preset(self) -> str:
@@ -201,11 +200,10 @@ class DisFlow:
         if ph or pw:  # DIS needs a side of at least one patch: pad tiny regions, crop back
             a = cv2.copyMakeBorder(a, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
             b = cv2.copyMakeBorder(b, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
-        dis = getattr(self._local, "dis", None)
-        if dis is None:  # one OpenCV instance per thread: thread-safe, and reuse saves ~3 ms a call
-            dis = self._local.dis = cv2.DISOpticalFlow_create(  # type: ignore[attr-defined]  # missing from the cv2 stubs
-                DIS_PRESETS[self.preset]
-            )
+        # A fresh OpenCV instance per call: a DIS object keeps state from its previous call (a reused
+        # one gives different flow for the same images depending on what it computed before), so
+        # reusing one per thread made results depend on thread scheduling.
+        dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.preset])  # type: ignore[attr-defined]  # missing from the cv2 stubs
         return np.ascontiguousarray(dis.calc(a, b, None)[:h, :w])
 
     def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:

@@ -12,6 +12,8 @@ import pytest
 from geocon_core.flow import FLOW_BACKENDS, DisFlow, FlowField, make_flow_backend
 from geocon_core.synth.textures import procedural_texture
 
+from .conftest import SHARED_DATA, read_video
+
 H, W = 240, 360
 BORDER = 24  # px left out of accuracy checks at the image edges
 
@@ -173,6 +175,28 @@ def test_deterministic_across_instances_calls_and_threads() -> None:
         np.array_equal(s.flow, p.flow) and np.array_equal(s.reliable, p.reliable)
         for s, p in zip(serial, parallel, strict=True)
     )
+
+
+def test_flow_does_not_depend_on_earlier_calls() -> None:
+    """Boxes of many sizes on a real frame pair, computed in shuffled orders by one backend, give
+    exactly the flow a new backend gives on its first call (an OpenCV DIS object reused across
+    calls does not: its result depended on what it computed before)."""
+    clip = SHARED_DATA / "real" / "realestate10k" / "0bf152ef84195293.mp4"
+    if not clip.exists():
+        pytest.skip(f"{clip} is missing")
+    gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in read_video(clip)]
+    h, w = gray[0].shape
+    rng = np.random.default_rng(1)
+    crops = []
+    for _ in range(30):
+        t = int(rng.integers(0, len(gray) - 1))
+        ch, cw = int(rng.integers(20, 150)), int(rng.integers(20, 150))
+        y, x = int(rng.integers(0, h - ch)), int(rng.integers(0, w - cw))
+        crops.append((gray[t][y : y + ch, x : x + cw].copy(), gray[t + 1][y : y + ch, x : x + cw].copy()))
+    first = [DisFlow().compute(a, b).flow for a, b in crops]
+    backend = DisFlow()
+    for i in rng.permutation(len(crops)):
+        assert np.array_equal(backend.compute(*crops[i]).flow, first[i]), crops[i][0].shape
 
 
 def test_registry_and_errors() -> None:
