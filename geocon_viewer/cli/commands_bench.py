@@ -9,7 +9,7 @@ from typing import Annotated, Any, Optional
 import typer
 from rich.table import Table
 
-from .console import VIEWER_EXTRA, err, fail, has_viewer_extra, out, parse_size
+from .console import VIEWER_EXTRA, err, fail, has_viewer_extra, out, parse_size, progress_bar
 
 __all__ = ["bench", "report", "presets", "render_audit_rrd"]
 
@@ -48,15 +48,6 @@ def bench(
 ) -> None:
     """Score every clip of a dataset (in parallel, resumable) and write per-clip records plus flat
     Parquet tables (clip, pair, object level) into the results folder."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
     from geocon_core.bench import BenchError, run_bench
     from geocon_core.config import preset
     from geocon_core.dataset import DatasetError
@@ -72,17 +63,7 @@ def bench(
         err.print(
             f"note: Rerun recordings of flagged clips need the viewer extra ({VIEWER_EXTRA}); scoring without them"
         )
-    columns = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("clips"),
-        TextColumn("[red]{task.fields[failed]} failed"),
-        TimeElapsedColumn(),
-        TextColumn("eta"),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=err, transient=False) as bar:
+    with progress_bar("{task.description}", "clips", failed=True, transient=False) as bar:
         task = bar.add_task("benchmark", total=None, failed=0, visible=False)
 
         def on_start(todo: int, skipped: int) -> None:

@@ -14,7 +14,7 @@ from rich.table import Table
 import geocon_core
 
 from ..style import fmt
-from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, rerun_version
+from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, progress_bar, rerun_version
 
 if TYPE_CHECKING:
     from geocon_core.config import ScoreConfig
@@ -66,28 +66,10 @@ def score_with_progress(
 ) -> ClipRecord:
     """Score a clip with a progress bar on stderr that appears once the clip is readable; write
     the record (with its overlays) into ``out_dir`` and, with ``rrd``, a Rerun recording."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
     from geocon_core.bench import score_to_folder
 
     sinks = [] if rrd is None else [_rrd_sink_factory(rrd)]
-    columns = (
-        TextColumn("scoring"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("frames"),
-        TimeElapsedColumn(),
-        TextColumn("eta"),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=err, disable=quiet) as bar:
+    with progress_bar("scoring", "frames", disable=quiet) as bar:
         task = bar.add_task("score", total=None, visible=False)
         return score_to_folder(
             clip,

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 import typer
 from rich.table import Table
 
-from .console import err, fail, out, parse_size
+from .console import fail, out, parse_size, progress_bar
 
 if TYPE_CHECKING:
     from geocon_core.synth import ClipPlan, GroundTruth
@@ -31,28 +31,10 @@ def render_plans(
     quiet: bool,
     noise: float = 2.0,
 ) -> list[GroundTruth]:
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
     from geocon_core.synth import write_clip
 
     results = []
-    columns = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("frames"),
-        TimeElapsedColumn(),
-        TextColumn("eta"),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=err, disable=quiet, transient=False) as progress:
+    with progress_bar("{task.description}", "frames", disable=quiet, transient=False) as progress:
         task = progress.add_task("rendering", total=len(plans) * frames)
         for i, plan in enumerate(plans, 1):
             progress.update(task, description=f"[{i}/{len(plans)}] {plan.clip_id}")
@@ -181,8 +163,6 @@ def synth_bench(
 ) -> None:
     """Render a synthetic benchmark dataset for `geocon bench`: the same scenes from three
     "platforms" (clean, breathing background, elastic objects), with sidecar metadata."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
 
     width, height = parse_size(size)
@@ -190,14 +170,7 @@ def synth_bench(
         clips = plan_benchmark(families=[f.strip() for f in families.split(",") if f.strip()], scenes=scenes)
     except ValueError as exc:
         raise fail(str(exc)) from None
-    with Progress(
-        TextColumn("rendering"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("frames"),
-        TimeElapsedColumn(),
-        console=err,
-    ) as bar:
+    with progress_bar("rendering", "frames", eta=False) as bar:
         task = bar.add_task("render", total=len(clips) * frames)
         write_benchmark(
             out_dir, clips, width=width, height=height, num_frames=frames, on_frame=lambda _t: bar.advance(task)

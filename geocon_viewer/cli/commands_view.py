@@ -12,7 +12,7 @@ from typing import Annotated, Optional
 import typer
 
 from .commands_score import is_input_error, score_with_progress
-from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, rerun_version
+from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, progress_bar, rerun_version
 
 __all__ = ["view", "serve"]
 
@@ -89,8 +89,6 @@ def view(
     native viewer when a display is available, otherwise the web viewer served on 127.0.0.1."""
     if not has_viewer_extra("rerun"):
         raise fail(f"geocon view needs the viewer extra: {VIEWER_EXTRA}")
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
-
     from geocon_core.record import read_record
 
     from ..rerun_log import quiet_encoder_logs, worst_frame, write_rrd
@@ -99,9 +97,7 @@ def view(
     folder = _resolve_record(target, preset_name)
     rrd = save or folder / "audit.rrd"
     try:
-        with Progress(
-            TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), console=err
-        ) as bar:
+        with progress_bar("rendering", "frames", elapsed=False, eta=False) as bar:
             task = bar.add_task("render", total=None)
             write_rrd(
                 folder, rrd, connect=connect, progress=lambda done, total: bar.update(task, completed=done, total=total)

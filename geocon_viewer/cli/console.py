@@ -5,12 +5,26 @@ from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["err", "out", "fail", "parse_size", "rerun_version", "default_out", "has_viewer_extra", "VIEWER_EXTRA"]
+if TYPE_CHECKING:
+    from rich.progress import Progress
+
+__all__ = [
+    "err",
+    "out",
+    "fail",
+    "parse_size",
+    "rerun_version",
+    "default_out",
+    "has_viewer_extra",
+    "VIEWER_EXTRA",
+    "progress_bar",
+]
 
 err = Console(stderr=True)
 out = Console()
@@ -54,3 +68,29 @@ def has_viewer_extra(module: str = "rerun") -> bool:
 def default_out(clip: Path) -> Path:
     """Where ``geocon score`` writes the record of ``clip`` by default."""
     return Path("geocon-out") / (clip.name if clip.is_dir() else clip.stem)
+
+
+def progress_bar(
+    label: str, unit: str, *, failed: bool = False, elapsed: bool = True, eta: bool = True, **options: Any
+) -> Progress:
+    """A progress bar on stderr: ``label``, the bar, ``done/total unit``, with ``failed`` the task's
+    ``failed`` field in red, the elapsed time and, with ``eta``, the time remaining. ``options`` go to
+    :class:`rich.progress.Progress` (``disable``, ``transient``)."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    columns: list[ProgressColumn] = [TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn(unit)]
+    if failed:
+        columns.append(TextColumn("[red]{task.fields[failed]} failed"))
+    if elapsed:
+        columns.append(TimeElapsedColumn())
+    if eta:
+        columns += [TextColumn("eta"), TimeRemainingColumn()]
+    return Progress(*columns, console=err, **options)
