@@ -22,6 +22,7 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 from .chromium import capture, check_capture, find_chromium
 from .processes import (
@@ -44,6 +45,10 @@ __all__ = [
     "screenshot_web",
     "screenshot_url",
 ]
+
+
+WEB_TIMEOUT_S = 120.0
+"""How long :func:`screenshot_web` waits by default, in seconds."""
 
 
 def _raise_on_import_error(rrd: Path, rerun_log: Path) -> None:
@@ -126,29 +131,31 @@ def screenshot_native(
         shutil.rmtree(workdir, ignore_errors=True)
 
 
-def screenshot_rrd(
-    rrd: str | Path,
-    png: str | Path,
-    *,
-    at: str | None = None,
-    width: int = 1600,
-    height: int = 1000,
-    settle_s: float = 20.0,
-    timeout_s: float = 120.0,
-    backend: str = "auto",
-) -> Path:
+class WebShot(TypedDict, total=False):
+    """How :func:`screenshot_rrd` passes its web-viewer settings on to :func:`screenshot_web`."""
+
+    at: str | None
+    width: int
+    height: int
+    settle_s: float
+    timeout_s: float
+
+
+def screenshot_rrd(rrd: str | Path, png: str | Path, *, backend: str = "auto", **shot: Unpack[WebShot]) -> Path:
     """Screenshot ``rrd``: ``backend="native"`` (headless native viewer, needs Vulkan), ``"web"`` (the web
-    viewer in headless Chromium, width x height) or ``"auto"`` (native, then web if that fails)."""
+    viewer in headless Chromium, width x height) or ``"auto"`` (native, then web if that fails). ``shot``
+    takes the keyword arguments of :func:`screenshot_web`."""
     if backend not in ("auto", "native", "web"):
         raise ScreenshotError(f"Unknown screenshot backend {backend!r}: use auto, native or web.")
+    at = shot.get("at")
     _parse_at(at)
     if backend in ("auto", "native"):
         try:
-            return screenshot_native(rrd, png, at=at, timeout_s=min(90.0, timeout_s))
+            return screenshot_native(rrd, png, at=at, timeout_s=min(90.0, shot.get("timeout_s", WEB_TIMEOUT_S)))
         except ScreenshotError:
             if backend == "native" or find_chromium() is None:
                 raise
-    return screenshot_web(rrd, png, at=at, width=width, height=height, settle_s=settle_s, timeout_s=timeout_s)
+    return screenshot_web(rrd, png, **shot)
 
 
 def screenshot_web(
@@ -159,7 +166,7 @@ def screenshot_web(
     width: int = 1600,
     height: int = 1000,
     settle_s: float = 20.0,
-    timeout_s: float = 120.0,
+    timeout_s: float = WEB_TIMEOUT_S,
 ) -> Path:
     """Serve `rrd` with the `rerun` executable shipped in the rerun-sdk wheel (web viewer bound to 127.0.0.1,
     free ports), open it in headless Chromium (the web viewer takes no time cursor from its page URL, so
