@@ -18,22 +18,14 @@ import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Callable, Iterable
 
 from .config import ScoreConfig
-from .dataset import expected_model
-from .layout import (
-    BENCH_FORMAT,
-    MANIFEST_NAME,
-    RRD_NAME,
-    STATUS_NAME,
-    clip_folders,
-    read_manifest,
-    read_status,
-    tables_dir,
-)
+from .layout import BENCH_FORMAT, MANIFEST_NAME, read_manifest
+from .models import family_spec
 from .record import read_record_json
 from .regate import Residuals, load_residuals, regate_family
+from .result_clips import ResultClip, clip_from_record_json, read_bench_clips
 from .verdict import ClipVerdict, Thresholds, clip_verdict, is_flagged
 
 __all__ = ["ResultClip", "TriageRow", "ResultsIndex", "ResultsError", "VERDICTS", "severity_key"]
@@ -44,30 +36,6 @@ VERDICTS = ("fails", "not judged", "error", "passes")
 
 class ResultsError(ValueError):
     """A folder that is neither benchmark results nor a record (one sentence)."""
-
-
-@dataclass(frozen=True)
-class ResultClip:
-    """One clip of a results folder as recorded: its sidecar metadata, where its files are, and the
-    numbers needed to re-gate it (both families' IR/GE and the gate statistic)."""
-
-    clip_id: str
-    platform: str
-    category: str | None
-    expected_model: str | None
-    status: str
-    error: str | None
-    folder: Path | None
-    rrd: Path | None
-    prompt: str | None
-    t_inf: float | None
-    pose_present: bool
-    ir_h: float | None
-    ge_h: float | None
-    ir_f: float | None
-    ge_f: float | None
-    adap90_max: float | None
-    n_objects: int
 
 
 @dataclass(frozen=True)
@@ -129,86 +97,6 @@ def severity_key(row: TriageRow) -> tuple:
     return (rank, _none_last(v.report_margin), margin, _none_last(row.clip.adap90_max, descending=True), row.clip_id)
 
 
-def _num(v: Any) -> float | None:
-    if v is None:
-        return None
-    f = float(v)
-    return None if math.isnan(f) else f
-
-
-def _from_record_json(
-    clip_id: str, status: dict[str, Any], folder: Path, d: dict[str, Any] | None = None
-) -> ResultClip:
-    """A clip's triage numbers from its ``record.json`` (no arrays read; ``d`` when already parsed
-    by :func:`~geocon_core.record.read_record_json`, which checks the record format)."""
-    if d is None:
-        _, d = read_record_json(folder)
-    bg, gate = d["background"], d["gate"]
-    fam = {bg["chosen"]["family"]: bg["chosen"], bg["other"]["family"]: bg["other"]}
-    adap90 = [o["adap90"] for o in d.get("objects", []) if o.get("adap90") is not None]
-    meta = status.get("meta") or {}
-    rrd = (
-        folder / status["rrd"] if status.get("rrd") else (folder / RRD_NAME if (folder / RRD_NAME).is_file() else None)
-    )
-    return ResultClip(
-        clip_id=clip_id,
-        platform=str(meta.get("model", "-")),
-        category=meta.get("category"),
-        expected_model=expected_model(meta.get("category")),
-        status="ok",
-        error=None,
-        folder=folder,
-        rrd=rrd,
-        prompt=meta.get("prompt"),
-        t_inf=gate["t_inf"],
-        pose_present=bool(gate["pose_present"]),
-        ir_h=fam["H"]["ir"],
-        ge_h=fam["H"]["ge"],
-        ir_f=fam["F"]["ir"],
-        ge_f=fam["F"]["ge"],
-        adap90_max=max(adap90) if adap90 else None,
-        n_objects=len(d.get("objects", [])),
-    )
-
-
-def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultClip:
-    meta = status.get("meta") or {}
-    return ResultClip(
-        clip_id=clip_id,
-        platform=str(meta.get("model", "-")),
-        category=meta.get("category"),
-        expected_model=expected_model(meta.get("category")),
-        status="failed",
-        error=status.get("error") or "unknown error",
-        folder=folder,
-        rrd=None,
-        prompt=meta.get("prompt"),
-        t_inf=None,
-        pose_present=False,
-        ir_h=None,
-        ge_h=None,
-        ir_f=None,
-        ge_f=None,
-        adap90_max=None,
-        n_objects=0,
-    )
-
-
-def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]]:
-    """Rows of ``tables/clips.parquet`` by clip id when the table is newer than every clip status
-    (else empty: the records are read instead)."""
-    path = tables_dir(results) / "clips.parquet"
-    try:
-        if not path.is_file() or path.stat().st_mtime < newest_status:
-            return {}
-        import pyarrow.parquet as pq
-    except (ImportError, OSError):
-        return {}
-    cols = ["clip_id", "status", "t_inf", "pose_present", "ir_h", "ge_h", "ir_f", "ge_f", "adap90_max", "n_objects"]
-    table = pq.read_table(path, columns=cols).to_pydict()
-    return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
-
-
 class ResultsIndex:
     """Every clip of a results folder, the thresholds it was scored with (``recorded``), and lazily
     loaded residuals for live re-gating (:meth:`triage`, :meth:`verdict`)."""
@@ -245,7 +133,7 @@ class ResultsIndex:
             status = {"meta": {"model": "-", "category": None}, "rrd": None}
             try:
                 _, d = read_record_json(root)
-                clip = _from_record_json(root.name, status, root, d)
+                clip = clip_from_record_json(root.name, status, root, d)
                 config = ScoreConfig.from_dict(d["config"])
             except (ValueError, KeyError, TypeError) as exc:  # not JSON, another format, missing fields
                 raise ResultsError(
@@ -266,47 +154,7 @@ class ResultsIndex:
             raise ResultsError(
                 f"{root / MANIFEST_NAME} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})"
             )
-        statuses = []
-        newest = 0.0
-        for folder in clip_folders(root):
-            status = read_status(folder)
-            if status is None:
-                continue  # in flight or never started
-            newest = max(newest, (folder / STATUS_NAME).stat().st_mtime)
-            statuses.append((folder, status))
-        table = _table_rows(root, newest)
-        clips = []
-        for folder, status in statuses:
-            cid = status["clip_id"]
-            if status["status"] != "ok":
-                clips.append(_failed_clip(cid, status, folder))
-                continue
-            row = table.get(cid)
-            if row is None or row["status"] != "ok":
-                clips.append(_from_record_json(cid, status, folder))
-                continue
-            meta = status.get("meta") or {}
-            clips.append(
-                ResultClip(
-                    clip_id=cid,
-                    platform=str(meta.get("model", "-")),
-                    category=meta.get("category"),
-                    expected_model=expected_model(meta.get("category")),
-                    status="ok",
-                    error=None,
-                    folder=folder,
-                    rrd=folder / status["rrd"] if status.get("rrd") else None,
-                    prompt=meta.get("prompt"),
-                    t_inf=_num(row["t_inf"]),
-                    pose_present=bool(row["pose_present"]),
-                    ir_h=_num(row["ir_h"]),
-                    ge_h=_num(row["ge_h"]),
-                    ir_f=_num(row["ir_f"]),
-                    ge_f=_num(row["ge_f"]),
-                    adap90_max=_num(row["adap90_max"]),
-                    n_objects=int(row["n_objects"]),
-                )
-            )
+        clips = read_bench_clips(root)
         return cls(root, clips, ScoreConfig.from_dict(manifest["config"]), manifest.get("config_hash"), "bench")
 
     # --- facets --------------------------------------------------------------------------------
@@ -347,14 +195,13 @@ class ResultsIndex:
                 progress(i + 1, len(ok))
 
     def _family(self, clip: ResultClip, family: str, tau: float) -> tuple[float | None, float | None]:
-        recorded = self.recorded.tau_h if family == "H" else self.recorded.tau_f
-        if tau == recorded:
-            return (clip.ir_h, clip.ge_h) if family == "H" else (clip.ir_f, clip.ge_f)
+        if tau == self.recorded.tau(family):
+            return clip.scores(family)
         key = (clip.clip_id, family, float(tau))
         with self._lock:
             hit = self._families.get(key)
         if hit is None:
-            r = regate_family(self.residuals(clip.clip_id), family, tau)  # type: ignore[arg-type]
+            r = regate_family(self.residuals(clip.clip_id), family_spec(family).name, tau)
             hit = (r.ir, r.ge)
             with self._lock:
                 self._families[key] = hit
@@ -367,8 +214,8 @@ class ResultsIndex:
         clip = self.by_id[clip_id]
         if clip.status != "ok":
             return None
-        ir_h, ge_h = self._family(clip, "H", thresholds.tau_h)
-        ir_f, ge_f = self._family(clip, "F", thresholds.tau_f)
+        ir_h, ge_h = self._family(clip, "H", thresholds.tau("H"))
+        ir_f, ge_f = self._family(clip, "F", thresholds.tau("F"))
         return clip_verdict(
             t_inf=clip.t_inf,
             pose_present=clip.pose_present,

@@ -1,0 +1,167 @@
+"""The clips of a results folder as recorded: one :class:`ResultClip` per clip, from its status, its
+sidecar metadata and either ``tables/clips.parquet`` (when it is up to date) or its ``record.json``."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .dataset import expected_model
+from .layout import RRD_NAME, STATUS_NAME, clip_folders, read_status, tables_dir
+from .models import family_spec
+from .record import read_record_json
+
+__all__ = ["ResultClip", "clip_from_record_json", "read_bench_clips"]
+
+
+@dataclass(frozen=True)
+class ResultClip:
+    """One clip of a results folder as recorded: its sidecar metadata, where its files are, and the
+    numbers needed to re-gate it (both families' IR/GE and the gate statistic)."""
+
+    clip_id: str
+    platform: str
+    category: str | None
+    expected_model: str | None
+    status: str
+    error: str | None
+    folder: Path | None
+    rrd: Path | None
+    prompt: str | None
+    t_inf: float | None
+    pose_present: bool
+    ir_h: float | None
+    ge_h: float | None
+    ir_f: float | None
+    ge_f: float | None
+    adap90_max: float | None
+    n_objects: int
+
+    def scores(self, family: str) -> tuple[float | None, float | None]:
+        """The recorded ``(IR, GE)`` of background ``family``."""
+        attr = family_spec(family).attr
+        return getattr(self, f"ir_{attr}"), getattr(self, f"ge_{attr}")
+
+
+def _num(v: Any) -> float | None:
+    if v is None:
+        return None
+    f = float(v)
+    return None if math.isnan(f) else f
+
+
+def _sidecar(clip_id: str, status: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """The :class:`ResultClip` fields every clip takes from its status and sidecar metadata."""
+    meta = status.get("meta") or {}
+    return {
+        "clip_id": clip_id,
+        "platform": str(meta.get("model", "-")),
+        "category": meta.get("category"),
+        "expected_model": expected_model(meta.get("category")),
+        "folder": folder,
+        "prompt": meta.get("prompt"),
+    }
+
+
+def clip_from_record_json(
+    clip_id: str, status: dict[str, Any], folder: Path, d: dict[str, Any] | None = None
+) -> ResultClip:
+    """A clip's triage numbers from its ``record.json`` (no arrays read; ``d`` when already parsed
+    by :func:`~geocon_core.record.read_record_json`, which checks the record format)."""
+    if d is None:
+        _, d = read_record_json(folder)
+    bg, gate = d["background"], d["gate"]
+    fam = {bg["chosen"]["family"]: bg["chosen"], bg["other"]["family"]: bg["other"]}
+    adap90 = [o["adap90"] for o in d.get("objects", []) if o.get("adap90") is not None]
+    rrd = (
+        folder / status["rrd"] if status.get("rrd") else (folder / RRD_NAME if (folder / RRD_NAME).is_file() else None)
+    )
+    return ResultClip(
+        **_sidecar(clip_id, status, folder),
+        status="ok",
+        error=None,
+        rrd=rrd,
+        t_inf=gate["t_inf"],
+        pose_present=bool(gate["pose_present"]),
+        ir_h=fam["H"]["ir"],
+        ge_h=fam["H"]["ge"],
+        ir_f=fam["F"]["ir"],
+        ge_f=fam["F"]["ge"],
+        adap90_max=max(adap90) if adap90 else None,
+        n_objects=len(d.get("objects", [])),
+    )
+
+
+def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultClip:
+    return ResultClip(
+        **_sidecar(clip_id, status, folder),
+        status="failed",
+        error=status.get("error") or "unknown error",
+        rrd=None,
+        t_inf=None,
+        pose_present=False,
+        ir_h=None,
+        ge_h=None,
+        ir_f=None,
+        ge_f=None,
+        adap90_max=None,
+        n_objects=0,
+    )
+
+
+def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]]:
+    """Rows of ``tables/clips.parquet`` by clip id when the table is newer than every clip status
+    (else empty: the records are read instead)."""
+    path = tables_dir(results) / "clips.parquet"
+    try:
+        if not path.is_file() or path.stat().st_mtime < newest_status:
+            return {}
+        import pyarrow.parquet as pq
+    except (ImportError, OSError):
+        return {}
+    cols = ["clip_id", "status", "t_inf", "pose_present", "ir_h", "ge_h", "ir_f", "ge_f", "adap90_max", "n_objects"]
+    table = pq.read_table(path, columns=cols).to_pydict()
+    return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
+
+
+def read_bench_clips(root: Path) -> list[ResultClip]:
+    """Every clip of the ``geocon bench`` results folder ``root`` with a status (clips in flight or
+    never started are left out), in folder order."""
+    statuses = []
+    newest = 0.0
+    for folder in clip_folders(root):
+        status = read_status(folder)
+        if status is None:
+            continue  # in flight or never started
+        newest = max(newest, (folder / STATUS_NAME).stat().st_mtime)
+        statuses.append((folder, status))
+    table = _table_rows(root, newest)
+    clips = []
+    for folder, status in statuses:
+        cid = status["clip_id"]
+        if status["status"] != "ok":
+            clips.append(_failed_clip(cid, status, folder))
+            continue
+        row = table.get(cid)
+        if row is None or row["status"] != "ok":
+            clips.append(clip_from_record_json(cid, status, folder))
+            continue
+        clips.append(
+            ResultClip(
+                **_sidecar(cid, status, folder),
+                status="ok",
+                error=None,
+                rrd=folder / status["rrd"] if status.get("rrd") else None,
+                t_inf=_num(row["t_inf"]),
+                pose_present=bool(row["pose_present"]),
+                ir_h=_num(row["ir_h"]),
+                ge_h=_num(row["ge_h"]),
+                ir_f=_num(row["ir_f"]),
+                ge_f=_num(row["ge_f"]),
+                adap90_max=_num(row["adap90_max"]),
+                n_objects=int(row["n_objects"]),
+            )
+        )
+    return clips
