@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -100,25 +100,6 @@ class CellVectors:
     def num_cells(self) -> int:
         return len(self.weights)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "cells": np.asarray(self.cells, np.int64).tolist(),
-            "positions": np.asarray(self.positions, np.float64).tolist(),
-            "observed": np.asarray(self.observed, np.float64).tolist(),
-            "predicted": np.asarray(self.predicted, np.float64).tolist(),
-            "weights": np.asarray(self.weights, np.float64).tolist(),
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "CellVectors":
-        return cls(
-            cells=np.asarray(d["cells"], np.int64).reshape(-1, 2),
-            positions=np.asarray(d["positions"], np.float64).reshape(-1, 2),
-            observed=np.asarray(d["observed"], np.float64).reshape(-1, 2),
-            predicted=np.asarray(d["predicted"], np.float64).reshape(-1, 2),
-            weights=np.asarray(d["weights"], np.float64).reshape(-1),
-        )
-
 
 @dataclass(frozen=True, eq=False)
 class RigidityResult:
@@ -142,30 +123,6 @@ class RigidityResult:
     affine: np.ndarray | None
     cells: CellVectors | None
     n_pixels: int
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able dict (floats as Python floats, arrays as nested lists); ``from_dict`` inverts it exactly."""
-        return {
-            "valid": bool(self.valid),
-            "reason": self.reason,
-            "d_t": None if self.d_t is None else float(self.d_t),
-            "w2": None if self.w2 is None else float(self.w2),
-            "affine": None if self.affine is None else np.asarray(self.affine, np.float64).tolist(),
-            "cells": None if self.cells is None else self.cells.to_dict(),
-            "n_pixels": int(self.n_pixels),
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "RigidityResult":
-        return cls(
-            valid=bool(d["valid"]),
-            reason=d["reason"],
-            d_t=None if d["d_t"] is None else float(d["d_t"]),
-            w2=None if d["w2"] is None else float(d["w2"]),
-            affine=None if d["affine"] is None else np.asarray(d["affine"], np.float64).reshape(2, 3),
-            cells=None if d["cells"] is None else CellVectors.from_dict(d["cells"]),
-            n_pixels=int(d["n_pixels"]),
-        )
 
 
 def _invalid(reason: str, n_pixels: int) -> RigidityResult:

@@ -4,7 +4,6 @@ optimal-transport bounds and exactness, invalid inputs, serialisation."""
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import time
 
@@ -496,20 +495,7 @@ def test_object_scores_rejects_empty_and_non_finite():
 # ---------------------------------------------------------------- 7. serialisation
 
 
-def _assert_same(a: RigidityResult, b: RigidityResult):
-    assert a.to_dict() == b.to_dict()
-    for name in ("valid", "reason", "d_t", "w2", "n_pixels"):
-        assert getattr(a, name) == getattr(b, name)
-    if a.affine is None:
-        assert b.affine is None and a.cells is None and b.cells is None
-        return
-    assert b.affine.dtype == np.float64 and np.array_equal(a.affine, b.affine)
-    for name in ("cells", "positions", "observed", "predicted", "weights"):
-        x, y = getattr(a.cells, name), getattr(b.cells, name)
-        assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y)
-
-
-def test_to_dict_from_dict_round_trip_exact():
+def test_result_fields_and_dtypes():
     rng = np.random.default_rng(6)
     mask = make_masks(rng)["L"]
     flow = affine_flow(*mask.shape, *random_affine(rng)) + rng.normal(0, 3.0, mask.shape + (2,))
@@ -520,12 +506,17 @@ def test_to_dict_from_dict_round_trip_exact():
     ]
     assert results[0].valid and results[0].d_t > 0 and results[0].w2 < results[0].d_t
     for res in results:
-        text = json.dumps(res.to_dict(), allow_nan=False)
-        back = RigidityResult.from_dict(json.loads(text))
-        _assert_same(res, back)
+        assert isinstance(res.n_pixels, int)
+        if not res.valid:
+            assert res.reason is not None
+            assert res.d_t is None and res.w2 is None and res.affine is None and res.cells is None
+            continue
+        assert res.reason is None and isinstance(res.d_t, float) and isinstance(res.w2, float)
+        assert res.affine.dtype == np.float64 and res.affine.shape == (2, 3)
         cv = res.cells
-        if cv is not None:
-            assert isinstance(cv, CellVectors) and cv.cells.dtype == np.int64
+        assert isinstance(cv, CellVectors) and cv.cells.dtype == np.int64
+        for name in ("positions", "observed", "predicted", "weights"):
+            assert getattr(cv, name).dtype == np.float64
 
 
 def test_cell_vectors_shape_check():
