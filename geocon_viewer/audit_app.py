@@ -32,19 +32,20 @@ import numpy as np
 import viser
 
 from geocon_core.diagnostics import read_overlays
+from geocon_core.models import FAMILIES
 from geocon_core.reader import DEFAULT_FPS
 from geocon_core.record import read_record
 from geocon_core.regate import pair_inliers
-from geocon_core.results import VERDICTS, ResultsError, ResultsIndex, TriageRow
+from geocon_core.results import ResultsError, ResultsIndex, TriageRow
 from geocon_core.verdict import ClipVerdict, Thresholds
 
-from .audit_triage import LIST_ROWS, THRESHOLD_LABELS, rrd_text, thresholds_text, triage_summary, triage_table
+from .audit_gui import ANY, FLAGGED, AuditPanels
+from .audit_triage import LIST_ROWS, rrd_text, thresholds_text, triage_summary, triage_table
 from .audit_views import (
     ClipView,
     Plots,
     clip_card,
     draw_frame,
-    empty_plot,
     frame_text,
     render_plots,
     render_scene,
@@ -55,11 +56,9 @@ __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 
 DISPLAY_WIDTH = 640
 """Width (px) the frames are shown at."""
-ANY = "any"
-FLAGGED = "flagged"
 
 
-class AuditApp:
+class AuditApp(AuditPanels):
     """The audit app over ``results`` (a ``geocon bench`` folder or a ``geocon score`` record
     folder). Drive it from Python through its GUI handles (setting ``.value`` runs the callbacks),
     or open :attr:`url` in a browser. :meth:`stop` shuts the server down and frees its port."""
@@ -84,7 +83,8 @@ class AuditApp:
         )
         self.server.gui.main_panel.dock_right()
         self.server.scene.set_up_direction("-y")
-        self._build_gui()
+        self.build_panels()
+        self._wire_gui()
         self.refresh()
         self._preload: threading.Thread | None = None
         if preload and self.index.kind == "bench":
@@ -117,69 +117,17 @@ class AuditApp:
         self.server.stop()
 
     # --- GUI ---------------------------------------------------------------------------------
-    def _build_gui(self) -> None:
-        gui = self.server.gui
-        facets = self.index.facets()
-        n = len(self.index.clips)
-        title = f"{self.index.root.name}: {n} clip{'s' if n != 1 else ''}" + (
-            f" · config {self.index.config_hash}" if self.index.config_hash else ""
-        )
-        gui.add_markdown(f"**GeoCon audit** · {title}")
-        with gui.add_folder("Triage"):
-            self.platform = gui.add_dropdown("platform", [ANY, *facets["platform"]], initial_value=ANY)
-            self.category = gui.add_dropdown("category", [ANY, *facets["category"]], initial_value=ANY)
-            self.gate_label = gui.add_dropdown("gate label", [ANY, "H", "F", "U"], initial_value=ANY)
-            self.state = gui.add_dropdown(
-                "verdict",
-                [ANY, FLAGGED, *VERDICTS],
-                initial_value=ANY,
-                hint="flagged: not passing, or the gate disagrees with the clip's category",
-            )
-            self.summary_md = gui.add_markdown("")
-            self.table_md = gui.add_markdown("")
-            self.page = gui.add_number("page", 1, min=1, step=1, hint=f"{LIST_ROWS} clips a page, most severe first")
-            self.clip = gui.add_dropdown(
-                "clip",
-                ["(none)"],
-                initial_value="(none)",
-                hint="The clip shown in the scene, the frame panel and the plots",
-            )
-            buttons = gui.add_button_group("", ["◀ more severe", "less severe ▶"])
-        with gui.add_folder("Thresholds"):
-            self.number: dict[str, Any] = {}
-            for name, (label, step, hint) in THRESHOLD_LABELS.items():
-                self.number[name] = gui.add_number(label, getattr(self.thresholds, name), min=0.0, step=step, hint=hint)
-            self.reset = gui.add_button("Reset to the recorded thresholds")
-            self.thresholds_md = gui.add_markdown("")
-            self.preload_bar = gui.add_progress_bar(0.0, visible=False)
+    def _wire_gui(self) -> None:
+        """Hook the panels' handles to the app's callbacks."""
         for handle in (self.platform, self.category, self.gate_label, self.state):
             handle.on_update(lambda _: self._on_filters())
         self.page.on_update(lambda _: self._render_table())
         self.clip.on_update(lambda e: self._on_clip(e.target.value))
-        buttons.on_click(lambda e: self._step(-1 if e.target.value.startswith("◀") else 1))
+        self.step_buttons.on_click(lambda e: self._step(-1 if e.target.value.startswith("◀") else 1))
         for name, handle in self.number.items():
             handle.on_update(lambda e, name=name: self._on_threshold(name, e.target.value))
         self.reset.on_click(lambda _: self._reset_thresholds())
 
-        self.frame_panel = gui.add_panel()
-        with self.frame_panel.add_tab("Frame", icon=None):
-            self.image = gui.add_image(np.zeros((36, 64, 3), np.uint8), format="jpeg", jpeg_quality=85)
-            self.slider = gui.add_slider("frame", 0, 1, 1, 0)
-            self.play = gui.add_checkbox("play", False)
-            self.show_matches = gui.add_checkbox(
-                "inliers / outliers", True, hint="Background matches of the pair (t, t+1): green inliers, red outliers"
-            )
-            self.show_masks = gui.add_checkbox("object masks", True)
-            self.frame_md = gui.add_markdown("")
-        with self.frame_panel.add_tab("Audit card"):
-            self.card_md = gui.add_markdown("")
-            self.rrd_button = gui.add_button(
-                "Write the Rerun recording (.rrd)",
-                hint="For a bug report: writes audit.rrd beside the record and offers it as a download",
-            )
-            self.rrd_md = gui.add_markdown("")
-        self.frame_panel.dock_left()
-        self.frame_panel.set_width(470)
         self.slider.on_update(lambda e: self._on_frame(int(e.target.value)))
         for box in (self.show_matches, self.show_masks):
             box.on_update(lambda _: self._render_frame())
@@ -188,16 +136,6 @@ class AuditApp:
             self.write_rrd(background=True)
 
         self.rrd_button.on_click(on_rrd)
-
-        self.plot_panel = gui.add_panel()
-        with self.plot_panel.add_tab("Background"):
-            self.ir_plot = empty_plot(self.server, "IR per pair")
-            self.ge_plot = empty_plot(self.server, "GE per pair (px)")
-        with self.plot_panel.add_tab("Objects"):
-            self.obj_plot = empty_plot(self.server, "AdaDFRC D_t per object (px²)")
-        with self.plot_panel.add_tab("Gate"):
-            self.gate_plot = empty_plot(self.server, "t_inf per window")
-        self.plot_panel.dock_below(self.frame_panel)
 
     # --- triage list ---------------------------------------------------------------------------
     def _filters(self) -> dict[str, Any]:
@@ -260,7 +198,7 @@ class AuditApp:
             return
         self.thresholds = new
         pending = sum(c.status == "ok" for c in self.index.clips) - self.index.loaded()
-        if pending > 0 and (new.tau_h != self.index.recorded.tau_h or new.tau_f != self.index.recorded.tau_f):
+        if pending > 0 and any(new.tau(f) != self.index.recorded.tau(f) for f in FAMILIES):
             self.thresholds_md.content = f"re-gating… (reading the stored residuals of {pending} more clips first)"
         self.refresh()
 
@@ -391,7 +329,7 @@ class AuditApp:
                 fit = p.fit(v.model)
                 if fit is None or fit.model is None:
                     return None
-                tau = self.thresholds.tau_h if v.model == "H" else self.thresholds.tau_f
+                tau = self.thresholds.tau(v.model)
                 return rec.matches.x1[rec.matches.rows(p.index)] / s, pair_inliers(rec, p.index, v.model, tau)
         return None
 

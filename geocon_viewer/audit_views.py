@@ -217,7 +217,7 @@ def render_plots(plots: Plots, view: ClipView | None, v: ClipVerdict | None, th:
         return
     rec = view.record
     s = max(rec.config.scales)
-    tau = th.tau_h if v.model == "H" else th.tau_f
+    tau = th.tau(v.model)
     n = max(view.num_frames, 1)
     x = np.arange(n, dtype=np.float64)
     ir = np.full(n, np.nan)
