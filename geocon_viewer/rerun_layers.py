@@ -8,78 +8,24 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
-import cv2
 import numpy as np
 import rerun as rr
 
-from geocon_core.record import ClipRecord
+from geocon_core.models import family_spec
+from geocon_core.record import ClipRecord, FitSummary
 
-from .style import object_color
+from .rerun_images import colormap, object_rgba, png_bytes, residual_map
 
-__all__ = ["RecordLayers", "residual_map", "png_bytes", "object_rgba", "ARROW_GAIN", "INLIER", "OUTLIER"]
+__all__ = ["RecordLayers", "ARROW_GAIN", "INLIER", "OUTLIER"]
 
 INLIER = (60, 200, 90, 255)
 OUTLIER = (235, 60, 50, 255)
 ARROW_GAIN = 4.0
+"""Cell flow vectors are drawn this many times longer than they are (labelled so)."""
 # Screen-space sizes (negative radii are UI points in Rerun): matches stay visible at any zoom.
 MATCH_RADIUS = rr.Radius.ui_points(1.6)
 OUTLIER_RADIUS = rr.Radius.ui_points(2.2)
 LINE_RADIUS = rr.Radius.ui_points(0.6)
-"""Cell flow vectors are drawn this many times longer than they are (labelled so)."""
-
-
-def _colormap(values: np.ndarray, vmax: float) -> np.ndarray:
-    """Inferno colours (N, 4) uint8 of values in [0, vmax]."""
-    v = np.clip(np.asarray(values, np.float64) / max(vmax, 1e-9), 0.0, 1.0)
-    idx = np.round(v * 255).astype(np.uint8).reshape(-1, 1)
-    bgr = cv2.applyColorMap(idx, cv2.COLORMAP_INFERNO).reshape(-1, 3)
-    out = np.full((len(v), 4), 255, np.uint8)
-    out[:, :3] = bgr[:, ::-1]
-    return out
-
-
-def object_rgba(object_id: int) -> tuple[int, int, int, int]:
-    """An object's colour with full opacity."""
-    return (*object_color(object_id), 255)
-
-
-def png_bytes(image: np.ndarray, level: int = 6) -> bytes:
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_RGBA2BGRA)
-    elif image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, level])
-    assert ok
-    return buf.tobytes()
-
-
-def residual_map(
-    xy: np.ndarray, residuals: np.ndarray, size: tuple[int, int], vmax: float, *, cell: int = 8, sigma_px: float = 24.0
-) -> np.ndarray:
-    """A low-resolution RGBA picture (h/cell, w/cell, 4) of per-match residuals spread over an
-    image of ``size`` (w, h): a Gaussian-weighted mean of the residuals around each point,
-    inferno-coloured over [0, vmax], opaque where matches are dense and transparent where there
-    are none. ``xy`` are the matches' working pixels."""
-    w, h = size
-    gw, gh = max(1, math.ceil(w / cell)), max(1, math.ceil(h / cell))
-    num = np.zeros((gh, gw), np.float64)
-    den = np.zeros((gh, gw), np.float64)
-    finite = np.isfinite(residuals)
-    r = np.clip(residuals[finite], 0, 4 * vmax)
-    gx = np.clip((xy[finite, 0] / cell).astype(int), 0, gw - 1)
-    gy = np.clip((xy[finite, 1] / cell).astype(int), 0, gh - 1)
-    np.add.at(num, (gy, gx), r)
-    np.add.at(den, (gy, gx), 1.0)
-    s = sigma_px / cell
-    num_b = np.asarray(cv2.GaussianBlur(num, (0, 0), s))
-    den_b = np.asarray(cv2.GaussianBlur(den, (0, 0), s))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(den_b > 1e-9, num_b / den_b, 0.0)
-    # one match within ~sigma gives about 1 / (2 pi s^2) density: call 3 matches full evidence
-    alpha = np.clip(den_b * (2 * math.pi * s * s) / 3.0, 0.0, 1.0)
-    rgba = _colormap(mean.ravel(), vmax).reshape(gh, gw, 4)
-    rgba[..., 3] = np.round(alpha * 220).astype(np.uint8)
-    return rgba
 
 
 def _clean_cloud(xyz: np.ndarray, rgb: np.ndarray, *, max_points: int = 20000) -> tuple[np.ndarray, np.ndarray]:
@@ -95,6 +41,16 @@ def _clean_cloud(xyz: np.ndarray, rgb: np.ndarray, *, max_points: int = 20000) -
         pc = pc.voxel_down_sample(extent / math.sqrt(max_points) / 4)
     pc, _ = pc.remove_statistical_outlier(nb_neighbors=16, std_ratio=2.5)
     return np.asarray(pc.points, np.float32), np.round(np.asarray(pc.colors) * 255).astype(np.uint8)
+
+
+def _rule(family: str, fit: FitSummary, s: float) -> tuple[str, float]:
+    """The inlier rule of ``fit`` as a label, and the top of its residual colour scale (working px)."""
+    if family == "H":
+        return f"H: symmetric transfer error <= {fit.tau:g} px", 2.0 * fit.tau / s
+    return (
+        f"F: normalised Sampson <= {fit.tau:g} (~{(fit.tau_px or 0) / s:.2f} px)",
+        2.0 * (fit.tau_px or 1.0) / s,
+    )
 
 
 class RecordLayers:
@@ -135,16 +91,9 @@ class RecordLayers:
             x1 = (a["x1"].astype(np.float64) + 0.5) / s - 0.5
             x2 = (a["x2"].astype(np.float64) + 0.5) / s - 0.5
             r1, r2 = x1 + 0.5, x2 + 0.5  # Rerun puts pixel centres at +0.5
-            if fam == "H":
-                res_px, inl, rule = a["h_res"] / s, a["h_inl"], f"H: symmetric transfer error <= {fit.tau:g} px"
-                vmax = 2.0 * fit.tau / s
-            else:
-                res_px, inl, rule = (
-                    a["f_res_px"] / s,
-                    a["f_inl"],
-                    f"F: normalised Sampson <= {fit.tau:g} (~{(fit.tau_px or 0) / s:.2f} px)",
-                )
-                vmax = 2.0 * (fit.tau_px or 1.0) / s
+            spec = family_spec(fam)
+            res_px, inl = a[spec.residual_px] / s, a[spec.inliers]
+            rule, vmax = _rule(fam, fit, s)
             ir = "invalid" if fit.ir is None else f"IR {fit.ir:.3f}"
             ge = "" if fit.ge is None else f", GE {fit.ge / s:.2f} px"
             rec.log(
@@ -175,7 +124,7 @@ class RecordLayers:
                 rr.LineStrips2D(
                     strips.astype(np.float32),
                     radii=LINE_RADIUS,
-                    colors=_colormap(res_px, vmax),
+                    colors=colormap(res_px, vmax),
                     labels=f"x_t -> x_t+1, colour = residual 0..{vmax:.2f} px",
                     show_labels=False,
                     draw_order=2.9,

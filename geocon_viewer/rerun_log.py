@@ -51,7 +51,8 @@ from geocon_core.reader import DEFAULT_FPS
 from geocon_core.record import ClipRecord
 
 from .rerun_card import RERUN_VERSION, audit_card, worst_frame
-from .rerun_layers import ARROW_GAIN, RecordLayers, object_rgba, png_bytes, residual_map
+from .rerun_images import object_rgba, png_bytes, residual_map
+from .rerun_layers import ARROW_GAIN, RecordLayers
 from .rerun_video import FrameVideo, quiet_encoder_logs
 
 __all__ = [
