@@ -492,7 +492,7 @@ def test_object_scores_rejects_empty_and_non_finite():
         object_scores([1.0, float("nan")])
 
 
-# ---------------------------------------------------------------- 7. serialisation
+# ---------------------------------------------------------------- 7. result fields
 
 
 def test_result_fields_and_dtypes():
