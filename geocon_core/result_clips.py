@@ -19,7 +19,8 @@ __all__ = ["ResultClip", "clip_from_record_json", "read_bench_clips"]
 @dataclass(frozen=True)
 class ResultClip:
     """One clip of a results folder as recorded: its sidecar metadata, where its files are, and the
-    numbers needed to re-gate it (both families' IR/GE and the gate statistic)."""
+    numbers needed to re-gate it (both families' IR/GE and the gate statistic). A clip that failed
+    to score keeps the defaults: no numbers, no pose, no objects."""
 
     clip_id: str
     platform: str
@@ -30,14 +31,14 @@ class ResultClip:
     folder: Path | None
     rrd: Path | None
     prompt: str | None
-    t_inf: float | None
-    pose_present: bool
-    ir_h: float | None
-    ge_h: float | None
-    ir_f: float | None
-    ge_f: float | None
-    adap90_max: float | None
-    n_objects: int
+    t_inf: float | None = None
+    pose_present: bool = False
+    ir_h: float | None = None
+    ge_h: float | None = None
+    ir_f: float | None = None
+    ge_f: float | None = None
+    adap90_max: float | None = None
+    n_objects: int = 0
 
     def scores(self, family: str) -> tuple[float | None, float | None]:
         """The recorded ``(IR, GE)`` of background ``family``."""
@@ -100,14 +101,6 @@ def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultCl
         status="failed",
         error=status.get("error") or "unknown error",
         rrd=None,
-        t_inf=None,
-        pose_present=False,
-        ir_h=None,
-        ge_h=None,
-        ir_f=None,
-        ge_f=None,
-        adap90_max=None,
-        n_objects=0,
     )
 
 
