@@ -5,7 +5,7 @@ then the objects, the masked share and the category."""
 from __future__ import annotations
 
 import platform
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -32,7 +32,7 @@ from .record import (
     PairRecord,
 )
 from .rigidity import ObjectPairScore, object_summaries
-from .verdict import ClipVerdict, Thresholds, clip_verdict, gate_decision, summarize_family
+from .verdict import ClipVerdict, Thresholds, family_verdict, gate_decision, summarize_family
 
 __all__ = ["software_versions", "fit_summary", "assemble_record", "add_objects", "object_entries"]
 
@@ -48,17 +48,9 @@ def software_versions() -> dict[str, str]:
 
 
 def fit_summary(fit: ModelFit) -> FitSummary:
+    """The record's summary of ``fit``: its fields of the same name, the model as nested lists."""
     model = None if fit.model is None else [[float(v) for v in row] for row in fit.model]
-    return FitSummary(
-        valid=fit.valid,
-        reason=fit.reason,
-        ir=fit.ir,
-        ge=fit.ge,
-        n_inliers=fit.n_inliers,
-        tau=fit.tau,
-        tau_px=fit.tau_px,
-        model=model,
-    )
+    return FitSummary(**{f.name: getattr(fit, f.name) for f in fields(FitSummary) if f.name != "model"}, model=model)
 
 
 def _gate_record(
@@ -150,19 +142,13 @@ def assemble_record(
     scored: list[PairFits],
 ) -> ClipRecord:
     """The record of a clip's background: both families summarised over ``scored`` (sorted by
-    gap, frame, scale), the verdict (:func:`~geocon_core.verdict.clip_verdict`), the gate with
+    gap, frame, scale), the verdict (:func:`~geocon_core.verdict.family_verdict`), the gate with
     its timeline (``timeline_poses`` of the ``windows``; the whole-clip window uses ``pose``), the
     pairs and their per-match arrays, and the warnings; no objects or category yet."""
     fam = {name: summarize_family(name, scored, cfg) for name in FAMILIES}
-    verdict = clip_verdict(
-        t_inf=pose.t_inf,
-        pose_present=pose.pose_present,
-        ir_h=fam["H"].ir,
-        ge_h=fam["H"].ge,
-        ir_f=fam["F"].ir,
-        ge_f=fam["F"].ge,
-        thresholds=Thresholds.of(cfg),
-        tau_t=cfg.tau_t,
+    thresholds = Thresholds.of(cfg)
+    verdict = family_verdict(
+        fam["H"], fam["F"], t_inf=pose.t_inf, pose_present=pose.pose_present, thresholds=thresholds, tau_t=cfg.tau_t
     )
     warnings: list[str] = []
     if not pose.pose_present:

@@ -15,21 +15,6 @@ from typing import Any
 
 from .stage_configs import BarConfig, CategoryConfig, CutConfig, FlowConfig, MotionConfig, PoseConfig, ScanConfig
 
-__all__ = [
-    "ScoreConfig",
-    "PRESETS",
-    "preset",
-    "config_hash",
-    "config_items",
-    "BarConfig",
-    "CutConfig",
-    "FlowConfig",
-    "MotionConfig",
-    "PoseConfig",
-    "CategoryConfig",
-    "ScanConfig",
-]
-
 SUB_CONFIGS: dict[str, type] = {
     "bars": BarConfig,
     "cuts": CutConfig,
@@ -40,6 +25,9 @@ SUB_CONFIGS: dict[str, type] = {
     "scans": ScanConfig,
 }
 """The nested sub-configurations of :class:`ScoreConfig` by field name."""
+
+__all__ = ["ScoreConfig", "PRESETS", "preset", "config_hash", "config_items"]
+__all__ += [sub.__name__ for sub in SUB_CONFIGS.values()]
 
 
 @dataclass(frozen=True)

@@ -174,24 +174,9 @@ class DisFlow:
             overrides["preset"] = str(overrides["preset"]).strip().lower()
         self.config = replace(config or FlowConfig(), **overrides)
 
-    @property
-    def preset(self) -> str:
-        return self.config.preset
-
-    @property
-    def fb_abs(self) -> float:
-        return self.config.fb_abs
-
-    @property
-    def fb_rel(self) -> float:
-        return self.config.fb_rel
-
-    @property
-    def margin(self) -> int:
-        return self.config.margin
-
     def __repr__(self) -> str:
-        return f"DisFlow(preset={self.preset!r}, fb_abs={self.fb_abs}, fb_rel={self.fb_rel}, margin={self.margin})"
+        c = self.config
+        return f"DisFlow(preset={c.preset!r}, fb_abs={c.fb_abs}, fb_rel={c.fb_rel}, margin={c.margin})"
 
     def _calc(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         h, w = a.shape
@@ -203,7 +188,7 @@ class DisFlow:
         # A fresh OpenCV instance per call: a DIS object keeps state from its previous call (a reused
         # one gives different flow for the same images depending on what it computed before), so
         # reusing one per thread made results depend on thread scheduling.
-        dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.preset])  # type: ignore[attr-defined]  # missing from the cv2 stubs
+        dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])  # type: ignore[attr-defined]  # missing from the cv2 stubs
         return np.ascontiguousarray(dis.calc(a, b, None)[:h, :w])
 
     def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:
@@ -217,13 +202,13 @@ class DisFlow:
         _check_images(gray0, gray1)
         h, w = gray0.shape
         x0, y0, x1, y1 = _check_box(box, (h, w))
-        m = self.margin
+        m = self.config.margin
         rx0, ry0, rx1, ry1 = max(0, x0 - m), max(0, y0 - m), min(w, x1 + m), min(h, y1 + m)
         a = np.ascontiguousarray(gray0[ry0:ry1, rx0:rx1])
         b = np.ascontiguousarray(gray1[ry0:ry1, rx0:rx1])
         fwd, bwd = self._calc(a, b), self._calc(b, a)
-        err_f, rel_f = forward_backward(fwd, bwd, self.fb_abs, self.fb_rel)
-        err_b, rel_b = forward_backward(bwd, fwd, self.fb_abs, self.fb_rel)
+        err_f, rel_f = forward_backward(fwd, bwd, self.config.fb_abs, self.config.fb_rel)
+        err_b, rel_b = forward_backward(bwd, fwd, self.config.fb_abs, self.config.fb_rel)
         sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
         out = []
         for flow, err, rel in ((fwd, err_f, rel_f), (bwd, err_b, rel_b)):

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from . import record_parts
 from .config import ScoreConfig
 from .reader import ClipInfo
 from .record_parts import (
@@ -32,7 +33,6 @@ from .record_parts import (
     FitSummary,
     GapSummary,
     GateRecord,
-    GateWindow,
     MatchArrays,
     ObjectEntry,
     ObjectScaleSummary,
@@ -41,24 +41,12 @@ from .record_parts import (
     PointCloud,
     ScaleSummary,
 )
+from .record_parts import Family as Family  # these two re-exported only
+from .record_parts import GateWindow as GateWindow
 
 __all__ = [
     "RECORD_FORMAT",
-    "FitSummary",
-    "PairRecord",
-    "MatchArrays",
-    "GapSummary",
-    "ScaleSummary",
-    "FamilySummary",
-    "BackgroundSummary",
-    "GateWindow",
-    "GateRecord",
-    "ObjectEntry",
-    "ObjectScaleSummary",
-    "ObjectSummary",
-    "CellArrays",
-    "Category",
-    "PointCloud",
+    *record_parts.__all__,  # every part of a record, re-exported
     "ClipRecord",
     "write_record",
     "read_record",

@@ -22,7 +22,7 @@ import numpy as np
 from .config import ScoreConfig
 from .models import FAMILIES, family_spec, inlier_mask, segment_inlier_stats, segment_order
 from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_record_json
-from .verdict import ClipVerdict, Family, FitRow, Thresholds, aggregate_gap_arrays, clip_verdict
+from .verdict import ClipVerdict, Family, FitRow, Thresholds, aggregate_gap_arrays, family_verdict
 
 __all__ = [
     "Regated",
@@ -234,17 +234,9 @@ def load_residuals(folder: str | Path) -> Residuals:
 
 def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipVerdict:
     """The whole clip re-gated at ``thresholds`` from its stored residuals: both families at
-    ``tau_h`` / ``tau_f``, then the gate and report rules (:func:`clip_verdict`). At the recorded
+    ``tau_h`` / ``tau_f``, then the gate and report rules (:func:`family_verdict`). At the recorded
     thresholds this is the record's verdict exactly."""
     res = source if isinstance(source, Residuals) else Residuals.of(source)
     h = regate_family(res, "H", thresholds.tau("H"))
     f = regate_family(res, "F", thresholds.tau("F"))
-    return clip_verdict(
-        t_inf=res.t_inf,
-        pose_present=res.pose_present,
-        ir_h=h.ir,
-        ge_h=h.ge,
-        ir_f=f.ir,
-        ge_f=f.ge,
-        thresholds=thresholds,
-    )
+    return family_verdict(h, f, t_inf=res.t_inf, pose_present=res.pose_present, thresholds=thresholds)

@@ -50,31 +50,7 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         "config_hash": status.get("config_hash"),
     }
     if record is None:
-        row.update(
-            preset=None,
-            frames=0,
-            gate_label=None,
-            gate_model=None,
-            binary_label=None,
-            t_inf=_NAN,
-            pose_present=None,
-            margin=_NAN,
-            ir=_NAN,
-            ge=_NAN,
-            ir_h=_NAN,
-            ge_h=_NAN,
-            ir_f=_NAN,
-            ge_f=_NAN,
-            valid_pairs=0,
-            total_pairs=0,
-            consistent=None,
-            tau_f_px=_NAN,
-            observed_category=None,
-            n_objects=0,
-            adadfrc_max=_NAN,
-            adap90_max=_NAN,
-            masked_share_mean=_NAN,
-        )
+        row.update({col: _empty("clips", col) for col in COLUMNS["clips"] if col not in row})
         return row
     bg, gate = record.background, record.gate
     fam = {bg.chosen.family: bg.chosen, bg.other.family: bg.other}
@@ -199,6 +175,8 @@ def collect_rows(results: str | Path) -> dict[str, list[dict[str, Any]]]:
 
 
 _GROUP = ["clip_id", "model", "scene_id", "category"]
+_CLIP_SCORES = ["ir", "ge", "ir_h", "ge_h", "ir_f", "ge_f"]
+"""The clip's IR and GE: of the chosen model, of H, of F (float columns)."""
 COLUMNS: dict[str, list[str]] = {
     "clips": _GROUP
     + [
@@ -219,12 +197,7 @@ COLUMNS: dict[str, list[str]] = {
         "t_inf",
         "pose_present",
         "margin",
-        "ir",
-        "ge",
-        "ir_h",
-        "ge_h",
-        "ir_f",
-        "ge_f",
+        *_CLIP_SCORES,
         "valid_pairs",
         "total_pairs",
         "consistent",
@@ -273,12 +246,7 @@ _DTYPES: dict[str, dict[str, str]] = {
 _FLOAT = {
     "t_inf",
     "margin",
-    "ir",
-    "ge",
-    "ir_h",
-    "ge_h",
-    "ir_f",
-    "ge_f",
+    *_CLIP_SCORES,
     "tau_f_px",
     "adadfrc_max",
     "adap90_max",
@@ -296,6 +264,14 @@ _FLOAT = {
     "w2",
     "tau",
 }
+
+
+def _empty(table: str, column: str) -> Any:
+    """The value of ``column`` of ``table`` in a row with nothing to report: NaN in a float
+    column, 0 in a count, None otherwise."""
+    if column in _FLOAT:
+        return _NAN
+    return 0 if _DTYPES.get(table, {}).get(column) == "int64" else None
 
 
 def _frame(name: str, rows: list[dict[str, Any]]):

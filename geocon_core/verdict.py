@@ -6,8 +6,9 @@
   :func:`summarize_family`, a family's whole :class:`~geocon_core.record.FamilySummary`);
 - the model choice (:func:`choose_model`: the gate's label, IR in the gray zone, F without pose);
 - the report gate (:func:`report_verdict`) and its headroom (:func:`report_margin`);
-- the whole verdict under some :class:`Thresholds` (:func:`clip_verdict`), which the scorer and
-  every re-gating path (:mod:`geocon_core.regate`, the results index, the viewers) compose alike;
+- the whole verdict under some :class:`Thresholds` (:func:`family_verdict`; :func:`clip_verdict`
+  from plain values), which the scorer and every re-gating path (:mod:`geocon_core.regate`, the
+  results index, the viewers) compose alike;
 - which clips deserve an audit (:func:`is_flagged`), for the benchmark, the triage list, the
   report and the audit app.
 
@@ -17,7 +18,7 @@ Default thresholds are those of :class:`~geocon_core.config.ScoreConfig`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Sequence
+from typing import Literal, NamedTuple, Protocol, Sequence
 
 import numpy as np
 
@@ -41,6 +42,9 @@ __all__ = [
     "report_verdict",
     "report_margin",
     "ClipVerdict",
+    "FamilyScores",
+    "Scores",
+    "family_verdict",
     "clip_verdict",
     "flag_reasons",
     "is_flagged",
@@ -306,6 +310,57 @@ class ClipVerdict:
     binary_label: GateLabel = "F"
 
 
+class FamilyScores(Protocol):
+    """A family's clip IR and GE (None when it could not be judged): a
+    :class:`~geocon_core.record.FamilySummary`, a re-gated family, or :class:`Scores`."""
+
+    @property
+    def ir(self) -> float | None: ...
+
+    @property
+    def ge(self) -> float | None: ...
+
+
+class Scores(NamedTuple):
+    """A family's clip IR and GE as plain values (see :class:`FamilyScores`)."""
+
+    ir: float | None
+    ge: float | None
+
+
+def family_verdict(
+    h: FamilyScores,
+    f: FamilyScores,
+    *,
+    t_inf: float | None,
+    pose_present: bool,
+    thresholds: Thresholds,
+    tau_t: float | None = None,
+) -> ClipVerdict:
+    """The verdict from a clip's gate statistic and both families' scores ``h`` and ``f``: the
+    gate (:func:`gate_decision`; ``tau_t`` is the binary gate's threshold, default the config's),
+    the model (:func:`choose_model`) and the report gate on that model's IR and GE."""
+    label, binary, margin = gate_decision(
+        t_inf, pose_present=pose_present, tau_t=tau_t, low=thresholds.tau_t_low, high=thresholds.tau_t_high
+    )
+    model = choose_model(label, pose_present and t_inf is not None, h.ir, f.ir)
+    ir, ge = (h.ir, h.ge) if model == "H" else (f.ir, f.ge)
+    return ClipVerdict(
+        label=label,
+        model=model,
+        margin=margin,
+        ir=ir,
+        ge=ge,
+        consistent=report_verdict(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
+        report_margin=report_margin(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
+        ir_h=h.ir,
+        ge_h=h.ge,
+        ir_f=f.ir,
+        ge_f=f.ge,
+        binary_label=binary,
+    )
+
+
 def clip_verdict(
     *,
     t_inf: float | None,
@@ -317,28 +372,9 @@ def clip_verdict(
     thresholds: Thresholds,
     tau_t: float | None = None,
 ) -> ClipVerdict:
-    """The verdict from a clip's gate statistic and both families' scores: the gate
-    (:func:`gate_decision`; ``tau_t`` is the binary gate's threshold, default the config's), the
-    model (:func:`choose_model`) and the report gate on that model's IR and GE."""
-    label, binary, margin = gate_decision(
-        t_inf, pose_present=pose_present, tau_t=tau_t, low=thresholds.tau_t_low, high=thresholds.tau_t_high
-    )
-    model = choose_model(label, pose_present and t_inf is not None, ir_h, ir_f)
-    ir, ge = (ir_h, ge_h) if model == "H" else (ir_f, ge_f)
-    return ClipVerdict(
-        label=label,
-        model=model,
-        margin=margin,
-        ir=ir,
-        ge=ge,
-        consistent=report_verdict(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
-        report_margin=report_margin(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
-        ir_h=ir_h,
-        ge_h=ge_h,
-        ir_f=ir_f,
-        ge_f=ge_f,
-        binary_label=binary,
-    )
+    """:func:`family_verdict` from both families' IR and GE given as values."""
+    h, f = Scores(ir_h, ge_h), Scores(ir_f, ge_f)
+    return family_verdict(h, f, t_inf=t_inf, pose_present=pose_present, thresholds=thresholds, tau_t=tau_t)
 
 
 # --- clips worth an audit ----------------------------------------------------------------------

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from geocon_core.dataset import REQUIRED_FIELDS
 from geocon_core.geometry import (
     fundamental_from_pose,
     homography_from_rotation,
@@ -233,19 +234,7 @@ def test_ground_truth_round_trips_and_sidecar_has_spec_fields(synth_dir, tmp_pat
     np.testing.assert_array_equal(again.K, gt.K)
     assert again.t_inf == gt.t_inf and again.objects == gt.objects and again.failure == gt.failure
     meta = json.loads((synth_dir / "c3_translation.meta.json").read_text())
-    for key in (
-        "prompt",
-        "model",
-        "model_version",
-        "seed",
-        "resolution",
-        "fps",
-        "duration",
-        "clip_id",
-        "masks_path",
-        "category",
-        "scene_id",
-    ):
+    for key in REQUIRED_FIELDS:
         assert key in meta, key
     assert meta["category"] == "C3" and meta["resolution"] == [640, 360] and meta["duration"] == pytest.approx(1.0)
     assert (synth_dir / meta["masks_path"]).is_dir()

@@ -93,28 +93,29 @@ def _moving_cams(n: int, end_center: np.ndarray, end_angles: tuple[float, float,
     return np.stack(poses)
 
 
+def _jittered_panel(
+    rng: np.random.Generator,
+    K: np.ndarray,
+    name: str,
+    center: tuple[float, float, float],
+    spread: tuple[float, float, float],
+    size: tuple[float, float],
+    yaw: float,
+) -> TexturedPlane:
+    """A panel centred at ``center`` moved by up to ``spread`` on each axis, turned ``yaw``
+    degrees give or take 5 (drawn in that order)."""
+    x, y, z = (c + _jit(rng, d) for c, d in zip(center, spread, strict=True))
+    return _panel(rng, name, K, (x, y, z), size, yaw=yaw + _jit(rng, 5))
+
+
 def _layers_far(
     rng: np.random.Generator, K: np.ndarray, W: int, H: int, extra_deg: float, reach: float
 ) -> list[TexturedPlane]:
     """Wall plus a mid and a near panel at moderate depths (C1, C2, C4)."""
     return [
         _wall(rng, K, W, H, 11.0 + _jit(rng, 1.0), extra_deg, reach),
-        _panel(
-            rng,
-            "panel_mid",
-            K,
-            (-1.3 + _jit(rng, 0.3), -0.2 + _jit(rng, 0.2), 6.0 + _jit(rng, 0.5)),
-            (3.2, 2.4),
-            yaw=18 + _jit(rng, 5),
-        ),
-        _panel(
-            rng,
-            "panel_near",
-            K,
-            (1.1 + _jit(rng, 0.2), 0.5 + _jit(rng, 0.15), 3.6 + _jit(rng, 0.3)),
-            (1.5, 1.2),
-            yaw=-25 + _jit(rng, 5),
-        ),
+        _jittered_panel(rng, K, "panel_mid", (-1.3, -0.2, 6.0), (0.3, 0.2, 0.5), (3.2, 2.4), 18),
+        _jittered_panel(rng, K, "panel_near", (1.1, 0.5, 3.6), (0.2, 0.15, 0.3), (1.5, 1.2), -25),
     ]
 
 
@@ -124,22 +125,8 @@ def _layers_parallax(
     """Wall plus panels close to the camera, for strong parallax (C3, C5)."""
     return [
         _wall(rng, K, W, H, 10.0 + _jit(rng, 1.0), extra_deg, reach),
-        _panel(
-            rng,
-            "panel_mid",
-            K,
-            (0.9 + _jit(rng, 0.2), -0.3 + _jit(rng, 0.2), 4.8 + _jit(rng, 0.4)),
-            (2.4, 2.0),
-            yaw=-15 + _jit(rng, 5),
-        ),
-        _panel(
-            rng,
-            "panel_near",
-            K,
-            (-0.2 + _jit(rng, 0.15), 0.35 + _jit(rng, 0.1), 2.3 + _jit(rng, 0.2)),
-            (1.0, 0.9),
-            yaw=20 + _jit(rng, 5),
-        ),
+        _jittered_panel(rng, K, "panel_mid", (0.9, -0.3, 4.8), (0.2, 0.2, 0.4), (2.4, 2.0), -15),
+        _jittered_panel(rng, K, "panel_near", (-0.2, 0.35, 2.3), (0.15, 0.1, 0.2), (1.0, 0.9), 20),
     ]
 
 

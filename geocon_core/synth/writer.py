@@ -100,6 +100,10 @@ def mean_scene_distance(depth: np.ndarray, K: np.ndarray) -> float:
     return float(dist[finite].mean())
 
 
+_FROM_SCENE = ("seed", "width", "height", "fps", "num_frames", "fov_x_deg", "K", "T_cam_world")
+"""The fields of :class:`GroundTruth` copied as they are from the rendered scene."""
+
+
 def write_clip(
     plan: ClipPlan,
     out_dir: str | Path,
@@ -204,14 +208,7 @@ def _ground_truth(
         clip_id=plan.clip_id,
         family=scene.family,
         family_title=FAMILIES[scene.family].title,
-        seed=scene.seed,
-        width=scene.width,
-        height=scene.height,
-        fps=scene.fps,
-        num_frames=scene.num_frames,
-        fov_x_deg=scene.fov_x_deg,
-        K=scene.K,
-        T_cam_world=scene.T_cam_world,
+        **{name: getattr(scene, name) for name in _FROM_SCENE},
         T_cam0_camT=T_0T,
         mean_scene_distance=dist,
         t_inf=t_inf,
