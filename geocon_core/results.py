@@ -26,7 +26,7 @@ from .models import family_spec
 from .record import read_record_json
 from .regate import Residuals, load_residuals, regate_family
 from .result_clips import ResultClip, clip_from_record_json, read_bench_clips
-from .verdict import ClipVerdict, Thresholds, clip_verdict, is_flagged
+from .verdict import ClipVerdict, Scores, Thresholds, family_verdict, is_flagged
 
 __all__ = ["ResultClip", "TriageRow", "ResultsIndex", "ResultsError", "VERDICTS", "severity_key"]
 
@@ -214,17 +214,8 @@ class ResultsIndex:
         clip = self.by_id[clip_id]
         if clip.status != "ok":
             return None
-        ir_h, ge_h = self._family(clip, "H", thresholds.tau("H"))
-        ir_f, ge_f = self._family(clip, "F", thresholds.tau("F"))
-        return clip_verdict(
-            t_inf=clip.t_inf,
-            pose_present=clip.pose_present,
-            ir_h=ir_h,
-            ge_h=ge_h,
-            ir_f=ir_f,
-            ge_f=ge_f,
-            thresholds=thresholds,
-        )
+        h, f = (Scores(*self._family(clip, fam, thresholds.tau(fam))) for fam in ("H", "F"))
+        return family_verdict(h, f, t_inf=clip.t_inf, pose_present=clip.pose_present, thresholds=thresholds)
 
     def triage(
         self,
