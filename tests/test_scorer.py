@@ -24,7 +24,7 @@ FAST = ScoreConfig(scales=(0.5, 1.0))
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("score")
-    for plan in (ClipPlan("C1"), ClipPlan("C2"), ClipPlan("C3"), ClipPlan("C2", "breathing", 3.0)):
+    for plan in (ClipPlan("C1"), ClipPlan("C2"), ClipPlan("C3")):
         write_clip(plan, out, seed=11, width=640, height=360, num_frames=20)
     return out
 
@@ -61,6 +61,7 @@ def test_translation_gates_f(scored, clips):
 def test_breathing_raises_ge_and_strict_gaps_expose_it(clips):
     """A 3 px rubber-sheet breathing (24-frame period): GE at least doubles under the paper
     preset while IR at gap 1 barely moves; the strict preset's long gaps drop IR below 0.9."""
+    write_clip(ClipPlan("C2", "breathing", 3.0), clips, seed=11, width=640, height=360, num_frames=20)
     clean = score_clip(clips / "c2_rotation.mp4", preset("paper"))
     paper = score_clip(clips / "c2_rotation__breathing-s3.mp4", preset("paper"))
     strict = score_clip(clips / "c2_rotation__breathing-s3.mp4", preset("strict"))
