@@ -247,12 +247,24 @@ def test_binds_to_localhost_only_and_frees_its_port(results):
         s.bind(("127.0.0.1", port))
 
 
-@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
-def test_cli_serves_until_ctrl_c_then_frees_its_port(results, sig):
+def _ignore_sigint() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@pytest.mark.parametrize("sig, inherited_ignore", [("SIGINT", False), ("SIGINT", True), ("SIGTERM", False)])
+def test_cli_serves_until_ctrl_c_then_frees_its_port(results, sig, inherited_ignore):
+    """``inherited_ignore``: started as a background job of a non-interactive shell is, with
+    SIGINT ignored; Ctrl-C must still stop it."""
     import signal
 
     proc = subprocess.Popen(
-        [*GEOCON, "serve", str(results), "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [*GEOCON, "serve", str(results), "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_ignore_sigint if inherited_ignore else None,
     )
     try:
         line = ""

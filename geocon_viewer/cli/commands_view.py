@@ -184,6 +184,14 @@ def serve(
             if clip not in audit.index.by_id:
                 raise fail(f"no clip {clip!r} in {results}")
             audit.clip.value = clip  # type: ignore[misc]  # viser setter typing gap
+
+        def on_term(*_: object) -> None:
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, on_term)  # `kill` stops as cleanly as Ctrl-C
+        # Ctrl-C stops the server even when it was started with SIGINT ignored (a background job
+        # of a non-interactive shell inherits that, and Python then keeps it ignored)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         n = len(audit.index.clips)
         reach = "this machine only" if audit.host in ("127.0.0.1", "localhost", "::1") else "reachable from the network"
         ready = time.perf_counter() - start
@@ -204,10 +212,6 @@ def serve(
             out.print(f"screenshot: {screenshot}")
             return
 
-        def on_term(*_: object) -> None:
-            raise KeyboardInterrupt
-
-        signal.signal(signal.SIGTERM, on_term)  # `kill` stops as cleanly as Ctrl-C
         while True:
             time.sleep(0.5)
     except KeyboardInterrupt:
