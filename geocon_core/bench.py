@@ -35,6 +35,7 @@ from .layout import (
     write_manifest,
     write_status,
 )
+from .record import ClipRecord
 from .tables import write_tables
 from .verdict import is_flagged
 
@@ -68,7 +69,7 @@ class BenchSummary:
     tables: tuple[Path, ...] = field(default_factory=tuple)
 
 
-def _flagged(record: Any, expected_model: str | None) -> bool:
+def _flagged(record: ClipRecord, expected_model: str | None) -> bool:
     """Whether a scored clip gets an audit recording (:func:`geocon_core.verdict.is_flagged`)."""
     return is_flagged(
         consistent=record.background.consistent,

@@ -111,3 +111,22 @@ def scored_clip():
         return cache[key]
 
     return get
+
+
+def clip_info(**fields: object):
+    """A :class:`~geocon_core.reader.ClipInfo` of a small clip without bars; ``fields`` override."""
+    from geocon_core.reader import ClipInfo
+
+    base: dict[str, object] = dict(
+        path="x.mp4",
+        kind="video",
+        source_size=(320, 180),
+        fps=24.0,
+        num_frames=4,
+        working_size=(320, 180),
+        scale=1.0,
+        offset=(0, 0),
+        bars=(0, 0, 0, 0),
+        content_box=(0, 0, 320, 180),
+    )
+    return ClipInfo(**{**base, **fields})  # type: ignore[arg-type]

@@ -30,8 +30,10 @@ from geocon_core.config import (
 from geocon_core.flow import DisFlow, make_flow_backend
 from geocon_core.masks import MotionSegmenter, make_mask_source
 from geocon_core.pose import ClassicalPose, make_pose_backend
-from geocon_core.reader import ClipInfo, _hard_cuts
+from geocon_core.reader import _hard_cuts
 from geocon_viewer.cli import app
+
+from .conftest import clip_info
 
 # other valid values of the string fields (free names: any other name is valid)
 _STRINGS = {
@@ -182,21 +184,6 @@ def test_invalid_sub_config_values_are_refused() -> None:
 # --- each stage takes its own sub-configuration ------------------------------------------------
 
 
-def _info() -> ClipInfo:
-    return ClipInfo(
-        path="x.mp4",
-        kind="video",
-        source_size=(320, 180),
-        fps=24.0,
-        num_frames=4,
-        working_size=(320, 180),
-        scale=1.0,
-        offset=(0, 0),
-        bars=(0, 0, 0, 0),
-        content_box=(0, 0, 320, 180),
-    )
-
-
 def test_factories_pass_the_sub_config() -> None:
     flow = make_flow_backend("dis", FlowConfig(preset="fast", margin=4))
     assert isinstance(flow, DisFlow) and flow.config == FlowConfig(preset="fast", margin=4)
@@ -204,11 +191,11 @@ def test_factories_pass_the_sub_config() -> None:
     pose = make_pose_backend("classical", PoseConfig(trim=0.1))
     assert isinstance(pose, ClassicalPose) and pose.config.trim == 0.1
     assert make_pose_backend("classical").config == PoseConfig()
-    src = make_mask_source("motion", _info(), MotionConfig(min_track=3), flow=flow, seed=2)
+    src = make_mask_source("motion", clip_info(), MotionConfig(min_track=3), flow=flow, seed=2)
     assert isinstance(src, MotionSegmenter) and src.config.min_track == 3 and src.flow is flow
-    assert make_mask_source("motion", _info()).config == MotionConfig()  # type: ignore[attr-defined]
+    assert make_mask_source("motion", clip_info()).config == MotionConfig()  # type: ignore[attr-defined]
     # single-field keywords still work and override the config
-    assert MotionSegmenter(_info(), MotionConfig(min_track=3), min_track=4).config.min_track == 4
+    assert MotionSegmenter(clip_info(), MotionConfig(min_track=3), min_track=4).config.min_track == 4
 
 
 def test_category_rule_takes_its_config() -> None:

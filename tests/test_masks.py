@@ -27,7 +27,7 @@ from geocon_core.masks import (
 from geocon_core.reader import ClipInfo, iter_frames, probe_clip
 from geocon_core.synth import ClipPlan, write_clip
 
-from .conftest import SHARED_DATA
+from .conftest import SHARED_DATA, clip_info
 
 # --- helpers ----------------------------------------------------------------------------
 
@@ -265,17 +265,15 @@ def test_masked_share_and_canvas_mapping() -> None:
     lab[1, 1:3] = 2
     assert masked_share(lab, content) == 0.25
     assert masked_share(lab, np.zeros((4, 6), bool)) == 0.0
-    info = ClipInfo(
-        path="x",
+    info = clip_info(
         kind="images",
         source_size=(4, 2),
-        fps=24.0,
         num_frames=2,
         working_size=(8, 8),
         scale=2.0,
         offset=(0, 2),
-        bars=(0, 0, 0, 0),
         content_box=(0, 2, 8, 6),
+        path="x",
     )
     canvas = labels_to_canvas(np.array([[1, 0, 0, 2], [0, 0, 3, 0]], np.uint8), info)
     expect = np.zeros((8, 8), np.uint8)
