@@ -81,15 +81,30 @@ def _gate_record(
     )
 
 
+def coverage_note(summary: FamilySummary, min_coverage: float) -> str | None:
+    """Why a family's background cannot be judged, or which gaps the coverage rule left out of
+    its headline (None when every gap was judged)."""
+    if summary.valid_pairs == 0:
+        return "no valid pair: the background could not be judged"
+    out = [g for g in summary.per_gap if not g.judged]
+    if not out:
+        return None
+    parts = ", ".join(f"gap {g.gap}: {g.valid_pairs} of {g.judgeable_pairs}" for g in out)
+    head = "the background could not be judged" if summary.ir is None else "left out of the headline"
+    return f"too few valid pair-scales ({parts}; the coverage rule needs {min_coverage:.0%}): {head}"
+
+
 def _background(
     cfg: ScoreConfig, v: ClipVerdict, fam: dict[str, FamilySummary], pose: PoseEstimate
 ) -> BackgroundSummary:
-    if not pose.pose_present:
+    if fam[v.model].ir is None:
+        note = coverage_note(fam[v.model], cfg.min_coverage) or "the background could not be judged"
+    elif not pose.pose_present:
         note = f"no pose ({pose.reason}): gated F by the fail->F policy"
     elif v.label == "U":
         note = f"gray zone: both families fitted, kept {v.model} (IR H {fam['H'].ir}, IR F {fam['F'].ir})"
     else:
-        note = f"t_inf {pose.t_inf:.4f} -> {v.label}"
+        note = f"t_inf {pose.t_inf:.4f} -> {v.label}" + (f" ({pose.note})" if pose.note else "")
     chosen = fam[v.model]
     other = next(f for name, f in fam.items() if name != v.model)
     return BackgroundSummary(
@@ -153,8 +168,11 @@ def assemble_record(
     warnings: list[str] = []
     if not pose.pose_present:
         warnings.append(f"the first-last pose could not be recovered ({pose.reason}); the clip is gated F")
-    if fam[verdict.model].valid_pairs == 0:
-        warnings.append("no valid pair: the background could not be judged")
+    elif pose.method == "chain":
+        warnings.append(f"the gate's pose is a chain of short hops: {pose.note}")
+    coverage = coverage_note(fam[verdict.model], cfg.min_coverage)
+    if coverage:
+        warnings.append(coverage)
     if info.duplicates:
         warnings.append(f"{len(info.duplicates)} duplicated frame(s): pairs across them are not scored")
     if info.cuts:
@@ -222,8 +240,13 @@ def add_objects(
     (:func:`~geocon_core.rigidity.object_summaries`), the masked share per frame, the mask
     source's warnings and the category (:func:`~geocon_core.category.categorize_record`)."""
     entries, cells = object_entries(scores)
-    summaries = object_summaries(entries, scales, object_share)
+    min_pairs = record.config.min_object_pairs
+    summaries = object_summaries(entries, scales, object_share, min_pairs=min_pairs)
     warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
+    thin = [o.object_id for o in summaries if o.adadfrc is None]
+    if thin:
+        ids = ", ".join(map(str, thin[:12])) + (" ..." if len(thin) > 12 else "")
+        warnings.append(f"{len(thin)} object(s) with fewer than {min_pairs} valid pairs are listed, not scored: {ids}")
     source = (
         "none" if mask_source is None else (f"external:{masks_path}" if masks_path is not None else mask_source.name)
     )

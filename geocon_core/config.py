@@ -26,7 +26,7 @@ SUB_CONFIGS: dict[str, type] = {
 }
 """The nested sub-configurations of :class:`ScoreConfig` by field name."""
 
-__all__ = ["ScoreConfig", "PRESETS", "preset", "config_hash", "config_items"]
+__all__ = ["ScoreConfig", "PRESETS", "DEFAULT_PRESET", "preset", "config_hash", "config_items"]
 __all__ += [sub.__name__ for sub in SUB_CONFIGS.values()]
 
 
@@ -39,7 +39,9 @@ class ScoreConfig:
     """Name of the preset this configuration started from (informative)."""
     # reading
     working_size: tuple[int, int] = (1024, 720)
-    """Frames are resized to fit inside (width, height), px, aspect kept, and letterboxed."""
+    """Largest working canvas (width, height), px: a larger clip is downscaled to fit inside it,
+    aspect kept; a smaller one is processed at its own size (never upscaled, see
+    :mod:`geocon_core.reader`)."""
     bar_luma: float = 16.0
     """A border row/column whose mean luma (grey levels) never exceeds this in any frame is a burned-in bar."""
     duplicate_mad: float = 0.05
@@ -49,6 +51,10 @@ class ScoreConfig:
     """Feature matcher by name (:func:`geocon_core.features.make_matcher`)."""
     scales: tuple[float, ...] = (0.25, 0.5, 1.0)
     """Scales (shares of the working resolution, in (0, 1]) every pair is scored at."""
+    min_scale_side: int = 128
+    """A scale below the largest is scored only when the shorter side of the clip's content is at
+    least this many pixels there; smaller images hold too few features to fit a model, and their
+    pairs are skipped (``scale_too_small``), which the coverage rule does not count against the clip."""
     gaps: tuple[int, ...] = (1,)
     """Frame gaps of the scored pairs (t, t + gap)."""
     aggregation: str = "median"
@@ -82,6 +88,13 @@ class ScoreConfig:
     """Report gate: a clip passes with an inlier ratio of at least this (0..1)..."""
     ge_gate: float = 3.5
     """...and a geometric error (px) of at most this."""
+    min_coverage: float = 0.5
+    """Coverage rule: a frame gap is judged only when at least this share (0..1) of its judgeable
+    (pair, scale) rows (all but duplicate-frame and hard-cut pairs) has a valid background fit; a
+    clip with no judged gap cannot be judged. Keeps a verdict from resting on a few lucky fits."""
+    min_object_pairs: int = 3
+    """Coverage rule for objects: an object gets AdaDFRC headline values only when at least this
+    many of its pairs are valid at the largest scale; otherwise it is listed, not scored."""
     ransac_iters: int = 2000
     """Iteration budget of the background RANSAC fits."""
     ransac_confidence: float = 0.9999
@@ -102,6 +115,12 @@ class ScoreConfig:
     """Frames between the two ends of a windowed gate estimate."""
     gate_stride: int = 8
     """Frames between the starts of consecutive gate windows."""
+    chain_hop: int = 0
+    """When the first-last pose fails, the gate composes the poses of consecutive hops of this
+    many frames (:mod:`geocon_core.pose.chain`); 0 (the paper) leaves such a clip to fail->F."""
+    chain_min_share: float = 0.5
+    """Least share (0..1) of the clip's frame steps the hops with a pose must span for a chain
+    to stand in for the first-last pose."""
     seed: int = 0
     """Seed of every random choice (RANSAC, sampling)."""
     # settings of the stages
@@ -129,10 +148,16 @@ class ScoreConfig:
             raise ValueError(f"masks must be 'motion', 'none' or 'external', got {self.masks!r}")
         if self.grid < 1 or self.min_cells < 1:
             raise ValueError("grid and min_cells must be positive")
+        if not 0.0 <= self.min_coverage <= 1.0:
+            raise ValueError(f"min_coverage must be a share in [0, 1], got {self.min_coverage}")
+        if self.min_object_pairs < 1:
+            raise ValueError(f"min_object_pairs must be at least 1, got {self.min_object_pairs}")
         if self.min_inliers < 1:
             raise ValueError(f"min_inliers must be at least 1, got {self.min_inliers}")
         if self.aggregation not in ("median", "worst"):
             raise ValueError(f"aggregation must be 'median' or 'worst', got {self.aggregation!r}")
+        if self.chain_hop < 0 or not 0.0 < self.chain_min_share <= 1.0:
+            raise ValueError("chain_hop must be >= 0 and chain_min_share in (0, 1]")
         if not self.tau_t_low <= self.tau_t_high:
             raise ValueError("tau_t_low must not exceed tau_t_high")
         if min(self.working_size) < 32:
@@ -167,7 +192,17 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "the clip takes its worst (gap, scale) median",
         ScoreConfig(preset="strict", gaps=(1, 4, 8), aggregation="worst"),
     ),
+    "audit": (
+        "strict plus a gate that has a pose: when the first and last frames share too few matches, "
+        "the relative poses of 4-frame hops are composed (fail->F only without any evidence); "
+        "the default of `geocon score` and `geocon bench`",
+        ScoreConfig(preset="audit", gaps=(1, 4, 8), aggregation="worst", chain_hop=4),
+    ),
 }
+
+DEFAULT_PRESET = "audit"
+"""The preset ``geocon score`` and ``geocon bench`` use unless told otherwise; ``paper`` is the
+exact reproduction of the paper's protocol."""
 
 
 def preset(name: str) -> ScoreConfig:

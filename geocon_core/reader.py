@@ -8,7 +8,15 @@
 :class:`ClipInfo`: the frame count (counted, never taken from container metadata), the
 working-resolution layout (scale, centred offset, content box), black bars burned into the
 source, duplicated frames and hard cuts. :func:`iter_frames` decodes it a second time and yields
-every frame letterboxed into the working canvas (``config.working_size``), padding black.
+every frame at working resolution.
+
+Resolution policy: a clip is never upscaled. A source larger than ``config.working_size`` is
+downscaled to fit inside it (aspect kept, area averaging); a smaller one is processed at its own
+size. The working canvas is the scaled source itself, so pixel thresholds (``tau_h``, the
+Sampson scale of ``tau_f``, ``ge_gate``) are pixels of the image the features were found in.
+Upscaling would only interpolate: it adds no detail, but it multiplies the codec's and the
+detector's localisation noise (which live on the source's pixel grid) by the scale, and a fixed
+threshold then judges that noise as inconsistency.
 
 Inputs: mp4 / avi / mov / webm / gif (OpenCV's FFmpeg backend) and folders of PNG or JPEG
 frames in natural order (``frame_2`` before ``frame_10``). Unusable input raises
@@ -49,6 +57,7 @@ __all__ = [
     "iter_frames",
     "probe_clip",
     "canvas_layout",
+    "layout_of",
 ]
 
 
@@ -71,11 +80,14 @@ class ClipInfo:
     num_frames: int
     """Frames actually decoded (>= 2)."""
     working_size: tuple[int, int]
-    """(W, H) of the canvas every frame is letterboxed into (``config.working_size``)."""
+    """(W, H) of the working canvas: the source scaled by :attr:`scale` (records written before
+    the resolution policy hold the letterboxed ``config.working_size`` here)."""
     scale: float
-    """Source px -> working px: ``min(W / w, H / h)``."""
+    """Source px -> working px: ``min(1, Wmax / w, Hmax / h)`` for ``config.working_size`` =
+    (Wmax, Hmax); never above 1."""
     offset: tuple[int, int]
-    """(ox, oy): top-left working pixel of the scaled source inside the canvas (centred)."""
+    """(ox, oy): top-left working pixel of the scaled source inside the canvas; (0, 0) unless the
+    record predates the resolution policy (then the source was centred in a letterbox)."""
     bars: tuple[int, int, int, int]
     """Burned-in black bars, source px: (top, bottom, left, right) rows/columns."""
     content_box: tuple[int, int, int, int]
@@ -155,7 +167,7 @@ class Frame:
     index: int
     """Frame index t, 0-based."""
     rgb: np.ndarray
-    """(H, W, 3) uint8 RGB, the source letterboxed into the canvas (padding black)."""
+    """(H, W, 3) uint8 RGB, the source at working resolution."""
     gray: np.ndarray
     """(H, W) uint8 luma of :attr:`rgb`."""
     content: np.ndarray
@@ -219,6 +231,7 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
     w, h = size
     bars = _burned_in_bars(row_max, col_max, config.bar_luma, config.bars)
     layout = canvas_layout(size, config.working_size)
+    sw, sh = layout.scaled_size
     duplicates = tuple(t + 1 for t, d in enumerate(dup_flags) if d)
     cuts = _hard_cuts(np.asarray(hist_dist), np.asarray(thumb_mad), np.asarray(dup_flags), config.cuts)
     return ClipInfo(
@@ -227,7 +240,7 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         source_size=(w, h),
         fps=fps,
         num_frames=n,
-        working_size=(int(config.working_size[0]), int(config.working_size[1])),
+        working_size=(sw, sh),
         scale=layout.scale,
         offset=layout.offset,
         bars=bars,
@@ -276,7 +289,7 @@ def iter_frames(info: ClipInfo) -> Iterator[Frame]:
         if not Path(name).is_file():
             raise ClipError(f"{name}: no such file")
         _, frames = open_video(name)
-    layout = canvas_layout(info.source_size, info.working_size)
+    layout = layout_of(info)
     W, H = info.working_size
     content = info.content_mask
     content.flags.writeable = False
@@ -296,11 +309,24 @@ def iter_frames(info: ClipInfo) -> Iterator[Frame]:
 
 
 def canvas_layout(source_size: tuple[int, int], working_size: tuple[int, int]) -> _Layout:
-    """Fit (w, h) inside (W, H), aspect kept, centred: scale, scaled size and offset."""
+    """The working layout of a (w, h) source under the largest canvas (Wmax, Hmax): scaled by
+    ``min(1, Wmax / w, Hmax / h)`` (never up), aspect kept, at offset (0, 0)."""
     (w, h), (W, H) = source_size, working_size
-    scale = min(W / w, H / h)
-    sw, sh = min(W, max(1, round(w * scale))), min(H, max(1, round(h * scale)))
-    return _Layout(scale=float(scale), scaled_size=(sw, sh), offset=((W - sw) // 2, (H - sh) // 2))
+    scale = min(1.0, W / w, H / h)
+    return _Layout(scale=float(scale), scaled_size=_scaled(source_size, scale, (W, H)), offset=(0, 0))
+
+
+def layout_of(info: ClipInfo) -> _Layout:
+    """The layout a probed clip was read with (also for records made before the resolution
+    policy, whose sources were letterboxed into a larger canvas)."""
+    return _Layout(
+        scale=info.scale, scaled_size=_scaled(info.source_size, info.scale, info.working_size), offset=info.offset
+    )
+
+
+def _scaled(source_size: tuple[int, int], scale: float, bound: tuple[int, int]) -> tuple[int, int]:
+    (w, h), (W, H) = source_size, bound
+    return min(W, max(1, round(w * scale))), min(H, max(1, round(h * scale)))
 
 
 def _letterbox(bgr: np.ndarray, layout: _Layout, W: int, H: int) -> np.ndarray:

@@ -133,7 +133,14 @@ class ClipRecord:
                 "other_family": {"model": bg.other.family, "ir": bg.other.ir, "ge": bg.other.ge},
             },
             "per_gap": {
-                str(g.gap): {"ir": g.ir, "ge": g.ge, "valid_pairs": g.valid_pairs, "total_pairs": g.total_pairs}
+                str(g.gap): {
+                    "ir": g.ir,
+                    "ge": g.ge,
+                    "valid_pairs": g.valid_pairs,
+                    "total_pairs": g.total_pairs,
+                    "coverage": g.coverage,
+                    "judged": g.judged,
+                }
                 for g in bg.chosen.per_gap
             },
             "coverage": {

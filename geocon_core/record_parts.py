@@ -256,13 +256,25 @@ class Category:
 @dataclass(frozen=True)
 class GapSummary:
     """One family at one frame gap: the aggregated IR (share, 0..1) and GE (px) over its valid
-    (pair, scale) entries, with the valid and total entry counts."""
+    (pair, scale) entries, with the valid and total entry counts, and whether the gap met the
+    coverage rule (``ScoreConfig.min_coverage``): only judged gaps enter the clip's headline."""
 
     gap: int
     ir: float | None
     ge: float | None
     valid_pairs: int
     total_pairs: int
+    judgeable_pairs: int | None = None
+    """Entries that could be judged at all (not duplicate-frame or hard-cut pairs); None in
+    records made before the coverage rule."""
+    judged: bool = True
+    """Valid entries make up at least ``min_coverage`` of the judgeable ones."""
+
+    @property
+    def coverage(self) -> float | None:
+        """Valid share of the judgeable entries (None when there are none or it is unknown)."""
+        n = self.judgeable_pairs
+        return None if not n else self.valid_pairs / n
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,7 @@ class PairTable:
     gap: np.ndarray
     scale: np.ndarray
     index: np.ndarray
+    judgeable: np.ndarray
     usable: dict[str, np.ndarray]
     order: dict[str, np.ndarray]
 
@@ -73,6 +74,7 @@ class PairTable:
             gap=np.array([p.gap for p in pairs], dtype=np.int64),
             scale=np.array([p.scale for p in pairs], dtype=np.float64),
             index=np.array([p.index for p in pairs], dtype=np.int64),
+            judgeable=np.array([p.skip is None for p in pairs], dtype=bool),
             usable=usable,
             order={
                 name: segment_order(getattr(matches, spec.residual_px), matches.offsets)
@@ -112,7 +114,7 @@ def regate_pairs(
     least ``min_inliers`` (default: the record's) inliers."""
     _, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
     return [
-        (p, FitRow(p.gap, p.scale, bool(v), float(i) if v else None, float(g) if v else None))
+        (p, FitRow(p.gap, p.scale, bool(v), float(i) if v else None, float(g) if v else None, p.skip is None))
         for p, v, i, g in zip(record.pairs, valid, ir, ge, strict=True)
     ]
 
@@ -132,7 +134,16 @@ def regate_family(
     table, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
     cfg = record.config
     per_gap, ir_c, ge_c = aggregate_gap_arrays(
-        table.gap, table.scale, valid, ir, ge, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation
+        table.gap,
+        table.scale,
+        valid,
+        ir,
+        ge,
+        gaps=cfg.gaps,
+        scales=cfg.scales,
+        aggregation=cfg.aggregation,
+        judgeable=table.judgeable,
+        min_coverage=cfg.min_coverage,
     )
     return Regated(
         family=family,

@@ -367,12 +367,17 @@ def _scale_summary(mine: list[ObjectEntry], s: float) -> ObjectScaleSummary:
 
 
 def object_summaries(
-    entries: Sequence[ObjectEntry], scales: Sequence[float], object_share: dict[int, dict[int, float]]
+    entries: Sequence[ObjectEntry],
+    scales: Sequence[float],
+    object_share: dict[int, dict[int, float]],
+    *,
+    min_pairs: int = 1,
 ) -> list[ObjectSummary]:
     """Per object (in id order): frames seen, mean masked share (``object_share[t][id]``, a share
     of the content area), and per scale ``S`` (mean ``D_t``), mean W2 and AdaP90
     (:func:`object_scores`) over its valid pairs; the headline values are those of the largest
-    scale."""
+    scale, None when it has fewer than ``min_pairs`` valid pairs there (the coverage rule,
+    ``ScoreConfig.min_object_pairs``)."""
     summaries = []
     s_max = max(scales)
     for oid in sorted({e.object_id for e in entries}):
@@ -380,6 +385,7 @@ def object_summaries(
         frames = sorted({e.t0 for e in mine})
         per_scale = [_scale_summary(mine, s) for s in scales]
         head = next(p for p in per_scale if p.scale == s_max)
+        judged = head.valid_frames >= min_pairs
         shares = [object_share.get(t, {}).get(oid, 0.0) for t in frames]
         summaries.append(
             ObjectSummary(
@@ -388,9 +394,9 @@ def object_summaries(
                 first_frame=frames[0],
                 last_frame=frames[-1],
                 masked_share=float(np.mean(shares)) if shares else 0.0,
-                adadfrc=head.adadfrc,
-                adadfrc_w2=head.adadfrc_w2,
-                adap90=head.adap90,
+                adadfrc=head.adadfrc if judged else None,
+                adadfrc_w2=head.adadfrc_w2 if judged else None,
+                adap90=head.adap90 if judged else None,
                 per_scale=tuple(per_scale),
             )
         )

@@ -35,6 +35,7 @@ from .geometry import scale_intrinsics, two_view_cloud
 from .masks import MaskSource, make_mask_source
 from .models import FAMILIES, PairFits
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
+from .pose.chain import chain_hops, compose_chain
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .record import ClipRecord, PointCloud
 from .rigidity import ObjectPairScore, adadfrc_pair
@@ -82,6 +83,9 @@ class _Pipeline:
         self.info, self.config, self.matcher, self.flow, self.timer = info, config, matcher, flow, timer
         self.backend, self.mask_source, self.keep_flows = backend, mask_source, keep_flows
         self.s_max = max(config.scales)
+        x0, y0, x1, y1 = info.content_box
+        side = min(x1 - x0, y1 - y0)
+        self.active = tuple(s for s in config.scales if s == self.s_max or s * side >= config.min_scale_side)
         self.K_pose = scale_intrinsics(K, self.s_max)
         self.lookahead = 0 if mask_source is None else mask_source.lookahead
         self.content = info.content_mask
@@ -125,7 +129,7 @@ class _Pipeline:
         start = time.perf_counter()
         mask = frame.content if labels is None else frame.content & (labels == 0)
         out = {}
-        for s in self.config.scales:
+        for s in self.active:
             g, m = scaled_inputs(frame.gray, mask, s)
             out[s] = self.matcher.extract(g, m, frame.index, s)
         self.timer.add("features", start)
@@ -137,6 +141,9 @@ class _Pipeline:
         cfg = self.config
         results = []
         for si, s in enumerate(cfg.scales):
+            if s not in self.active:
+                results.extend(self.skip_pair(t0, t1, gap, "scale_too_small", scales=(s,)))
+                continue
             start = time.perf_counter()
             x1, x2 = self.matcher.match(a[s], b[s])
             start = self.timer.add("matching", start)
@@ -153,9 +160,11 @@ class _Pipeline:
             )
         return results
 
-    def skip_pair(self, t0: int, t1: int, gap: int, reason: str) -> list[PairFits]:
-        empty = np.zeros((0, 2))
-        return [PairFits(t0, t1, gap, s, reason, empty, empty, None, None) for s in self.config.scales]
+    def skip_pair(
+        self, t0: int, t1: int, gap: int, reason: str, scales: tuple[float, ...] | None = None
+    ) -> list[PairFits]:
+        empty = np.zeros((0, 2), np.float32)
+        return [PairFits(t0, t1, gap, s, reason, empty, empty, None, None) for s in scales or self.config.scales]
 
     def score_objects(
         self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None
@@ -301,7 +310,9 @@ def score_clip(
     stages = _Pipeline(info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None)
     n = info.num_frames
     windows = gate_windows(n, cfg.gate_window, cfg.gate_stride)
+    hops = [] if pose_log is not None or cfg.chain_hop == 0 else chain_hops(n, cfg.chain_hop)
     pose_windows = [] if pose_log is not None else [w for w in windows if w != (0, n - 1)]
+    pose_windows += [h for h in hops if h not in pose_windows]
     emit = None if on_frame is None else partial(stages.emit, on_frame)
     workers = workers or min(2, os.cpu_count() or 1)
     with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -310,9 +321,13 @@ def score_clip(
         )
         out = schedule.run(_timed(iter_frames(info), timer))
     pose, cloud = out.first_last
+    by_window = dict(out.windows)
+    if not pose.pose_present and hops:
+        pose = compose_chain([(h, by_window[h]) for h in hops], n, pose, min_share=cfg.chain_min_share) or pose
+    timeline = [(w, by_window[w]) for w in windows if w in by_window]
     scored = sorted(out.pairs, key=lambda r: (r.gap, r.t0, r.scale))
     objects = sorted(out.objects, key=lambda r: r.key)
-    record = assemble_record(str(path), info, cfg, K, backend.name, pose, out.windows, windows, scored)
+    record = assemble_record(str(path), info, cfg, K, backend.name, pose, timeline, windows, scored)
     return add_objects(
         replace(record, cloud=cloud),
         objects,

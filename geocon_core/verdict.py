@@ -120,6 +120,9 @@ class FitRow:
     valid: bool
     ir: float | None
     ge: float | None
+    judgeable: bool = True
+    """False for rows skipped by design (duplicate frame, hard cut): they do not count against
+    the coverage rule."""
 
 
 def _median(values: np.ndarray) -> float | None:
@@ -136,12 +139,17 @@ def aggregate_gap_arrays(
     gaps: Sequence[int],
     scales: Sequence[float],
     aggregation: str,
+    judgeable: np.ndarray | None = None,
+    min_coverage: float = 0.0,
 ) -> tuple[tuple[GapSummary, ...], float | None, float | None]:
-    """:func:`aggregate_gaps` on per-row arrays (float64 IR/GE, NaN where not valid)."""
+    """:func:`aggregate_gaps` on per-row arrays (float64 IR/GE, NaN where not valid; ``judgeable``
+    False where a row was skipped by design, default all True)."""
+    judgeable = np.ones(len(valid), dtype=bool) if judgeable is None else judgeable
     per_gap = []
     for g in gaps:
         mine = gap == g
         ok = mine & valid
+        n_judgeable = int((mine & judgeable).sum())
         if aggregation == "median":
             ir_g, ge_g = _median(ir[ok]), _median(ge[ok])
         elif aggregation == "worst":
@@ -151,20 +159,38 @@ def aggregate_gap_arrays(
             ir_g, ge_g = (min(irs) if irs else None), (max(ges) if ges else None)
         else:
             raise ValueError(f"aggregation must be 'median' or 'worst', got {aggregation!r}")
-        per_gap.append(GapSummary(gap=g, ir=ir_g, ge=ge_g, valid_pairs=int(ok.sum()), total_pairs=int(mine.sum())))
-    irs = [x.ir for x in per_gap if x.ir is not None]
-    ges = [x.ge for x in per_gap if x.ge is not None]
+        judged = ir_g is not None and int(ok.sum()) >= min_coverage * n_judgeable
+        per_gap.append(
+            GapSummary(
+                gap=g,
+                ir=ir_g,
+                ge=ge_g,
+                valid_pairs=int(ok.sum()),
+                total_pairs=int(mine.sum()),
+                judgeable_pairs=n_judgeable,
+                judged=judged,
+            )
+        )
+    irs = [x.ir for x in per_gap if x.ir is not None and x.judged]
+    ges = [x.ge for x in per_gap if x.ge is not None and x.judged]
     return tuple(per_gap), (min(irs) if irs else None), (max(ges) if ges else None)
 
 
 def aggregate_gaps(
-    rows: Sequence[FitRow], *, gaps: Sequence[int], scales: Sequence[float], aggregation: str
+    rows: Sequence[FitRow],
+    *,
+    gaps: Sequence[int],
+    scales: Sequence[float],
+    aggregation: str,
+    min_coverage: float = 0.0,
 ) -> tuple[tuple[GapSummary, ...], float | None, float | None]:
     """Per-gap summaries and the clip's headline IR and GE (see ``ScoreConfig.aggregation``).
 
     ``median`` (the paper): per gap, the median IR and GE over its valid (pair, scale) rows;
     ``worst``: per gap and scale the median over pairs, and the gap takes its lowest IR and
-    highest GE. The headline is the lowest per-gap IR and the highest per-gap GE."""
+    highest GE. A gap is judged when its valid rows are at least ``min_coverage`` of its
+    judgeable rows (the coverage rule, ``ScoreConfig.min_coverage``). The headline is the lowest
+    judged per-gap IR and the highest judged per-gap GE; None when no gap is judged."""
 
     def column(name: str) -> np.ndarray:
         return np.array([np.nan if getattr(r, name) is None else getattr(r, name) for r in rows], dtype=np.float64)
@@ -172,8 +198,18 @@ def aggregate_gaps(
     gap = np.array([r.gap for r in rows], dtype=np.int64)
     scale = np.array([r.scale for r in rows], dtype=np.float64)
     valid = np.array([r.valid for r in rows], dtype=bool)
+    judgeable = np.array([r.judgeable for r in rows], dtype=bool)
     return aggregate_gap_arrays(
-        gap, scale, valid, column("ir"), column("ge"), gaps=gaps, scales=scales, aggregation=aggregation
+        gap,
+        scale,
+        valid,
+        column("ir"),
+        column("ge"),
+        gaps=gaps,
+        scales=scales,
+        aggregation=aggregation,
+        judgeable=judgeable,
+        min_coverage=min_coverage,
     )
 
 
@@ -185,11 +221,13 @@ def summarize_family(family: str, scored: Sequence[PairFits], cfg: ScoreConfig) 
     for r in scored:
         fit = None if r.skip else r.fit(family)
         rows.append(
-            FitRow(r.gap, r.scale, False, None, None)
+            FitRow(r.gap, r.scale, False, None, None, judgeable=r.skip is None)
             if fit is None
             else FitRow(r.gap, r.scale, fit.valid, fit.ir, fit.ge)
         )
-    per_gap, ir, ge = aggregate_gaps(rows, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation)
+    per_gap, ir, ge = aggregate_gaps(
+        rows, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation, min_coverage=cfg.min_coverage
+    )
     reasons: dict[str, int] = {}
     for r in scored:
         fit = r.fit(family)

@@ -90,7 +90,7 @@ def test_tables_hold_every_clip_and_count_the_failure(results):
     rec = json.loads((results / "clips" / "clean-c4_objects-s0" / "record.json").read_text())
     pairs = t["pairs"][t["pairs"]["clip_id"] == "clean-c4_objects-s0"]
     assert len(pairs) == len(rec["pairs"]) and pairs["h_inliers"].tolist() == [
-        p["h"]["n_inliers"] for p in rec["pairs"]
+        0 if p["h"] is None else p["h"]["n_inliers"] for p in rec["pairs"]  # 0: a skipped pair-scale
     ]
     objs = t["objects"][t["objects"]["clip_id"] == "clean-c4_objects-s0"]
     assert objs["adap90"].tolist() == [o["adap90"] for o in rec["objects"]]
@@ -143,7 +143,7 @@ def test_flagged_clips_get_a_recording_linked_from_the_table(results):
             expected_model=row.expected_model,
         )
         if importlib_has_rerun():
-            assert (row.rrd is not None) == flagged, row.clip_id
+            assert isinstance(row.rrd, str) == flagged, row.clip_id  # a missing path reads as NaN
             if flagged:
                 assert (results / row.rrd).stat().st_size > 0 and status["rrd"] == "audit.rrd"
 

@@ -86,7 +86,9 @@ def test_clips_without_objects_report_none(synth, scored_clip):
 def test_breathing_background_is_not_turned_into_an_object(synth):
     rec = score_clip(synth / "c4_objects__breathing-s3.mp4", preset("strict"))
     assert len(rec.objects) <= 2 and max(rec.masked_share) < 0.2
-    assert rec.background.ir < 0.9
+    # the 3 px breathing stays in the background, where it fails the report gate (read at the
+    # clip's own 320x180: never upscaled, so 3 px of breathing is 3 working px)
+    assert rec.background.consistent is False and rec.background.ir < 0.97
 
 
 def test_masks_raise_background_ir(synth, c4):

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import inspect
 import json
-import math
 from pathlib import Path
 
 import cv2
@@ -20,7 +19,7 @@ from geocon_core.video import Mp4Writer
 
 from .conftest import SHARED_DATA, read_video
 
-W, H = 320, 180  # source size of the synthetic clips; working size is the default 1024x720
+W, H = 320, 180  # source size of the synthetic clips; smaller than the 1024x720 canvas: read as is
 
 
 def shared(relative: str) -> Path:
@@ -81,14 +80,14 @@ def test_synthetic_clip_layout(clips):
     info = probe_clip(clips["C2"])
     assert info.path == str(clips["C2"]) and info.kind == "video"
     assert info.num_frames == 8 and info.source_size == (W, H) and info.fps == 24.0
-    assert info.working_size == (1024, 720)
-    assert info.scale == pytest.approx(3.2) and info.offset == (0, 72)
+    assert info.working_size == (W, H)  # never upscaled
+    assert info.scale == 1.0 and info.offset == (0, 0)
     assert info.bars == (0, 0, 0, 0)
-    assert info.content_box == (0, 72, 1024, 648)
+    assert info.content_box == (0, 0, W, H)
     assert info.duplicates == () and info.cuts == ()
 
 
-def test_iter_frames_letterboxes_the_decoded_frames(clips):
+def test_iter_frames_yields_the_decoded_frames_unscaled(clips):
     info = probe_clip(clips["C2"])
     it = iter_frames(info)
     assert inspect.isgenerator(it)
@@ -99,34 +98,34 @@ def test_iter_frames_letterboxes_the_decoded_frames(clips):
     assert [f.index for f in frames] == list(range(8)) == list(range(len(decoded)))
     for f, src in zip(frames, decoded, strict=True):
         assert isinstance(f, Frame)
-        assert f.rgb.shape == (720, 1024, 3) and f.rgb.dtype == np.uint8
-        assert f.gray.shape == (720, 1024) and f.gray.dtype == np.uint8
-        assert f.content.shape == (720, 1024) and f.content.dtype == bool
-        assert not f.rgb[:72].any() and not f.rgb[648:].any()  # padding is black
-        expected = cv2.resize(src, (1024, 576), interpolation=cv2.INTER_LINEAR)  # enlarging
-        np.testing.assert_array_equal(f.rgb[72:648], expected)
+        assert f.rgb.shape == (H, W, 3) and f.rgb.dtype == np.uint8
+        assert f.gray.shape == (H, W) and f.gray.dtype == np.uint8
+        assert f.content.shape == (H, W) and f.content.dtype == bool
+        np.testing.assert_array_equal(f.rgb, src)  # the decoded pixels, not interpolated
         np.testing.assert_array_equal(f.gray, cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY))
         assert f.content is frames[0].content
-    mask = frames[0].content
-    assert mask[72:648].all() and not mask[:72].any() and not mask[648:].any()
+    assert frames[0].content.all()
 
 
-def test_downscaling_uses_area_interpolation_and_centres_the_source(tmp_path):
-    # 1600x600 -> scale 0.64 (shrinking), 1024x384 centred vertically
+def test_downscaling_uses_area_interpolation_and_never_upscales(tmp_path):
+    # 1600x600 -> scale 0.64 (shrinking to fit 1024 wide): 1024x384, no padding
     wide = [textured(t, 600, 1600) for t in range(3)]
     info = probe_clip(write_folder(tmp_path / "wide", wide))
-    assert info.scale == pytest.approx(0.64) and info.offset == (0, 168)
-    assert info.content_box == (0, 168, 1024, 552)
+    assert info.scale == pytest.approx(0.64) and info.offset == (0, 0) and info.working_size == (1024, 384)
+    assert info.content_box == (0, 0, 1024, 384)
     for f, src in zip(iter_frames(info), wide, strict=True):
         expected = cv2.cvtColor(cv2.resize(src, (1024, 384), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
-        np.testing.assert_array_equal(f.rgb[168:552], expected)
-    # portrait 360x640 -> scale 1.125 (height-bound), centred horizontally: 405 px wide at x = 309
-    tall = [textured(10 + t, 640, 360) for t in range(2)]
+        np.testing.assert_array_equal(f.rgb, expected)
+    # portrait 1080x1920 -> height-bound scale 0.375: 405x720
+    tall = [textured(10 + t, 1920, 1080) for t in range(2)]
     info = probe_clip(write_folder(tmp_path / "tall", tall))
-    assert info.scale == pytest.approx(1.125) and info.offset == (309, 0)
-    assert info.content_box == (309, 0, 714, 720)
+    assert info.scale == pytest.approx(0.375) and info.working_size == (405, 720)
+    # a portrait clip inside the canvas is read at its own size
+    small = [textured(10 + t, 640, 360) for t in range(2)]
+    info = probe_clip(write_folder(tmp_path / "small", small))
+    assert info.scale == 1.0 and info.working_size == (360, 640) and info.content_box == (0, 0, 360, 640)
     f = next(iter_frames(info))
-    assert not f.rgb[:, :309].any() and not f.rgb[:, 714:].any() and f.rgb[:, 309:714].min() > 0
+    np.testing.assert_array_equal(f.rgb, cv2.cvtColor(small[0], cv2.COLOR_BGR2RGB))
 
 
 # --- burned-in bars ---------------------------------------------------------------------------
@@ -141,22 +140,21 @@ def test_letterbox_bars_found_and_excluded_from_content(clips):
     top, bottom, left, right = info.bars
     assert abs(top - bar) <= 2 and abs(bottom - bar) <= 2 and (left, right) == (0, 0)
     x0, y0, x1, y1 = info.content_box
-    assert (x0, x1) == (0, 1024)
-    # exactly the scaled source minus bars, shrunk by the 2 px ringing margin
-    assert y0 == 72 + math.ceil(top * 3.2) + 2 and y1 == 72 + math.floor((H - bottom) * 3.2) - 2
+    assert (x0, x1) == (0, W)
+    # exactly the source minus bars, shrunk by the 2 px ringing margin
+    assert y0 == top + 2 and y1 == H - bottom - 2
     # inside the true content, losing at most ~2 source rows per side
-    assert 72 + bar * 3.2 <= y0 <= 72 + (bar + 2) * 3.2 + 3
-    assert 72 + (H - bar - 2) * 3.2 - 3 <= y1 <= 72 + (H - bar) * 3.2
+    assert bar <= y0 <= bar + 4 and H - bar - 4 <= y1 <= H - bar
     for f in iter_frames(info):
         rows = f.gray[y0:y1].mean(axis=1)
         assert rows.min() > ScoreConfig().bar_luma  # no bar row inside the content box
-        assert f.gray[72 : 72 + int(bar * 3.2) - 2].max() <= 20  # the burned-in bar is black
+        assert f.gray[: bar - 2].max() <= 20  # the burned-in bar is black
 
 
 @pytest.mark.parametrize("key", ["C1", "C2", "C3", "C4", "C5"])
 def test_clean_clips_have_no_bars(clips, key):
     info = probe_clip(clips[key])
-    assert info.bars == (0, 0, 0, 0) and info.content_box == (0, 72, 1024, 648)
+    assert info.bars == (0, 0, 0, 0) and info.content_box == (0, 0, W, H)
 
 
 def test_pillarbox_bars_in_an_image_folder(tmp_path):
@@ -168,9 +166,9 @@ def test_pillarbox_bars_in_an_image_folder(tmp_path):
         frames.append(img)
     info = probe_clip(write_folder(tmp_path / "pillar", frames))
     assert info.bars == (0, 0, 30, 30)
-    # scale 5.12, source 1024x512 at y = 104; x0 = ceil(30 * 5.12) + 2, x1 = floor(170 * 5.12) - 2
-    assert info.scale == pytest.approx(5.12) and info.offset == (0, 104)
-    assert info.content_box == (156, 104, 868, 616)
+    # read at its own 200x100; x0 = 30 + 2, x1 = 170 - 2 (2 px ringing margin beside each bar)
+    assert info.scale == 1.0 and info.offset == (0, 0)
+    assert info.content_box == (32, 0, 168, 100)
 
 
 def test_dark_clip_has_no_bars(tmp_path):
@@ -180,7 +178,7 @@ def test_dark_clip_has_no_bars(tmp_path):
         img[40:60, 90:110] = 200 + t  # bright patch narrower and shorter than 30% of the frame
         frames.append(img)
     info = probe_clip(write_folder(tmp_path / "dark", frames))
-    assert info.bars == (0, 0, 0, 0) and info.content_box == (0, 104, 1024, 616)
+    assert info.bars == (0, 0, 0, 0) and info.content_box == (0, 0, 200, 100)
 
 
 # --- image folders ----------------------------------------------------------------------------
@@ -232,11 +230,11 @@ def test_animatediff_gif():
     info = probe_clip(path)
     assert info.kind == "gif" and info.num_frames == 16 and info.source_size == (256, 256)
     assert info.fps == pytest.approx(1 / 0.13)  # 13 cs per GIF frame
-    assert info.scale == pytest.approx(720 / 256) and info.offset == (152, 0)
-    assert info.content_box == (152, 0, 872, 720)
+    assert info.scale == 1.0 and info.offset == (0, 0) and info.working_size == (256, 256)
+    assert info.content_box == (0, 0, 256, 256)
     assert info.duplicates == () and info.cuts == () and info.bars == (0, 0, 0, 0)
     frames = list(iter_frames(info))
-    assert len(frames) == 16 and frames[0].rgb.shape == (720, 1024, 3)
+    assert len(frames) == 16 and frames[0].rgb.shape == (256, 256, 3)
 
 
 @pytest.mark.parametrize(
@@ -327,7 +325,7 @@ def test_real_footage_vtest():
     info = probe_clip(shared("real/opencv/vtest.avi"))
     assert info.kind == "video" and info.num_frames == 795 and info.source_size == (768, 576)
     assert info.cuts == () and info.duplicates == () and info.bars == (0, 0, 0, 0)
-    assert info.scale == pytest.approx(1.25) and info.offset == (32, 0)
+    assert info.scale == 1.0 and info.offset == (0, 0) and info.working_size == (768, 576)
 
 
 # --- records ----------------------------------------------------------------------------------

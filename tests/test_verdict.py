@@ -17,9 +17,13 @@ from geocon_core.config import ScoreConfig
 from geocon_core.models import FAMILIES, family_spec
 from geocon_core.results import ResultClip, ResultsIndex
 from geocon_core.verdict import (
+    FitRow,
+    Scores,
     Thresholds,
+    aggregate_gaps,
     binary_gate,
     clip_verdict,
+    family_verdict,
     flag_reasons,
     gate_decision,
     hysteresis_gate,
@@ -172,3 +176,44 @@ def test_family_table_names_the_valid_families():
     assert list(FAMILIES) == ["H", "F"]
     with pytest.raises(ValueError, match="family must be 'H' or 'F', got 'E'"):
         family_spec("E")
+
+
+# --- the coverage rule ---------------------------------------------------------------------------
+
+
+def _rows(gap: int, n_valid: int, n_invalid: int, n_skipped: int = 0) -> list[FitRow]:
+    ok = [FitRow(gap, 1.0, True, 0.99, 0.1) for _ in range(n_valid)]
+    bad = [FitRow(gap, 1.0, False, None, None) for _ in range(n_invalid)]
+    skipped = [FitRow(gap, 1.0, False, None, None, judgeable=False) for _ in range(n_skipped)]
+    return ok + bad + skipped
+
+
+def test_a_gap_under_the_coverage_share_is_not_judged():
+    # 2 valid of 33 judgeable pair-scales: no headline, however good those two fits are
+    per_gap, ir, ge = aggregate_gaps(_rows(1, 2, 31), gaps=(1,), scales=(1.0,), aggregation="median", min_coverage=0.5)
+    assert (ir, ge) == (None, None)
+    assert per_gap[0].ir == pytest.approx(0.99) and not per_gap[0].judged
+    assert per_gap[0].judgeable_pairs == 33 and per_gap[0].coverage == pytest.approx(2 / 33)
+    v = family_verdict(
+        Scores(ir, ge), Scores(None, None), t_inf=0.0, pose_present=True, thresholds=Thresholds.of(ScoreConfig())
+    )
+    assert v.consistent is None
+
+
+def test_pairs_skipped_by_design_do_not_count_against_coverage():
+    # 6 valid, 4 invalid, 20 duplicate-frame rows: 60% of the judgeable rows
+    per_gap, ir, _ = aggregate_gaps(
+        _rows(1, 6, 4, n_skipped=20), gaps=(1,), scales=(1.0,), aggregation="median", min_coverage=0.5
+    )
+    assert per_gap[0].judged and per_gap[0].judgeable_pairs == 10 and ir == pytest.approx(0.99)
+    per_gap, ir, _ = aggregate_gaps(
+        _rows(1, 6, 4, n_skipped=20), gaps=(1,), scales=(1.0,), aggregation="median", min_coverage=0.7
+    )
+    assert not per_gap[0].judged and ir is None
+
+
+def test_an_unjudged_gap_leaves_the_headline_to_the_judged_ones():
+    rows = _rows(1, 9, 1) + [FitRow(8, 1.0, True, 0.5, 9.0)] + _rows(8, 0, 9)
+    per_gap, ir, ge = aggregate_gaps(rows, gaps=(1, 8), scales=(1.0,), aggregation="worst", min_coverage=0.5)
+    assert [g.judged for g in per_gap] == [True, False]
+    assert ir == pytest.approx(0.99) and ge == pytest.approx(0.1)  # gap 8's lone fit is not the headline

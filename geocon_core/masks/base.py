@@ -8,7 +8,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from ..reader import ClipInfo, Frame, canvas_layout
+from ..reader import ClipInfo, Frame, layout_of
 
 __all__ = ["IMPLAUSIBLE_SHARE", "MAX_ID", "MaskSource", "masked_share", "labels_to_canvas", "Coverage"]
 
@@ -54,7 +54,7 @@ def labels_to_canvas(src: np.ndarray, info: ClipInfo) -> np.ndarray:
     w, h = info.source_size
     if src.shape != (h, w):
         raise ValueError(f"mask is {src.shape[1]}x{src.shape[0]} but the clip's frames are {w}x{h}")
-    layout = canvas_layout(info.source_size, info.working_size)
+    layout = layout_of(info)
     sw, sh = layout.scaled_size
     ox, oy = info.offset
     lab = src if src.dtype == np.uint8 else src.astype(np.uint8)

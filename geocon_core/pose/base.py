@@ -12,7 +12,7 @@ from ..geometry import intrinsics_from_fov
 
 __all__ = ["POSE_METHODS", "PoseEstimate", "PoseBackend", "default_intrinsics", "failure", "focal_of", "check_inputs"]
 
-POSE_METHODS = ("essential", "rotation", "log", "none")
+POSE_METHODS = ("essential", "rotation", "chain", "log", "none")
 
 
 @dataclass(frozen=True, eq=False)
@@ -25,7 +25,8 @@ class PoseEstimate:
         the unit-mean-distance scale; None when not present. For ``method = "rotation"`` the
         translation column is zero (a translation below the noise is not observable) and
         ``t_inf`` is the first-order bound ``parallax_px / focal_px``.
-    method: ``"essential"``, ``"rotation"``, ``"log"`` or ``"none"``.
+    method: ``"essential"``, ``"rotation"``, ``"chain"`` (composed from short hops when the
+        first-last pair failed, :mod:`geocon_core.pose.chain`), ``"log"`` or ``"none"``.
     reason: reason code when not present (``"too_few_matches"``, ``"too_few_inliers"``,
         ``"degenerate"``, ``"no_cheirality"``, ``"log_no_pose"``), else None.
     n_matches: finite matches given to the backend.
@@ -35,6 +36,7 @@ class PoseEstimate:
     focal_px: focal length ``sqrt(fx fy)`` of the intrinsics given, pixels.
     focal_scale: focal scale adopted by self-calibration (1.0 = K as given); an addition to
         the minimal interface, defaulted so that older records still load.
+    note: which evidence decided, in words, when it is not the first-last pair (a chain).
     """
 
     pose_present: bool
@@ -48,6 +50,7 @@ class PoseEstimate:
     parallax_px: float | None
     focal_px: float
     focal_scale: float = 1.0
+    note: str | None = None
 
     def __post_init__(self) -> None:
         if self.method not in POSE_METHODS:
@@ -83,6 +86,7 @@ class PoseEstimate:
             "parallax_px": opt(self.parallax_px),
             "focal_px": float(self.focal_px),
             "focal_scale": float(self.focal_scale),
+            "note": self.note,
         }
 
     @classmethod

@@ -9,6 +9,8 @@ from typing import Annotated, Any, Optional
 import typer
 from rich.table import Table
 
+from geocon_core.config import DEFAULT_PRESET
+
 from .console import VIEWER_EXTRA, err, fail, has_viewer_extra, out, parse_size, progress_bar
 
 __all__ = ["bench", "report", "presets", "render_audit_rrd"]
@@ -28,7 +30,10 @@ def bench(
         Path, typer.Argument(help="Dataset folder: clips with sidecar <name>.meta.json files (see the README).")
     ],
     out_dir: Annotated[Path, typer.Option("--out", help="Results folder (created; rerun the same command to resume).")],
-    preset_name: Annotated[str, typer.Option("--preset", help="Named settings; see `geocon presets`.")] = "paper",
+    preset_name: Annotated[
+        str,
+        typer.Option("--preset", help="Named settings (`paper`: the paper's protocol); see `geocon presets`."),
+    ] = DEFAULT_PRESET,
     workers: Annotated[int, typer.Option(min=1, help="Worker processes scoring clips in parallel.")] = 1,
     retry_failed: Annotated[
         bool, typer.Option("--retry-failed", help="Score clips that failed in an earlier run again.")

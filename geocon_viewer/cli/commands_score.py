@@ -12,6 +12,7 @@ import typer
 from rich.table import Table
 
 import geocon_core
+from geocon_core.config import DEFAULT_PRESET
 
 from ..style import fmt
 from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, progress_bar, rerun_version
@@ -177,7 +178,10 @@ def score(
     out_dir: Annotated[
         Optional[Path], typer.Option("--out", help="Folder for the record (default: geocon-out/<clip name>).")
     ] = None,
-    preset_name: Annotated[str, typer.Option("--preset", help="Named settings; see `geocon presets`.")] = "paper",
+    preset_name: Annotated[
+        str,
+        typer.Option("--preset", help="Named settings (`paper`: the paper's protocol); see `geocon presets`."),
+    ] = DEFAULT_PRESET,
     pose_log: Annotated[
         Optional[Path],
         typer.Option(

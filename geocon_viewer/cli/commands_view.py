@@ -11,6 +11,8 @@ from typing import Annotated, Optional
 
 import typer
 
+from geocon_core.config import DEFAULT_PRESET
+
 from .commands_score import is_input_error, score_with_progress
 from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, progress_bar, rerun_version
 
@@ -83,7 +85,7 @@ def view(
     ] = None,
     preset_name: Annotated[
         str, typer.Option("--preset", help="Preset used when the clip has to be scored first.")
-    ] = "paper",
+    ] = DEFAULT_PRESET,
 ) -> None:
     """Re-render the Rerun recording of a saved record without re-scoring, then open it: the
     native viewer when a display is available, otherwise the web viewer served on 127.0.0.1."""
