@@ -113,7 +113,7 @@ def _render(case: CaseSpec, plan: ValidationPlan, out: Path, codecs: tuple[str, 
             continue
         with Mp4Writer(out / f"{gt.clip_id}.{codec}.mp4", case.width, case.height, _FPS, crf=CODEC_CRF[codec]) as w:
             for f in frames:
-                w.write(np.ascontiguousarray(cv2.imread(str(f), cv2.IMREAD_COLOR)[..., ::-1]))
+                w.write(np.ascontiguousarray(_imread(f)[..., ::-1]))
     return {"clip_id": gt.clip_id, "frames": gt.video_path, "truth": f"{gt.clip_id}.gt.json"}
 
 
@@ -135,11 +135,19 @@ def _cut(case: CaseSpec, plan: ValidationPlan, out: Path, final: Path) -> dict:
     return {"clip": str(src), "frames": kept, "cut": False}
 
 
+def _imread(path: Path) -> np.ndarray:
+    """(h, w, 3) uint8 BGR image; OSError when it cannot be decoded."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise OSError(f"{path}: cannot be decoded as an image")
+    return bgr
+
+
 def _frames(src: Path) -> Iterator[np.ndarray]:
     """The decoded BGR frames of a video file or an image folder, one at a time."""
     if src.is_dir():
         for f in sorted(p for p in src.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")):
-            yield cv2.imread(str(f), cv2.IMREAD_COLOR)
+            yield _imread(f)
         return
     cap = cv2.VideoCapture(str(src), cv2.CAP_FFMPEG)
     try:

@@ -4,8 +4,9 @@ one table and written as markdown and JSON."""
 from __future__ import annotations
 
 import inspect
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 from rich.table import Table
@@ -13,7 +14,8 @@ from rich.table import Table
 from .console import fail, out, progress_bar
 
 if TYPE_CHECKING:
-    from geocon_core.validation import ValidationReport
+    from geocon_core.config import ScoreConfig
+    from geocon_core.validation import Annotation, ValidationPlan, ValidationReport
 
 __all__ = ["validate", "print_report", "default_preset"]
 
@@ -104,7 +106,6 @@ def validate(
 
     try:
         cfg = preset(preset_name or default_preset())
-        defaults = ValidationPlan()
         given = {
             "heights": _ints(heights, "heights") or (QUICK.heights if quick else None),
             "codecs": _names(codecs) if codecs is not None else (QUICK.codecs if quick else None),
@@ -114,12 +115,8 @@ def validate(
             "frames": frames or (QUICK.frames if quick else None),
             "max_frames": max_frames or (QUICK.max_frames if quick else None),
         }
-        plan = ValidationPlan(
-            **{k: v for k, v in given.items() if v is not None},
-            seed=defaults.seed,
-            data=data if real else None,
-            synthetic=synthetic,
-        )
+        chosen: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
+        plan = replace(ValidationPlan(), **chosen, data=data if real else None, synthetic=synthetic)
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
     except (ValueError, OSError) as exc:
         raise fail(str(exc)) from None
@@ -130,11 +127,15 @@ def validate(
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
 
 
-def _run(plan, cfg, out_dir: Path, cache: Path, jobs: int, notes) -> ValidationReport:
+def _run(
+    plan: ValidationPlan, cfg: ScoreConfig, out_dir: Path, cache: Path, jobs: int, notes: dict[str, Annotation]
+) -> ValidationReport:
+    from rich.progress import TaskID
+
     from geocon_core.validation import run_validation
 
     with progress_bar("{task.description}", "clips") as bar:
-        tasks: dict[str, int] = {}
+        tasks: dict[str, TaskID] = {}
 
         def progress(phase: str, done: int, total: int) -> None:
             if phase not in tasks:
