@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,21 +81,23 @@ def prepare_case(case: CaseSpec, plan: ValidationPlan, cache: Path, code: str, c
     """Make the clip of ``case`` (and, for a synthetic scene, its encodings for every codec in
     ``codecs``) in ``cache`` unless it is there; returns its folder."""
     folder = cache / prepare_key(case, plan, code)
-    if (folder / _DONE).is_file():
-        return folder
-    tmp = folder.with_name(folder.name + ".part")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    done = _render(case, plan, tmp, codecs) if case.kind == "synthetic" else _cut(case, plan, tmp, folder)
-    (tmp / _DONE).write_text(json.dumps(done, indent=1) + "\n")
-    shutil.rmtree(folder, ignore_errors=True)
-    tmp.rename(folder)
+    if not (folder / _DONE).is_file():
+        tmp = folder.with_name(folder.name + ".part")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        start = time.perf_counter()
+        done = _render(case, plan, tmp) if case.kind == "synthetic" else _cut(case, plan, tmp, folder)
+        done["seconds"] = round(time.perf_counter() - start, 3)
+        (tmp / _DONE).write_text(json.dumps(done, indent=1) + "\n")
+        shutil.rmtree(folder, ignore_errors=True)
+        tmp.rename(folder)
+    if case.kind == "synthetic":
+        _encode(folder, codecs, _FPS)
     return folder
 
 
-def _render(case: CaseSpec, plan: ValidationPlan, out: Path, codecs: tuple[str, ...]) -> dict:
+def _render(case: CaseSpec, plan: ValidationPlan, out: Path) -> dict:
     from ..synth import ClipPlan, write_clip
-    from ..video import Mp4Writer
 
     assert case.family is not None and case.height is not None and case.width is not None
     gt = write_clip(
@@ -107,14 +110,25 @@ def _render(case: CaseSpec, plan: ValidationPlan, out: Path, codecs: tuple[str, 
         fps=_FPS,
         codec="png",
     )
-    frames = sorted((out / gt.video_path).glob("*.png"))
-    for codec in codecs:
-        if codec not in CODEC_CRF:
-            continue
-        with Mp4Writer(out / f"{gt.clip_id}.{codec}.mp4", case.width, case.height, _FPS, crf=CODEC_CRF[codec]) as w:
-            for f in frames:
-                w.write(np.ascontiguousarray(_imread(f)[..., ::-1]))
     return {"clip_id": gt.clip_id, "frames": gt.video_path, "truth": f"{gt.clip_id}.gt.json"}
+
+
+def _encode(folder: Path, codecs: tuple[str, ...], fps: float) -> None:
+    """Encode a rendered scene's PNG frames as H.264 at each CRF of ``codecs`` that is missing."""
+    from ..video import Mp4Writer
+
+    done = json.loads((folder / _DONE).read_text())
+    frames = sorted((folder / done["frames"]).glob("*.png"))
+    for codec in codecs:
+        target = folder / f"{done['clip_id']}.{codec}.mp4"
+        if codec not in CODEC_CRF or target.is_file():
+            continue
+        h, w = _imread(frames[0]).shape[:2]
+        tmp = target.with_name(f".{target.name}.part")
+        with Mp4Writer(tmp, w, h, fps, crf=CODEC_CRF[codec]) as writer:
+            for f in frames:
+                writer.write(np.ascontiguousarray(_imread(f)[..., ::-1]))
+        tmp.replace(target)
 
 
 def _cut(case: CaseSpec, plan: ValidationPlan, out: Path, final: Path) -> dict:
