@@ -33,8 +33,9 @@ REPORT_JSON = "validation.json"
 @dataclass(frozen=True)
 class ValidationReport:
     """A finished run: the table, one row per case, the preset and its configuration hash, the
-    seconds the run took (prepare + score; cases resumed from an earlier run cost nothing) and
-    the summed scoring seconds of the cases."""
+    seconds the run took (prepare + score; cases resumed from an earlier run cost nothing), the
+    summed scoring seconds of the cases, and how many cases the plan has (more than the rows
+    when a report is made from an interrupted run)."""
 
     metrics: tuple[MetricRow, ...]
     cases: tuple[CaseResult, ...]
@@ -43,6 +44,7 @@ class ValidationReport:
     seconds: float
     score_seconds: float
     plan: ValidationPlan
+    planned: int = 0
 
 
 def format_value(row: MetricRow) -> str:
@@ -63,14 +65,16 @@ def run_validation(
     jobs: int = 1,
     annotations: dict[str, Annotation] | None = None,
     progress: Progress | None = None,
+    score: bool = True,
 ) -> ValidationReport:
     """Plan, prepare and score every case of ``plan`` with ``config`` into ``out`` (clips cached
-    in ``cache``), compute the table and write the report files."""
+    in ``cache``), compute the table and write the report files. With ``score=False`` the report
+    covers only the cases scored by an earlier run (``planned`` says how many there are)."""
     start = time.perf_counter()
     out_dir = Path(out)
     cases = plan_cases(plan, annotations)
-    statuses = run_cases(cases, plan, config, out_dir, cache, jobs=jobs, progress=progress)
-    rows = tuple(case_result(s, case_folder(out_dir, c)) for s, c in zip(statuses, cases, strict=True))
+    scored = run_cases(cases, plan, config, out_dir, cache, jobs=jobs, progress=progress, score=score)
+    rows = tuple(case_result(s, case_folder(out_dir, c)) for c, s in scored)
     report = ValidationReport(
         metrics=tuple(compute_metrics(list(rows))),
         cases=rows,
@@ -79,6 +83,7 @@ def run_validation(
         seconds=time.perf_counter() - start,
         score_seconds=sum(r.seconds or 0.0 for r in rows),
         plan=plan,
+        planned=len(cases),
     )
     write_report(report, out_dir)
     return report
@@ -138,7 +143,8 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         "",
         f"Preset `{report.preset}` (config {report.config_hash}); synthetic heights {list(p.heights)}, codecs "
         f"{list(p.codecs)}, {p.frames} frames per clip; real clips cut to {p.max_frames} frames. "
-        f"{len(report.cases)} cases in {report.seconds:.0f} s (scoring {report.score_seconds:.0f} s summed).",
+        f"{len(report.cases)} of {report.planned} planned cases in {report.seconds:.0f} s "
+        f"(scoring {report.score_seconds:.0f} s summed over the cases).",
         "",
         *_md_table(["measure", "set", "value", "target", "met", "detail"], [metric_cells(m) for m in report.metrics]),
         "",
@@ -156,6 +162,7 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         "config_hash": report.config_hash,
         "seconds": round(report.seconds, 1),
         "score_seconds": round(report.score_seconds, 1),
+        "planned": report.planned,
         "plan": plan,
         "metrics": [asdict(m) for m in report.metrics],
         "cases": [asdict(r) for r in report.cases],

@@ -121,8 +121,11 @@ def run_cases(
     *,
     jobs: int = 1,
     progress: Progress | None = None,
-) -> list[dict[str, Any]]:
-    """Prepare and score ``cases``; returns each case's status (``case.json``), in case order."""
+    score: bool = True,
+) -> list[tuple[CaseSpec, dict[str, Any]]]:
+    """Prepare and score ``cases``; returns each case with its status (``case.json``), in case
+    order. With ``score=False`` nothing is prepared or scored: only the cases finished earlier
+    are returned (the report of an interrupted run)."""
     out_dir, cache_dir = Path(out), Path(cache)
     code = code_digest()
     from .prepare import prepare_key
@@ -136,17 +139,21 @@ def run_cases(
         if progress is not None:
             progress("prepare", len(folders), len(keys))
 
-    if progress is not None:
-        progress("prepare", 0, len(keys))
-    _map(_prepare_one, jobs, [(unique[k], plan, str(cache_dir), code) for k in keys], prepared)
+    if score:
+        if progress is not None:
+            progress("prepare", 0, len(keys))
+        _map(_prepare_one, jobs, [(unique[k], plan, str(cache_dir), code) for k in keys], prepared)
+    else:
+        folders = {k: str(cache_dir / k) for k in keys if (cache_dir / k / "done.json").is_file()}
 
     digest = config_hash(config)
     statuses: list[dict[str, Any] | None] = [None] * len(cases)
     todo: list[int] = []
     for i, case in enumerate(cases):
-        folder = folders[prepare_key(case, plan, code)]
-        statuses[i] = _finished(case_folder(out_dir, case), digest, clip_for(case, Path(folder)).clip)
-        if statuses[i] is None:
+        folder = folders.get(prepare_key(case, plan, code))
+        if folder is not None:
+            statuses[i] = _finished(case_folder(out_dir, case), digest, clip_for(case, Path(folder)).clip)
+        if statuses[i] is None and score:
             todo.append(i)
     done = len(cases) - len(todo)
     threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
@@ -171,4 +178,4 @@ def run_cases(
         for i in todo
     ]
     _map(_score_one, jobs, argsets, scored)
-    return [s for s in statuses if s is not None]
+    return [(c, s) for c, s in zip(cases, statuses, strict=True) if s is not None]

@@ -51,7 +51,7 @@ def print_report(report: ValidationReport) -> None:
     p = report.plan
     table = Table(
         title=f"GeoCon validation: preset {report.preset}, heights {','.join(map(str, p.heights))}, codecs "
-        f"{','.join(p.codecs)}, {len(report.cases)} cases, {report.seconds:.0f} s",
+        f"{','.join(p.codecs)}, {len(report.cases)} of {report.planned} cases, {report.seconds:.0f} s",
         title_justify="left",
     )
     for col in ("measure", "set", "value", "target", "met", "detail"):
@@ -97,6 +97,10 @@ def validate(
     real: Annotated[bool, typer.Option("--real/--no-real", help="Score the real clips of --data.")] = True,
     synthetic: Annotated[bool, typer.Option("--synthetic/--no-synthetic", help="Score the synthetic grid.")] = True,
     jobs: Annotated[int, typer.Option(min=1, help="Worker processes.")] = 1,
+    report_only: Annotated[
+        bool,
+        typer.Option("--report-only", help="Score nothing: the table of the cases already scored in --out."),
+    ] = False,
 ) -> None:
     """Validate the default settings: synthetic scenes at several heights and codecs, clean and
     with injected failures, and the real clips in --data against the project's annotations; prints
@@ -122,13 +126,19 @@ def validate(
         raise fail(str(exc)) from None
     if real and not data.is_dir():
         raise fail(f"{data}: no such folder of real clips (give --data, or --no-real)")
-    report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes)
+    report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only)
     print_report(report)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
 
 
 def _run(
-    plan: ValidationPlan, cfg: ScoreConfig, out_dir: Path, cache: Path, jobs: int, notes: dict[str, Annotation]
+    plan: ValidationPlan,
+    cfg: ScoreConfig,
+    out_dir: Path,
+    cache: Path,
+    jobs: int,
+    notes: dict[str, Annotation],
+    score: bool,
 ) -> ValidationReport:
     from rich.progress import TaskID
 
@@ -142,4 +152,4 @@ def _run(
                 tasks[phase] = bar.add_task("preparing clips" if phase == "prepare" else "scoring", total=total)
             bar.update(tasks[phase], completed=done, total=total)
 
-        return run_validation(plan, cfg, out_dir, cache, jobs=jobs, annotations=notes, progress=progress)
+        return run_validation(plan, cfg, out_dir, cache, jobs=jobs, annotations=notes, progress=progress, score=score)
