@@ -74,7 +74,7 @@ def run_validation(
     out_dir = Path(out)
     cases = plan_cases(plan, annotations)
     scored = run_cases(cases, plan, config, out_dir, cache, jobs=jobs, progress=progress, score=score)
-    rows = tuple(case_result(s, case_folder(out_dir, c)) for c, s in scored)
+    rows = tuple(case_result(s, case_folder(out_dir, c), c) for c, s in scored)
     report = ValidationReport(
         metrics=tuple(compute_metrics(list(rows))),
         cases=rows,

@@ -4,11 +4,11 @@ and what the saved record says. Everything here is read from ``record.json`` and
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from .cases import Annotation
+from .cases import Annotation, CaseSpec
 
 __all__ = ["CaseResult", "case_result", "VERDICTS"]
 
@@ -101,9 +101,10 @@ def _expected(case: dict[str, Any], truth_path: str | None) -> dict[str, Any]:
     }
 
 
-def case_result(status: dict[str, Any], folder: Path) -> CaseResult:
-    """The row of a scored (or failed) case from its ``case.json`` status and record folder."""
-    case = status["case"]
+def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = None) -> CaseResult:
+    """The row of a scored (or failed) case from its ``case.json`` status and record folder; the
+    expectations come from ``spec`` when given (the current annotation), else from ``case.json``."""
+    case = asdict(spec) if spec is not None else status["case"]
     clip = case["source"] if case["kind"] == "real" else case["case_id"]
     base = {
         "case_id": case["case_id"],
