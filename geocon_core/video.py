@@ -1,5 +1,6 @@
 """Writing video files. H.264 in MP4 through PyAV (OpenCV's wheels cannot encode H.264),
-single-threaded so that the same frames always give the same bytes."""
+single-threaded so that the same frames always give the same bytes; or lossless PNG frames in
+a folder (the image-folder input of :mod:`geocon_core.reader`)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Mp4Writer"]
+__all__ = ["Mp4Writer", "PngSequenceWriter"]
 
 
 class Mp4Writer:
@@ -60,3 +61,39 @@ class Mp4Writer:
         self.close()
         if exc_type is not None:
             self.path.unlink(missing_ok=True)
+
+
+class PngSequenceWriter:
+    """Stream RGB frames (H, W, 3) uint8 into a folder as lossless ``00000.png``, ``00001.png``,
+    ... (natural order, as the reader reads image folders). Same interface as :class:`Mp4Writer`;
+    on an exception the folder is removed."""
+
+    def __init__(self, path: str | Path, width: int, height: int) -> None:
+        self.path = Path(path)
+        self.width, self.height = width, height
+        self.path.mkdir(parents=True, exist_ok=True)
+        self.frames_written = 0
+
+    def write(self, rgb: np.ndarray) -> None:
+        import cv2
+
+        if rgb.shape != (self.height, self.width, 3) or rgb.dtype != np.uint8:
+            raise ValueError(f"expected ({self.height}, {self.width}, 3) uint8, got {rgb.shape} {rgb.dtype}")
+        name = self.path / f"{self.frames_written:05d}.png"
+        if not cv2.imwrite(str(name), np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 3]):
+            raise OSError(f"could not write frame {name}")
+        self.frames_written += 1
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "PngSequenceWriter":
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc_type is not None:
+            import shutil
+
+            shutil.rmtree(self.path, ignore_errors=True)

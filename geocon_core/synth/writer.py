@@ -2,7 +2,8 @@
 
 For a clip ``ID`` in ``OUT`` this writes
 
-- ``OUT/ID.mp4``: H.264 video;
+- ``OUT/ID.mp4``: H.264 video (``codec="h264"``, quality ``crf``), or ``OUT/ID.frames/NNNNN.png``:
+  lossless PNG frames (``codec="png"``, read by the scorer as an image folder);
 - ``OUT/ID.masks/NNNNN.png``: one 8-bit label image per frame (0 = background, k = object
   id k), the external-mask layout the scorer reads;
 - ``OUT/ID.gt.json``: :class:`~geocon_core.synth.truth.GroundTruth`;
@@ -18,7 +19,7 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 import cv2
 import numpy as np
@@ -32,7 +33,10 @@ from .render import render_frame
 from .scene import Scene
 from .truth import FailureTruth, GroundTruth, ObjectTruth
 
-__all__ = ["ClipPlan", "DEFAULT_FAILURE_VARIANTS", "plan_clips", "write_clip", "mean_scene_distance"]
+__all__ = ["ClipPlan", "Codec", "DEFAULT_FAILURE_VARIANTS", "plan_clips", "write_clip", "mean_scene_distance"]
+
+Codec = Literal["h264", "png"]
+"""How :func:`write_clip` stores the frames: H.264 MP4, or a folder of lossless PNG frames."""
 
 DEFAULT_FAILURE_VARIANTS: tuple[tuple[str, str], ...] = (
     ("C1", "boiling"),
@@ -115,29 +119,41 @@ def write_clip(
     fps: float = 24.0,
     noise: float = 2.0,
     on_frame: Callable[[int], None] | None = None,
+    codec: Codec = "h264",
+    crf: int = 12,
 ) -> GroundTruth:
     """Render ``plan`` into ``out_dir`` and return its ground truth. ``noise`` is the standard
     deviation (grey levels) of seeded Gaussian sensor noise added to every frame, so that no
     two frames are bit-identical (as with any real camera or generator). ``on_frame(t)`` is
-    called after each frame (progress reporting)."""
+    called after each frame (progress reporting). ``codec`` and ``crf`` (H.264 quality, 0-51,
+    lower is better) choose how the frames are stored (see the module docstring)."""
     if noise < 0:
         raise ValueError(f"noise must be non-negative, got {noise}")
-    from ..video import Mp4Writer
+    if codec not in ("h264", "png"):
+        raise ValueError(f"codec must be h264 or png, got {codec!r}")
+    from ..video import Mp4Writer, PngSequenceWriter
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scene = build_scene(plan.family, seed=seed, width=width, height=height, num_frames=num_frames, fps=fps)
     failure = make_failure(plan.failure, scene, plan.severity) if plan.failure else None
     cid = plan.clip_id
+    suffix = ".mp4" if codec == "h264" else ".frames"
     video, masks, gt_path, meta_path = (
-        out / f"{cid}.mp4",
+        out / f"{cid}{suffix}",
         out / f"{cid}.masks",
         out / f"{cid}.gt.json",
         out / f"{cid}.meta.json",
     )
-    tmp_video, tmp_masks = out / f".{cid}.mp4.part", out / f".{cid}.masks.part"
-    shutil.rmtree(tmp_masks, ignore_errors=True)
+    tmp_video, tmp_masks = out / f".{cid}{suffix}.part", out / f".{cid}.masks.part"
+    for tmp in (tmp_masks, tmp_video):
+        _remove(tmp)
     tmp_masks.mkdir()
+    frame_writer = (
+        Mp4Writer(tmp_video, width, height, fps, crf=crf)
+        if codec == "h264"
+        else PngSequenceWriter(tmp_video, width, height)
+    )
 
     content = failure.content_box(scene) if failure else (0, 0, width, height)
     x0, y0, x1, y1 = content
@@ -146,7 +162,7 @@ def write_clip(
     visible: dict[int, list[int]] = {o.object_id: [] for o in scene.objects}
     first_depth = None
     try:
-        with Mp4Writer(tmp_video, width, height, fps) as writer:
+        with frame_writer as writer:
             for t in range(num_frames):
                 frame = render_frame(scene, t, failure)
                 if t == 0:
@@ -161,18 +177,28 @@ def write_clip(
                 if on_frame is not None:
                     on_frame(t)
     except BaseException:
-        shutil.rmtree(tmp_masks, ignore_errors=True)
-        tmp_video.unlink(missing_ok=True)
+        _remove(tmp_masks)
+        _remove(tmp_video)
         raise
 
     assert first_depth is not None
     gt = _ground_truth(scene, plan, failure, first_depth, masked_share, visible, content, video.name, masks.name, noise)
     shutil.rmtree(masks, ignore_errors=True)
     tmp_masks.rename(masks)
+    if video.is_dir():
+        _remove(video)
     tmp_video.replace(video)
     gt.write(gt_path)
     meta_path.write_text(json.dumps(_sidecar(gt, scene), indent=1) + "\n")
     return gt
+
+
+def _remove(path: Path) -> None:
+    """Remove a file or a folder, if there."""
+    if path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
 
 
 def _add_noise(rgb: np.ndarray, sigma: float, seed: int, t: int) -> np.ndarray:

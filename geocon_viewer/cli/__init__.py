@@ -13,6 +13,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``presets``         the named scoring presets
 ``view``            a saved record in the Rerun viewer (:mod:`.commands_view`)
 ``serve``           a results folder in the Viser audit app
+``validate``        the validation report: synthetic grid and annotated real clips (:mod:`.commands_validate`)
 ==================  ============================================================================
 """
 
@@ -24,7 +25,7 @@ import typer
 
 from geocon_core import __version__
 
-from . import commands_bench, commands_demo, commands_score, commands_synth, commands_view
+from . import commands_bench, commands_demo, commands_score, commands_synth, commands_validate, commands_view
 from .console import out
 
 __all__ = ["app", "main"]
@@ -64,6 +65,7 @@ app.command("report")(commands_bench.report)
 app.command("presets")(commands_bench.presets)
 app.command("view")(commands_view.view)
 app.command("serve")(commands_view.serve)
+app.command("validate")(commands_validate.validate)
 
 
 def main() -> None:

@@ -1,0 +1,58 @@
+"""``geocon validate``: the validation report the project keeps.
+
+It scores (a) the synthetic scene families at several heights and codecs, clean and with injected
+failures at three severities, and (b) every real clip of a data folder against a person's
+annotation (``assets/validation/annotations.csv``), and summarises them in one table.
+
+>>> from geocon_core.validation import ValidationPlan, run_validation      # doctest: +SKIP
+>>> report = run_validation(ValidationPlan(), preset("paper"), "out", "cache")  # doctest: +SKIP
+
+Modules: :mod:`.cases` (what to run), :mod:`.prepare` (rendering and cutting clips, cached),
+:mod:`.runner` (scoring, resumable), :mod:`.results` (one row per case from its record),
+:mod:`.metrics` (the table), :mod:`.report` (the run and its written report).
+"""
+
+from .cases import (
+    ANNOTATIONS_PATH,
+    CODECS,
+    HEIGHTS,
+    LEVELS,
+    QUICK,
+    SEVERITIES,
+    Annotation,
+    CaseSpec,
+    ValidationPlan,
+    plan_cases,
+    read_annotations,
+    real_clips,
+)
+from .metrics import MetricRow, compute_metrics, detected
+from .report import REPORT_JSON, REPORT_MD, ValidationReport, format_value, metric_cells, run_validation, write_report
+from .results import CaseResult, case_result
+
+__all__ = [
+    "ANNOTATIONS_PATH",
+    "CODECS",
+    "HEIGHTS",
+    "LEVELS",
+    "QUICK",
+    "SEVERITIES",
+    "Annotation",
+    "CaseSpec",
+    "ValidationPlan",
+    "plan_cases",
+    "read_annotations",
+    "real_clips",
+    "MetricRow",
+    "compute_metrics",
+    "detected",
+    "REPORT_JSON",
+    "REPORT_MD",
+    "ValidationReport",
+    "format_value",
+    "metric_cells",
+    "run_validation",
+    "write_report",
+    "CaseResult",
+    "case_result",
+]

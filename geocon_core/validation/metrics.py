@@ -1,0 +1,245 @@
+"""The validation table: one row per measure, computed from :class:`~.results.CaseResult` rows.
+
+======================  =================================================================
+row                     what it counts
+======================  =================================================================
+gate accuracy           gate label == expected label, over cases whose expected label is
+                        H or F (synthetic: the clip's truth; real: the annotation; the gray
+                        zone is left out)
+false flags             share not called consistent: clean synthetic clips, and real-camera
+                        clips (annotated ``source = real``)
+detection               per failure and severity: background inconsistent, or (elastic)
+                        the highest object AdaDFRC >= :data:`OBJECT_RATIO` x that of the clean
+                        clip of the same scene, height and codec
+clean IR 256 vs 1080    per scene family: the largest |IR(256) - IR(1080)| over codecs
+object count            tracks <= 1.5 x movers + 1 (synthetic: truth objects; real: annotated
+                        movers); the detail gives the mean |tracks - movers|
+category accuracy       record category == expected family (synthetic clean; real where
+                        annotated)
+pose coverage           share of clips whose gate had a pose (generated clips annotated as a
+                        stable scene; clean synthetic clips)
+======================  =================================================================
+
+Where a target is met at every height matters (detection, false flags), the detail column
+breaks the row down by height.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+
+from .cases import LEVELS, SEVERITIES
+from .results import CaseResult
+
+__all__ = ["MetricRow", "OBJECT_RATIO", "IR_TOLERANCE", "compute_metrics", "detected"]
+
+OBJECT_RATIO = 5.0
+"""An injected object failure is detected when the object's AdaDFRC is at least this many times
+the clean clip's (the issue's criterion)."""
+IR_TOLERANCE = 0.02
+"""Clean IR at 256 px must lie within this of the IR at 1080 px (share, 0..1)."""
+
+
+@dataclass(frozen=True)
+class MetricRow:
+    """One row of the table: ``value`` is a share (0..1) or, for the IR rows, an IR difference;
+    ``hits`` of ``n`` cases; ``target`` in words; ``ok`` whether it is met (None: no target or
+    no case); ``detail`` a breakdown."""
+
+    metric: str
+    subset: str
+    value: float | None
+    hits: int
+    n: int
+    target: str
+    ok: bool | None
+    detail: str = ""
+
+
+def _share(
+    metric: str,
+    subset: str,
+    rows: list[CaseResult],
+    hit: Callable[[CaseResult], bool],
+    target: str,
+    ok: Callable[[float], bool] | None,
+    by_height: bool = False,
+) -> MetricRow:
+    hits = sum(1 for r in rows if hit(r))
+    value = hits / len(rows) if rows else None
+    detail = _by_height(rows, hit) if by_height else ""
+    return MetricRow(
+        metric, subset, value, hits, len(rows), target, None if value is None or ok is None else ok(value), detail
+    )
+
+
+def _by_height(rows: list[CaseResult], hit: Callable[[CaseResult], bool]) -> str:
+    groups: dict[int, list[CaseResult]] = defaultdict(list)
+    for r in rows:
+        if r.height is not None:
+            groups[r.height].append(r)
+    return "  ".join(f"{h}: {sum(1 for r in g if hit(r))}/{len(g)}" for h, g in sorted(groups.items()))
+
+
+def detected(row: CaseResult, clean: CaseResult | None) -> bool:
+    """A planted failure is detected: the background is inconsistent, or for an object failure the
+    highest object AdaDFRC is at least :data:`OBJECT_RATIO` times the clean twin's."""
+    if row.verdict == "inconsistent":
+        return True
+    if row.failure != "elastic" or row.max_adadfrc is None or clean is None or clean.verdict == "failed":
+        return False
+    if clean.max_adadfrc is None:
+        return False
+    return row.max_adadfrc >= OBJECT_RATIO * clean.max_adadfrc
+
+
+def _twins(rows: Iterable[CaseResult]) -> dict[tuple, CaseResult]:
+    return {(r.family, r.height, r.codec): r for r in rows if r.clean}
+
+
+def _gate_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    out = []
+    for subset, pick in (
+        ("synthetic", lambda r: r.kind == "synthetic"),
+        ("real clips, annotated", lambda r: r.kind == "real"),
+    ):
+        judged = [r for r in rows if pick(r) and r.truth_gate is not None and r.verdict != "failed"]
+        out.append(
+            _share("gate accuracy", subset, judged, lambda r: r.gate == r.truth_gate, ">= 90%", lambda v: v >= 0.9)
+        )
+    return out
+
+
+def _false_flag_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    clean = [r for r in rows if r.clean]
+    real = [r for r in rows if r.kind == "real" and r.source == "real"]
+    out = [_share("false flags", "clean synthetic", clean, lambda r: r.flagged, "0", lambda v: v == 0.0, True)]
+    codecs: dict[str, list[CaseResult]] = defaultdict(list)
+    for r in clean:
+        codecs[str(r.codec)].append(r)
+    if len(codecs) > 1:
+        by_codec = "  ".join(f"{c}: {sum(r.flagged for r in g)}/{len(g)}" for c, g in codecs.items())
+        out[0] = replace(out[0], detail=f"{out[0].detail}  |  {by_codec}")
+    out.append(_share("false flags", "real-camera clips", real, lambda r: r.flagged, "<= 10%", lambda v: v <= 0.1))
+    return out
+
+
+def _detection_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    twins = _twins(rows)
+    out = []
+    for failure in SEVERITIES:
+        for level in LEVELS:
+            group = [r for r in rows if r.failure == failure and r.level == level]
+            if not group:
+                continue
+            sev = SEVERITIES[failure][LEVELS.index(level)]
+            target, ok = ("reported", None) if level == "low" else (">= 90% at every height", None)
+            row = _share(
+                "detection",
+                f"{failure} {level} ({sev:g} px)",
+                group,
+                lambda r: detected(r, twins.get((r.family, r.height, r.codec))),
+                target,
+                ok,
+                True,
+            )
+            if level != "low":
+                per_height = defaultdict(list)
+                for r in group:
+                    per_height[r.height].append(detected(r, twins.get((r.family, r.height, r.codec))))
+                row = replace(row, ok=all(sum(v) / len(v) >= 0.9 for v in per_height.values()))
+            out.append(row)
+    return out
+
+
+def _ir_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    twins = _twins(rows)
+    out = []
+    for family in sorted({r.family for r in rows if r.clean and r.family}):
+        diffs = []
+        for codec in sorted({str(r.codec) for r in rows if r.clean}):
+            lo, hi = twins.get((family, 256, codec)), twins.get((family, 1080, codec))
+            if lo is not None and hi is not None and lo.ir is not None and hi.ir is not None:
+                diffs.append((codec, abs(lo.ir - hi.ir)))
+        if not diffs:
+            continue
+        worst = max(d for _, d in diffs)
+        out.append(
+            MetricRow(
+                "clean IR 256 vs 1080",
+                family,
+                worst,
+                sum(d <= IR_TOLERANCE for _, d in diffs),
+                len(diffs),
+                f"<= {IR_TOLERANCE:g}",
+                worst <= IR_TOLERANCE,
+                "  ".join(f"{c}: {d:.3f}" for c, d in diffs),
+            )
+        )
+    return out
+
+
+def _count_ok(r: CaseResult) -> bool:
+    assert r.objects is not None and r.truth_movers is not None
+    return r.objects <= 1.5 * r.truth_movers + 1
+
+
+def _object_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    out = []
+    for subset, pick in (("clean synthetic", lambda r: r.clean), ("real clips, annotated", lambda r: r.kind == "real")):
+        group = [r for r in rows if pick(r) and r.truth_movers is not None and r.objects is not None]
+        row = _share("object count", subset, group, _count_ok, "tracks <= 1.5 x movers + 1", lambda v: v == 1.0)
+        if group:
+            mean_err = sum(abs(int(r.objects or 0) - int(r.truth_movers or 0)) for r in group) / len(group)
+            row = replace(row, detail=f"mean |tracks - movers| {mean_err:.1f}")
+        out.append(row)
+    return out
+
+
+def _category_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    out = []
+    for subset, pick in (("clean synthetic", lambda r: r.clean), ("real clips, annotated", lambda r: r.kind == "real")):
+        group = [r for r in rows if pick(r) and r.truth_category is not None and r.verdict != "failed"]
+        out.append(
+            _share("category accuracy", subset, group, lambda r: r.category == r.truth_category, "reported", None)
+        )
+    return out
+
+
+def _pose_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    generated = [r for r in rows if r.source == "generated" and r.stable_scene and r.verdict != "failed"]
+    clean = [r for r in rows if r.clean and r.verdict != "failed"]
+    return [
+        _share(
+            "pose coverage",
+            "generated, stable scene",
+            generated,
+            lambda r: bool(r.pose_present),
+            ">= 80%",
+            lambda v: v >= 0.8,
+        ),
+        _share("pose coverage", "clean synthetic", clean, lambda r: bool(r.pose_present), "reported", None),
+    ]
+
+
+def compute_metrics(rows: list[CaseResult]) -> list[MetricRow]:
+    """Every row of the validation table, in the order it is printed; rows whose cases were not
+    run are left out, except the scoring-failure row which is always first."""
+    failed = [r for r in rows if r.verdict == "failed"]
+    table = [
+        MetricRow(
+            "cases scored",
+            "all",
+            (len(rows) - len(failed)) / len(rows) if rows else None,
+            len(rows) - len(failed),
+            len(rows),
+            "all",
+            not failed,
+            ", ".join(r.case_id for r in failed[:5]) + (" ..." if len(failed) > 5 else ""),
+        )
+    ]
+    for part in (_gate_rows, _false_flag_rows, _detection_rows, _ir_rows, _object_rows, _category_rows, _pose_rows):
+        table += [row for row in part(rows) if row.n > 0]
+    return table

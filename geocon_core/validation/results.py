@@ -1,0 +1,136 @@
+"""One row per validation case: what was expected (synthetic truth or a person's annotation)
+and what the saved record says. Everything here is read from ``record.json`` and the clip's
+``.gt.json``; no score is recomputed."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from .cases import Annotation, CaseSpec
+
+__all__ = ["CaseResult", "case_result", "VERDICTS"]
+
+VERDICTS = ("consistent", "inconsistent", "not judged", "failed")
+"""A case's verdict: the record's report gate (``background.consistent`` True / False / None), or
+``failed`` when it could not be scored."""
+
+_SYNTH_GATE = {"H", "F"}
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    """One case. Expected: ``truth_gate`` (H / F; None = gray zone or unknown), ``truth_category``,
+    ``truth_movers`` (moving things), ``source`` (``synthetic``, ``real``, ``rendered`` or
+    ``generated``), ``static_camera``, ``stable_scene``. Found: ``verdict`` (:data:`VERDICTS`),
+    the gate label and its statistic ``t_inf``, whether the gate had a pose, background IR (0..1)
+    and GE (px), objects tracked and the highest object AdaDFRC (px^2), the category."""
+
+    case_id: str
+    kind: str
+    clip: str
+    family: str | None
+    failure: str | None
+    level: str | None
+    severity: float | None
+    height: int | None
+    codec: str | None
+    source: str
+    truth_gate: str | None
+    truth_category: str | None
+    truth_movers: int | None
+    static_camera: bool | None
+    stable_scene: bool | None
+    verdict: str
+    gate: str | None = None
+    t_inf: float | None = None
+    pose_present: bool | None = None
+    pose_method: str | None = None
+    ir: float | None = None
+    ge: float | None = None
+    model: str | None = None
+    objects: int | None = None
+    max_adadfrc: float | None = None
+    category: str | None = None
+    seconds: float | None = None
+    error: str | None = None
+
+    @property
+    def flagged(self) -> bool:
+        """Not called consistent (inconsistent, not judged, or failed to score)."""
+        return self.verdict != "consistent"
+
+    @property
+    def clean(self) -> bool:
+        return self.kind == "synthetic" and self.failure is None
+
+
+def _verdict(consistent: bool | None) -> str:
+    return "not judged" if consistent is None else ("consistent" if consistent else "inconsistent")
+
+
+def _expected(case: dict[str, Any], truth_path: str | None) -> dict[str, Any]:
+    """The expected fields of a case from its ground truth or its annotation."""
+    if case["kind"] == "synthetic":
+        from ..synth import load_ground_truth
+
+        gt = load_ground_truth(truth_path) if truth_path else None
+        gate = gt.expected_gate if gt is not None else None
+        return {
+            "source": "synthetic",
+            "truth_gate": gate if gate in _SYNTH_GATE else None,
+            "truth_category": case["family"],
+            "truth_movers": None if gt is None else len(gt.objects),
+            "static_camera": case["family"] in ("C1", "C4"),
+            "stable_scene": True,
+        }
+    ann = case.get("annotation")
+    if ann is None:
+        return dict.fromkeys(("truth_gate", "truth_category", "truth_movers", "static_camera", "stable_scene")) | {
+            "source": "unannotated"
+        }
+    a = Annotation(**ann)
+    return {
+        "source": a.source,
+        "truth_gate": a.gate,
+        "truth_category": a.category,
+        "truth_movers": a.movers,
+        "static_camera": a.static_camera,
+        "stable_scene": a.stable_scene,
+    }
+
+
+def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = None) -> CaseResult:
+    """The row of a scored (or failed) case from its ``case.json`` status and record folder; the
+    expectations come from ``spec`` when given (the current annotation), else from ``case.json``."""
+    case = asdict(spec) if spec is not None else status["case"]
+    clip = case["source"] if case["kind"] == "real" else case["case_id"]
+    base = {
+        "case_id": case["case_id"],
+        "kind": case["kind"],
+        "clip": clip if case.get("annotation") is None else case["annotation"]["clip"],
+        **{k: case[k] for k in ("family", "failure", "level", "severity", "height", "codec")},
+        **_expected(case, status.get("truth")),
+        "seconds": status.get("seconds"),
+    }
+    if status["status"] != "ok":
+        return CaseResult(**base, verdict="failed", error=status.get("error"))
+    from ..record import read_record
+
+    rec = read_record(folder)
+    scores = [o.adadfrc for o in rec.objects if o.adadfrc is not None]
+    return CaseResult(
+        **base,
+        verdict=_verdict(rec.background.consistent),
+        gate=rec.gate.label,
+        t_inf=rec.gate.t_inf,
+        pose_present=rec.gate.pose_present,
+        pose_method=rec.gate.pose.method,
+        ir=rec.background.ir,
+        ge=rec.background.ge,
+        model=rec.background.model,
+        objects=len(rec.objects),
+        max_adadfrc=max(scores) if scores else None,
+        category=None if rec.category is None else rec.category.label,
+    )

@@ -1,0 +1,181 @@
+"""Running validation cases: prepare every clip (render, encode, cut) into the cache, then score
+each case into ``OUT/cases/<case id>/`` (``record.json`` + ``matches.npz`` as ``geocon score``
+writes them, and ``case.json`` with the case, its status and timing).
+
+Both phases run in ``jobs`` worker processes (inline when ``jobs`` is 1). A case whose
+``case.json`` says it was scored from the same clip with the same configuration is not scored
+again, so an interrupted run resumes; a case that fails is recorded with its reason, never
+dropped.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+import time
+import traceback
+from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from ..config import ScoreConfig, config_hash
+from .cases import CaseSpec, ValidationPlan
+from .prepare import clip_for, code_digest, prepare_case
+
+__all__ = ["CASES_DIR", "CASE_FILE", "Progress", "run_cases", "case_folder"]
+
+CASES_DIR = "cases"
+CASE_FILE = "case.json"
+
+Progress = Callable[[str, int, int], None]
+"""``progress(phase, done, total)``: phase is ``prepare`` or ``score``."""
+
+
+def case_folder(out: Path, case: CaseSpec) -> Path:
+    return out / CASES_DIR / case.case_id
+
+
+def _prepare_one(case: CaseSpec, plan: ValidationPlan, cache: str, code: str) -> str:
+    import cv2
+
+    cv2.setNumThreads(1)
+    return str(prepare_case(case, plan, Path(cache), code, plan.codecs))
+
+
+def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], folder: str, threads: int) -> dict:
+    """Worker: score one case into ``folder`` and write its ``case.json``."""
+    import cv2
+
+    from ..record import write_record
+    from ..scorer import score_clip
+
+    cv2.setNumThreads(threads)
+    cfg = ScoreConfig.from_dict(cfg_dict)
+    out = Path(folder)
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    status: dict[str, Any] = {"case": asdict(case), "status": "ok", "error": None, "config_hash": config_hash(cfg)}
+    start = time.perf_counter()
+    try:
+        prepared = clip_for(case, Path(cache_folder))
+        status.update(clip=str(prepared.clip), truth=None if prepared.truth is None else str(prepared.truth))
+        record = score_clip(prepared.clip, cfg, workers=threads)
+        write_record(record, out)
+    except Exception as exc:  # every failure is recorded with its reason
+        status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=6))
+    status["seconds"] = round(time.perf_counter() - start, 3)
+    (out / CASE_FILE).write_text(json.dumps(status, indent=1) + "\n")
+    return status
+
+
+def _finished(folder: Path, digest: str, clip: Path) -> dict | None:
+    """The saved status of a case scored earlier from ``clip`` with the same configuration."""
+    try:
+        status = json.loads((folder / CASE_FILE).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if status.get("status") != "ok" or status.get("config_hash") != digest or status.get("clip") != str(clip):
+        return None
+    return status if (folder / "record.json").is_file() else None
+
+
+def _map(fn: Callable[..., Any], jobs: int, argsets: list[tuple], on_done: Callable[[int, Any], None]) -> None:
+    """Call ``fn(*args)`` for each argument tuple (in ``jobs`` processes when ``jobs > 1``) and
+    ``on_done(index, result)`` as each finishes."""
+    if jobs <= 1 or len(argsets) <= 1:
+        for i, args in enumerate(argsets):
+            on_done(i, fn(*args))
+        return
+    with ProcessPoolExecutor(
+        max_workers=min(jobs, len(argsets)), mp_context=multiprocessing.get_context("spawn")
+    ) as pool:
+        futures: dict[Future, int] = {pool.submit(fn, *args): i for i, args in enumerate(argsets)}
+        try:
+            for fut in as_completed(futures):
+                on_done(futures[fut], fut.result())
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+
+def _unique_prepares(cases: Iterable[CaseSpec], plan: ValidationPlan, code: str) -> dict[str, CaseSpec]:
+    from .prepare import prepare_key
+
+    keys: dict[str, CaseSpec] = {}
+    for case in cases:
+        keys.setdefault(prepare_key(case, plan, code), case)
+    return keys
+
+
+def run_cases(
+    cases: list[CaseSpec],
+    plan: ValidationPlan,
+    config: ScoreConfig,
+    out: str | Path,
+    cache: str | Path,
+    *,
+    jobs: int = 1,
+    progress: Progress | None = None,
+    score: bool = True,
+) -> list[tuple[CaseSpec, dict[str, Any]]]:
+    """Prepare and score ``cases``; returns each case with its status (``case.json``), in case
+    order. With ``score=False`` nothing is prepared or scored: only the cases finished earlier
+    are returned (the report of an interrupted run)."""
+    out_dir, cache_dir = Path(out), Path(cache)
+    code = code_digest()
+    from .prepare import prepare_key
+
+    unique = _unique_prepares(cases, plan, code)
+    keys = list(unique)
+    folders: dict[str, str] = {}
+
+    def prepared(i: int, folder: str) -> None:
+        folders[keys[i]] = folder
+        if progress is not None:
+            progress("prepare", len(folders), len(keys))
+
+    if score:
+        if progress is not None:
+            progress("prepare", 0, len(keys))
+        _map(_prepare_one, jobs, [(unique[k], plan, str(cache_dir), code) for k in keys], prepared)
+    else:
+        folders = {k: str(cache_dir / k) for k in keys if (cache_dir / k / "done.json").is_file()}
+
+    digest = config_hash(config)
+    statuses: list[dict[str, Any] | None] = [None] * len(cases)
+    todo: list[int] = []
+    for i, case in enumerate(cases):
+        folder = folders.get(prepare_key(case, plan, code))
+        if folder is not None:
+            statuses[i] = _finished(case_folder(out_dir, case), digest, clip_for(case, Path(folder)).clip)
+        if statuses[i] is None and score:
+            todo.append(i)
+    done = len(cases) - len(todo)
+    threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
+
+    def scored(j: int, status: dict[str, Any]) -> None:
+        nonlocal done
+        statuses[todo[j]] = status
+        done += 1
+        if progress is not None:
+            progress("score", done, len(cases))
+
+    if progress is not None:
+        progress("score", done, len(cases))
+    argsets = [
+        (
+            cases[i],
+            folders[prepare_key(cases[i], plan, code)],
+            config.to_dict(),
+            str(case_folder(out_dir, cases[i])),
+            threads,
+        )
+        for i in todo
+    ]
+    _map(_score_one, jobs, argsets, scored)
+    return [(c, s) for c, s in zip(cases, statuses, strict=True) if s is not None]

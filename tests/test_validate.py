@@ -1,0 +1,123 @@
+"""`geocon validate`: the table agrees with the records it wrote and with the planted truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from geocon_core.record import read_record
+from geocon_core.synth import load_ground_truth
+from geocon_core.validation import (
+    ANNOTATIONS_PATH,
+    CaseResult,
+    ValidationPlan,
+    compute_metrics,
+    detected,
+    plan_cases,
+    read_annotations,
+    real_clips,
+)
+from geocon_viewer.cli import app
+
+from .conftest import SHARED_DATA
+
+runner = CliRunner()
+
+
+def _row(**kw) -> CaseResult:
+    base = dict(
+        case_id="x", kind="synthetic", clip="x", family="C4", failure=None, level=None, severity=None, height=256,
+        codec="png", source="synthetic", truth_gate="H", truth_category="C4", truth_movers=2, static_camera=True,
+        stable_scene=True, verdict="consistent", gate="H", pose_present=True, objects=2, max_adadfrc=0.1,
+        category="C4",
+    )  # fmt: skip
+    return CaseResult(**{**base, **kw})
+
+
+def test_detection_rule_uses_background_or_five_times_the_clean_object_score():
+    clean = _row()
+    assert detected(_row(failure="elastic", level="high", verdict="inconsistent", max_adadfrc=0.1), clean)
+    assert detected(_row(failure="elastic", level="high", max_adadfrc=0.5), clean)
+    assert not detected(_row(failure="elastic", level="high", max_adadfrc=0.49), clean)
+    assert not detected(_row(failure="slide", level="high", max_adadfrc=9.0), clean)  # objects count for elastic only
+    assert not detected(_row(failure="elastic", level="high", verdict="not judged", max_adadfrc=9.0), None)
+
+
+def test_metrics_count_every_case_in_its_row_and_leave_the_gray_zone_out():
+    rows = [
+        _row(case_id="a"),
+        _row(case_id="b", height=1080, verdict="inconsistent", gate="F"),
+        _row(case_id="c", truth_gate=None, gate="F"),  # gray zone: not in gate accuracy
+        _row(case_id="d", failure="slide", level="middle", verdict="inconsistent"),
+        _row(case_id="e", failure="slide", level="middle", height=1080),
+        _row(case_id="f", kind="real", source="real", verdict="inconsistent", truth_movers=0, objects=3),
+    ]
+    table = {(m.metric, m.subset): m for m in compute_metrics(rows)}
+    gate = table["gate accuracy", "synthetic"]
+    assert (gate.hits, gate.n) == (3, 4)  # a, d, e right; b wrong; c left out
+    ff = table["false flags", "clean synthetic"]
+    assert (ff.hits, ff.n, ff.ok) == (1, 3, False)
+    assert ff.detail.startswith("256: 0/2  1080: 1/1")
+    det = table["detection", "slide middle (8 px)"]
+    assert (det.hits, det.n, det.ok) == (1, 2, False)
+    assert table["false flags", "real-camera clips"].hits == 1
+    objects = table["object count", "real clips, annotated"]
+    assert (objects.hits, objects.n) == (0, 1)  # 3 tracks > 1.5 * 0 + 1
+
+
+def test_quick_run_table_matches_its_records_and_the_planted_failure(tmp_path):
+    out = tmp_path / "val"
+    args = ["validate", "--quick", "--out", str(out), "--heights", "256", "--codecs", "png", "--families", "C4"]
+    args += ["--failures", "elastic", "--levels", "high", "--frames", "10", "--no-real"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    doc = json.loads((out / "validation.json").read_text())
+    cases = {c["case_id"]: c for c in doc["cases"]}
+    assert set(cases) == {"C4__clean__h256__png", "C4__elastic-high__h256__png"}
+    for cid, row in cases.items():
+        case_dir = out / "cases" / cid
+        rec = read_record(case_dir)
+        status = json.loads((case_dir / "case.json").read_text())
+        gt = load_ground_truth(status["truth"])
+        assert rec.video.num_frames == gt.num_frames == 10
+        assert rec.video.source_size == (456, 256)
+        assert row["ir"] == rec.background.ir and row["gate"] == rec.gate.label
+        assert row["objects"] == len(rec.objects) and row["truth_movers"] == len(gt.objects)
+        assert row["truth_gate"] == gt.expected_gate
+        want = {None: "not judged", True: "consistent", False: "inconsistent"}[rec.background.consistent]
+        assert row["verdict"] == want
+    planted = load_ground_truth(json.loads((out / "cases/C4__elastic-high__h256__png/case.json").read_text())["truth"])
+    assert planted.failure is not None and (planted.failure.kind, planted.failure.severity) == ("elastic", 8.0)
+    metrics = {(m["metric"], m["subset"]): m for m in doc["metrics"]}
+    det = metrics["detection", "elastic high (8 px)"]
+    rows = [CaseResult(**c) for c in doc["cases"]]
+    clean = next(r for r in rows if r.failure is None)
+    damaged = next(r for r in rows if r.failure == "elastic")
+    assert det["n"] == 1 and det["hits"] == int(detected(damaged, clean))
+    assert det["hits"] == 1  # an 8 px non-affine warp of a moving object is found
+    ff = metrics["false flags", "clean synthetic"]
+    assert ff["n"] == 1 and ff["hits"] == int(clean.verdict != "consistent")
+    assert "elastic high" in res.output and (out / "validation.md").read_text().count("C4__") == 2
+
+
+def test_plan_covers_the_grid():
+    cases = plan_cases(ValidationPlan(data=None))
+    assert len(cases) == 5 * 3 * (6 + 3 * 3)
+    assert {c.width for c in cases} == {456, 682, 910, 1280, 1920}
+    with pytest.raises(ValueError, match="unknown codec"):
+        ValidationPlan(codecs=("mp3",))
+
+
+@pytest.mark.skipif(not SHARED_DATA.is_dir(), reason="needs ../shared/data")
+def test_every_real_clip_is_annotated():
+    notes = read_annotations(ANNOTATIONS_PATH)
+    clips = {p.relative_to(SHARED_DATA).as_posix() for p in real_clips(SHARED_DATA)}
+    assert clips == set(notes)
+    assert "made by looking at frames" in Path(ANNOTATIONS_PATH).read_text().lower()
+    for note in notes.values():
+        assert note.source in ("real", "rendered", "generated")
+        assert note.regime in ("static", "rotation", "zoom", "translation")
+        assert note.gate is None or note.gate == ("F" if note.regime == "translation" else "H")
