@@ -193,10 +193,11 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         ScoreConfig(preset="strict", gaps=(1, 4, 8), aggregation="worst"),
     ),
     "audit": (
-        "strict plus a gate that has a pose: when the first and last frames share too few matches, "
-        "the relative poses of 4-frame hops are composed (fail->F only without any evidence); "
-        "the default of `geocon score` and `geocon bench`",
-        ScoreConfig(preset="audit", gaps=(1, 4, 8), aggregation="worst", chain_hop=4),
+        "strict plus a gate that has a pose (when the first and last frames share too few matches, "
+        "the relative poses of 4-frame hops are composed; fail->F only without any evidence) and "
+        "Lowe's ratio 0.7, so that false matches, which grow with the frame gap, do not read as "
+        "inconsistency; the default of `geocon score` and `geocon bench`",
+        ScoreConfig(preset="audit", gaps=(1, 4, 8), aggregation="worst", chain_hop=4, ratio=0.7),
     ),
 }
 

@@ -3,7 +3,6 @@ one table and written as markdown and JSON."""
 
 from __future__ import annotations
 
-import inspect
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Optional
@@ -17,16 +16,9 @@ if TYPE_CHECKING:
     from geocon_core.config import ScoreConfig
     from geocon_core.validation import Annotation, ValidationPlan, ValidationReport
 
-__all__ = ["validate", "print_report", "default_preset"]
+__all__ = ["validate", "print_report"]
 
 _DEFAULT_DATA = Path("../shared/data")
-
-
-def default_preset() -> str:
-    """The preset ``geocon score`` uses when none is given (the validation measures the default)."""
-    from . import commands_score
-
-    return str(inspect.signature(commands_score.score).parameters["preset_name"].default)
 
 
 def _ints(text: str | None, name: str) -> tuple[int, ...] | None:
@@ -105,11 +97,11 @@ def validate(
     """Validate the default settings: synthetic scenes at several heights and codecs, clean and
     with injected failures, and the real clips in --data against the project's annotations; prints
     one table and writes validation.md and validation.json into --out."""
-    from geocon_core.config import preset
+    from geocon_core.config import DEFAULT_PRESET, preset
     from geocon_core.validation import QUICK, ValidationPlan, read_annotations
 
     try:
-        cfg = preset(preset_name or default_preset())
+        cfg = preset(preset_name or DEFAULT_PRESET)  # the validation measures the default
         given = {
             "heights": _ints(heights, "heights") or (QUICK.heights if quick else None),
             "codecs": _names(codecs) if codecs is not None else (QUICK.codecs if quick else None),
