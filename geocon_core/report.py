@@ -194,6 +194,17 @@ def build_report(
     )
     per_cat = per_cat[["metric", "model", "category", "median", "low", "high", "n_scenes", "n_clips"]]
     b.table(per_cat, "per_category")
+    cover = stats.coverage_table(ok)
+    b.table(cover, "coverage")
+    sections.append(
+        (
+            "Coverage: verdicts and pose evidence per platform",
+            "<p>Not judged: too few valid pair-scales for the coverage rule. Pose: from the first-last "
+            "pair, from a chain of short hops (the first-last pair had too few matches), from a pose log, "
+            "or none (gated F by the fail→F convention).</p>"
+            + _html_table(cover[[c for c in cover.columns if not c.endswith(("_low", "_high"))]]),
+        )
+    )
     rates = stats.gate_rates(ok)
     b.table(rates, "gate_rates")
     cons = stats.consensus(ok)

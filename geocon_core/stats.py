@@ -54,6 +54,7 @@ __all__ = [
     "median_difference_ci",
     "scene_balanced_table",
     "gate_rates",
+    "coverage_table",
     "consensus",
     "margin_summary",
     "calibration_bins",
@@ -182,6 +183,33 @@ def gate_rates(clips: pd.DataFrame, *, by: Sequence[str] = ("model", "category")
                 ),
                 **_rate_cols("f_rate_fail_f", int((fam_fail_f == "F").sum()), len(g)),
                 **_rate_cols("anomaly_rate_fail_f", int((fam_fail_f != expected).sum()), len(g)),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def coverage_table(clips: pd.DataFrame, *, by: Sequence[str] = ("model",)) -> pd.DataFrame:
+    """Per group: scored clips, how many the report gate calls consistent, inconsistent or could
+    not judge (the coverage rule), and where the gate's pose came from (first-last pair, a chain
+    of short hops, a pose log, none: fail->F), with the share that has a pose."""
+    rows = []
+    for key, g in _ok(clips).groupby(list(by), sort=True):
+        key = key if isinstance(key, tuple) else (key,)
+        verdict = g["consistent"]
+        method = g["pose_method"].fillna("none") if "pose_method" in g else pd.Series("none", index=g.index)
+        pose = g["pose_present"].fillna(False).astype(bool)
+        rows.append(
+            {
+                **dict(zip(by, key, strict=True)),
+                "n_clips": len(g),
+                "consistent": int((verdict == True).sum()),  # noqa: E712  (NA-aware)
+                "inconsistent": int((verdict == False).sum()),  # noqa: E712
+                "not_judged": int(verdict.isna().sum()),
+                "pose_first_last": int((pose & method.isin(["essential", "rotation"])).sum()),
+                "pose_chain": int((method == "chain").sum()),
+                "pose_log": int((method == "log").sum()),
+                "no_pose": int((~pose).sum()),
+                **_rate_cols("pose_coverage", int(pose.sum()), len(g)),
             }
         )
     return pd.DataFrame(rows)

@@ -90,7 +90,8 @@ def test_tables_hold_every_clip_and_count_the_failure(results):
     rec = json.loads((results / "clips" / "clean-c4_objects-s0" / "record.json").read_text())
     pairs = t["pairs"][t["pairs"]["clip_id"] == "clean-c4_objects-s0"]
     assert len(pairs) == len(rec["pairs"]) and pairs["h_inliers"].tolist() == [
-        0 if p["h"] is None else p["h"]["n_inliers"] for p in rec["pairs"]  # 0: a skipped pair-scale
+        0 if p["h"] is None else p["h"]["n_inliers"]
+        for p in rec["pairs"]  # 0: a skipped pair-scale
     ]
     objs = t["objects"][t["objects"]["clip_id"] == "clean-c4_objects-s0"]
     assert objs["adap90"].tolist() == [o["adap90"] for o in rec["objects"]]

@@ -117,6 +117,18 @@ def test_consensus_on_a_hand_made_table():
     assert out.attrs["n_tuples"] == 4 and out.attrs["consensus_rate"] == 0.5
 
 
+def test_coverage_table_counts_verdicts_and_pose_evidence():
+    df = _clips()
+    df["consistent"] = pd.array([True, False, None, True, True, None, True, True, False, True], dtype="boolean")
+    df["pose_method"] = ["essential", "chain", "none", "rotation", "essential", "chain"] + ["essential"] * 4
+    c = stats.coverage_table(df).set_index("model")
+    p = c.loc["p"]
+    assert (p.n_clips, p.consistent, p.inconsistent, p.not_judged) == (6, 3, 1, 2)
+    assert (p.pose_first_last, p.pose_chain, p.pose_log, p.no_pose) == (3, 2, 0, 1)
+    assert p.pose_coverage == pytest.approx(5 / 6)
+    assert c.loc["q"].not_judged == 0 and c.loc["q"].pose_coverage == 1.0
+
+
 def test_calibration_bins_are_equal_count_with_wilson():
     t = np.linspace(0.0, 0.2, 120)
     y = t > 0.1
