@@ -121,7 +121,7 @@ def _false_flag_rows(rows: list[CaseResult]) -> list[MetricRow]:
         codecs[str(r.codec)].append(r)
     if len(codecs) > 1:
         by_codec = "  ".join(f"{c}: {sum(r.flagged for r in g)}/{len(g)}" for c, g in codecs.items())
-        out[0] = replace(out[0], detail=f"{out[0].detail}  |  {by_codec}")
+        out[0] = replace(out[0], detail=f"{out[0].detail};  {by_codec}")
     out.append(_share("false flags", "real-camera clips", real, lambda r: r.flagged, "<= 10%", lambda v: v <= 0.1))
     return out
 
@@ -193,7 +193,7 @@ def _object_rows(rows: list[CaseResult]) -> list[MetricRow]:
         row = _share("object count", subset, group, _count_ok, "tracks <= 1.5 x movers + 1", lambda v: v == 1.0)
         if group:
             mean_err = sum(abs(int(r.objects or 0) - int(r.truth_movers or 0)) for r in group) / len(group)
-            row = replace(row, detail=f"mean |tracks - movers| {mean_err:.1f}")
+            row = replace(row, detail=f"mean abs(tracks - movers) {mean_err:.1f}")
         out.append(row)
     return out
 
