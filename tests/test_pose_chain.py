@@ -6,9 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from geocon_core.config import preset
 from geocon_core.geometry import invert_pose, make_pose, rotation_xyz
 from geocon_core.pose import ClassicalPose, PoseEstimate
 from geocon_core.pose.chain import chain_hops, compose_chain
+from geocon_core.scorer import score_clip
 
 from .conftest import sift_matches
 from .test_pose import RE10K, gate, read_re10k, real_clip_table
@@ -102,3 +104,19 @@ def test_realestate10k_chains_decide_the_gate_where_first_last_fails():
             agree += got is not None and gate(got) == gate(truth)
     print("\n".join(lines))
     assert decided >= 4 and agree >= decided - 1, "\n".join(lines)
+
+
+def test_the_scorer_gates_a_real_dolly_through_the_chain():
+    """A RealEstate10K dolly (16 frames, 384x256; true first-last t_inf 0.61): its first and last
+    frames keep too few matches for a pose; the audit preset's chain gates it F, and says so."""
+    clip = RE10K / "0c11dbe781b1c11c.mp4"
+    if not clip.is_file():
+        pytest.skip(f"{clip} is missing")
+    cfg = preset("audit").with_(masks="none", scales=(1.0,), gaps=(1,))
+    rec = score_clip(clip, cfg)
+    pose = rec.gate.pose
+    assert pose.method == "chain" and pose.pose_present and rec.gate.label == "F"
+    assert "first-last pose failed" in (pose.note or "") and any("chain" in w for w in rec.warnings)
+    assert rec.summary()["gate"]["pose_present"] is True
+    paper = score_clip(clip, cfg.with_(chain_hop=0))  # the paper's convention: fail->F without a pose
+    assert not paper.gate.pose.pose_present and paper.gate.pose.method == "none"
