@@ -3,6 +3,7 @@ The evidence is computed by :mod:`.evidence`, regions by :mod:`.regions`, ids by
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import replace
 from typing import Any
 
@@ -14,6 +15,7 @@ from ..reader import ClipInfo, Frame
 from ..stage_configs import MotionConfig
 from .base import MAX_ID, Coverage
 from .evidence import Evidence, Side
+from .identity import colour_histogram, merge_parts
 from .regions import RegionFinder
 from .tracking import Segmentation, Tracker
 
@@ -89,10 +91,6 @@ class MotionSegmenter(Coverage):
     """
 
     name = "motion"
-    lookahead = 2
-
-    name = "motion"
-    lookahead = 2
 
     def __init__(
         self,
@@ -114,12 +112,16 @@ class MotionSegmenter(Coverage):
         self._s = self._rw / self._cw  # actual reduced / working factor
         self._evidence = Evidence(cfg, self.flow, self.seed, self._rw, self._rh, self._s)
         self._regions = RegionFinder(cfg, self._rw * self._rh)
-        self._tracker = Tracker(cfg, self._extra_warnings)
+        self._tracker = Tracker(cfg, self._extra_warnings, self._s)
+        self.lookahead = cfg.lookahead
 
         self._pushed = 0
         self._finished = False
         self._released = 0
         self._prev_gray: np.ndarray | None = None
+        self._history: deque[np.ndarray] = deque(maxlen=max(1, cfg.slow_gap))  # last distinct grey frames
+        self._slow: Side | None = None  # slow evidence of the pending frame
+        self._rgb: dict[int, np.ndarray] = {}  # reduced colour frames not yet segmented
         self._prev_rep = -1  # representative (last distinct) frame of the previous frame
         self._pending: int | None = None  # representative frame waiting for its forward evidence
         self._pending_bwd: Side | None = None
@@ -154,18 +156,22 @@ class MotionSegmenter(Coverage):
             self._segs[p] = self._rep_seg  # kept even when the repeated frame was released
             return
         gray = self._reduce(frame.gray)
+        self._rgb[p] = self._reduce(frame.rgb)
         bwd = None
         if p > 0 and p in self._cuts:
             if self._pending is not None:
                 self._segment(self._pending, self._pending_bwd, None)
                 self._pending = None
             self._tracker.cut()
+            self._history.clear()
         elif p > 0:
             assert self._prev_gray is not None
             fwd, bwd = self._pair(self._prev_gray, gray, self._prev_rep, p)
             if self._pending is not None:
                 self._segment(self._pending, self._pending_bwd, fwd)
                 self._pending = None
+        self._slow = self._slow_side(gray, p, bwd)
+        self._history.append(gray)
         self._prev_gray, self._prev_rep = gray, p
         self._pending, self._pending_bwd = p, bwd
 
@@ -239,25 +245,39 @@ class MotionSegmenter(Coverage):
         self.regimes[t0] = f.regime if f is not None else "none"
         return f, b
 
+    def _slow_side(self, gray: np.ndarray, p: int, bwd: Side | None) -> Side | None:
+        """Evidence of frame p against the frame ``slow_gap`` distinct frames earlier, when the
+        camera is still over that gap (the static regime) and the adjacent pair is static too."""
+        k = self.config.slow_gap
+        if k < 2 or len(self._history) < k or bwd is None or bwd.regime != "static":
+            return None
+        side = self._evidence.slow(gray, self._history[0], p)
+        return side if side is not None and side.regime == "static" else None
+
     def _segment(self, t: int, bwd: Side | None, fwd: Side | None) -> None:
         sides = [s for s in (fwd, bwd) if s is not None]
         comps = np.zeros((self._rh, self._rw), np.uint8)
+        rgb = self._rgb.pop(t)
         masks: list[np.ndarray] = []
         if sides:
             score = sides[0].score if len(sides) == 1 else np.minimum(sides[0].score, sides[1].score)
+            if self._slow is not None:  # movers slower than the per-frame threshold, summed over the gap
+                score = np.maximum(score, np.where(self._slow.reliable, self._slow.score, np.float32(0.0)))
             min_reliable = self.config.min_reliable
             for m in self._regions.objects(score):
                 # flow that is not forward-backward consistent on most of the region is no
                 # object moving: e.g. texture that re-synthesises itself every frame (boiling)
-                if np.mean([np.count_nonzero(s.reliable[m]) for s in sides]) < min_reliable * np.count_nonzero(m):
-                    continue
-                if len(masks) >= MAX_ID:
-                    break
-                comps[m] = len(masks) + 1
-                masks.append(m)
+                if np.mean([np.count_nonzero(s.reliable[m]) for s in sides]) >= min_reliable * np.count_nonzero(m):
+                    masks.append(m)
+        vels = [_velocity(m, fwd, bwd) for m in masks]
+        parts = merge_parts(masks, vels, self.config, self._s)[:MAX_ID]
+        masks = [np.logical_or.reduce([masks[i] for i in g]) for g in parts]
+        vels = [_velocity(m, fwd, bwd) for m in masks]
+        for k, m in enumerate(masks, start=1):
+            comps[m] = k
         seg = Segmentation(comps)
         self._segs[t] = self._rep_seg = seg
-        seg.tracks = self._tracker.step(t, masks, [_velocity(m, fwd, bwd) for m in masks])
+        seg.tracks = self._tracker.step(t, masks, vels, [colour_histogram(rgb, m) for m in masks])
 
 
 def _velocity(m: np.ndarray, fwd: Side | None, bwd: Side | None) -> np.ndarray:
