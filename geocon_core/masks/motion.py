@@ -254,6 +254,16 @@ class MotionSegmenter(Coverage):
         side = self._evidence.slow(gray, self._history[0], p)
         return side if side is not None and side.regime == "static" else None
 
+    def _slow_score(self, slow: Side, bwd: Side) -> np.ndarray:
+        """Slow-gap score where the flow over the gap is reliable and agrees with ``slow_gap``
+        times the adjacent backward flow (a steady slow mover; flow errors in the wake of a
+        fast one disagree), within ``min_px`` plus half its length; 0 elsewhere."""
+        k = np.float32(self.config.slow_gap)
+        diff = np.hypot(*(slow.flow - k * bwd.flow).transpose(2, 0, 1))
+        tol = np.float32(self.config.min_px * self._s) + np.float32(0.5) * np.hypot(*slow.flow.transpose(2, 0, 1))
+        ok = slow.reliable & bwd.reliable & (diff <= tol)
+        return np.where(ok, slow.score, np.float32(0.0))
+
     def _segment(self, t: int, bwd: Side | None, fwd: Side | None) -> None:
         sides = [s for s in (fwd, bwd) if s is not None]
         comps = np.zeros((self._rh, self._rw), np.uint8)
@@ -261,8 +271,8 @@ class MotionSegmenter(Coverage):
         masks: list[np.ndarray] = []
         if sides:
             score = sides[0].score if len(sides) == 1 else np.minimum(sides[0].score, sides[1].score)
-            if self._slow is not None:  # movers slower than the per-frame threshold, summed over the gap
-                score = np.maximum(score, np.where(self._slow.reliable, self._slow.score, np.float32(0.0)))
+            if self._slow is not None and bwd is not None:
+                score = np.maximum(score, self._slow_score(self._slow, bwd))
             min_reliable = self.config.min_reliable
             for m in self._regions.objects(score):
                 # flow that is not forward-backward consistent on most of the region is no
