@@ -36,9 +36,7 @@ def centroid(mask: np.ndarray) -> np.ndarray:
     return np.array([xs.mean(), ys.mean()], np.float64)
 
 
-def merge_parts(
-    masks: list[np.ndarray], vels: list[np.ndarray], config: MotionConfig, s: float
-) -> list[list[int]]:
+def merge_parts(masks: list[np.ndarray], vels: list[np.ndarray], config: MotionConfig, s: float) -> list[list[int]]:
     """Groups (lists of indices into ``masks``) of regions that belong to one mover: regions
     whose gap is at most ``merge_px`` and whose velocities ((2,) reduced px per frame) differ
     by at most ``merge_speed_px`` plus ``merge_speed_share`` of the faster one. ``s`` is the

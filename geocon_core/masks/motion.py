@@ -23,7 +23,7 @@ __all__ = ["MotionSegmenter"]
 
 
 class MotionSegmenter(Coverage):
-    """Built-in motion segmentation (``name = "motion"``, lookahead 2, no weights).
+    """Built-in motion segmentation (``name = "motion"``, lookahead ``lookahead`` = 7, no weights).
 
     Settings: ``config`` (:class:`~geocon_core.stage_configs.MotionConfig`, defaults when None;
     keyword arguments override single fields); ``flow`` is the flow backend, ``seed`` seeds the
@@ -55,13 +55,21 @@ class MotionSegmenter(Coverage):
        (R, t) that puts most vectors in front of both cameras, and a static point can only
        move from its point at infinity ``K R K^-1 x`` towards the epipole side, never against
        it; the component against it is residual (an object moving against the flow of a
-       translating camera). Threshold ``max(k_sigma * sigma, min_px)`` with ``sigma = 1.4826 *
+       translating camera). From this F residual, ``parallax_share`` = 1/4 of the pixel's
+       parallax (its displacement from the homography's prediction) is subtracted: flow
+       errors grow with the displacement, and near surfaces of a static scene seen by a
+       translating camera move most. Threshold ``max(k_sigma * sigma, min_px)`` with ``sigma = 1.4826 *
        median`` grid residual, ``k_sigma`` = 4, ``min_px`` = 2 px per frame: a breathing or
        drifting background moves less than that per frame (and is, if it moves more, still
        smooth; see 4) and is left to the scorer, which reports it as a failure. Frame t's
        score is residual / threshold from the pair (t, t+1) and from the backward pair
        (t, t-1); where both exist their minimum is taken, which removes the occlusion strips
        ahead of and behind a moving object (only one direction is occluded there).
+       **Slow movers**: when the camera is still (``static`` regime both over (t-1, t) and
+       over the gap), frame t is also compared with the distinct frame ``slow_gap`` = 4
+       frames earlier; that residual counts (max with the above) where its flow is reliable
+       and agrees with ``slow_gap`` times the adjacent backward flow within ``min_px`` plus
+       half its length (a steady slow mover; the wake of a fast mover disagrees).
     4. **Objects**: a pixel is kept where its score is >= 1 and at least ``refine`` = 1/2 of
        the highest score within ``halo_px`` = 6 reduced px (a local half-maximum boundary:
        flow is smoothed across object edges, and this trims the halo and separates objects
@@ -74,19 +82,28 @@ class MotionSegmenter(Coverage):
        consistent flow (on average over the directions at least ``min_reliable`` = 30 % of the
        pixels pass the forward-backward check: texture that re-synthesises itself every
        frame, "boiling", is a background failure, not an object).
-    5. **Tracks**: each track's last mask, shifted by its median flow, is matched greedily to
+    5. **Parts**: components at most ``merge_px`` = 16 px apart whose median velocities differ
+       by at most ``merge_speed_px`` = 1 px per frame plus ``merge_speed_share`` = 1 x the
+       faster one's speed are parts of one mover (limbs, a body split by its own texture)
+       and become one component.
+    6. **Tracks**: each track's last mask, shifted by its median flow, is matched greedily to
        the components by overlap (``|A & B| / min(|A|, |B|)`` >= ``match_overlap`` = 0.3);
        tracks survive ``max_gap`` = 2 frames without a detection; hard cuts end all tracks. A
-       track becomes an object once detected in ``min_track`` = 2 distinct frames (each
-       detection already needs consistent motion over three frames, t-1..t+1, so a confirmed
-       object moved coherently over at least four); object ids are 1, 2, ... in order of
-       confirmation. ``labels(t)`` shows the components of frame t whose track is confirmed
-       by the detections up to frame t + 1, all known once frame t + 2 was pushed
-       (lookahead 2), so labels never change once available.
+       track becomes an object once detected in ``min_track`` = 6 distinct frames (shorter
+       tracks are flicker). A newly confirmed track takes over an existing id when it is a
+       part of a confirmed track detected in the same frame (its centre inside that track's
+       box grown by ``merge_px``), or when it continues a confirmed track lost at most
+       ``link_gap`` = 60 frames before it began: its first centre within ``link_radius`` =
+       1.5 object sizes plus ``link_speed_px`` = 6 px per frame of the gap from where the lost
+       track's velocity puts it, and colour histograms (8x8x8 RGB) within Bhattacharyya
+       distance ``link_hist`` = 0.5; otherwise ids are 1, 2, ... in order of confirmation.
+       ``labels(t)`` shows the components of frame t whose track is confirmed by the
+       detections up to frame t + lookahead - 1, all known once frame t + lookahead was
+       pushed, so labels never change once available.
 
     Duplicated frames copy the labels of the frame they repeat (no new evidence); pairs across
     hard cuts give none. ``regimes`` records the background model of each frame's forward
-    pair. Memory: the last reduced grey frame, one frame of scores and the reduced component
+    pair. Memory: the last ``slow_gap`` reduced grey frames, one frame of scores and the reduced component
     maps of frames not yet released. Deterministic: seeded fits, and DIS is deterministic.
     """
 

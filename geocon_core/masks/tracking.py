@@ -203,16 +203,16 @@ class Tracker:
                 best, best_d = k, d
         if best is None:
             return None
-        lo, other = cands[best]
-        if other is None:
+        lo, owner = cands[best]
+        if owner is None:
             self._lost = [x for x in self._lost if x is not lo]
         else:
-            other.last_step = -(10**9)  # ended: it can no longer be matched
+            owner.last_step = -(10**9)  # ended: it can no longer be matched
         return lo.public
 
     @staticmethod
     def _lost_of(tr: Track) -> _Lost:
-        size = float(np.sqrt(max(1, np.count_nonzero(tr.mask))))
+        size = float(np.sqrt(max(1, int(np.count_nonzero(tr.mask)))))
         return _Lost(tr.public, centroid(tr.mask), tr.velocity, size, tr.last_step, tr.hist)
 
 
