@@ -165,13 +165,14 @@ class Tracker:
                 tr.confirmed_at, tr.public = t, public
 
     def _part_of(self, tr: Track, alive: list[Track]) -> int | None:
-        """The id of a confirmed track detected in the same frame whose box, grown by
-        ``merge_px``, holds ``tr``'s centre: a part of that mover (the largest such track wins)."""
+        """The id of a confirmed track detected at most ``max_gap`` frames before ``tr``'s latest
+        detection whose last box, grown by ``merge_px``, holds ``tr``'s centre: a part of that
+        mover (the largest such track wins)."""
         c = centroid(tr.mask)
         pad = self.config.merge_px * self._s
         best, best_area = None, 0
         for other in alive:
-            if other is tr or other.confirmed_at is None or other.last_step != tr.last_step:
+            if other is tr or other.confirmed_at is None or tr.last_step - other.last_step > self.config.max_gap:
                 continue
             ys, xs = np.nonzero(other.mask)
             inside = xs.min() - pad <= c[0] <= xs.max() + pad and ys.min() - pad <= c[1] <= ys.max() + pad
