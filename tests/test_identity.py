@@ -203,6 +203,9 @@ def test_real_static_camera_clips_have_about_one_track_per_mover(rel: str) -> No
 
 @pytest.mark.slow
 def test_realestate10k_static_rooms_grow_at_most_one_phantom_object() -> None:
+    """Static rooms seen by a translating camera: parallax is no motion. Two of the ten clips
+    keep one phantom each (a near towel against a planar curtain fitted by a homography; a
+    glare patch), down from 1-22 per clip."""
     clips = sorted((SHARED_DATA / "real" / "realestate10k").glob("*.mp4"))
     if not clips:
         pytest.skip("RealEstate10K clips not available")
@@ -211,4 +214,4 @@ def test_realestate10k_static_rooms_grow_at_most_one_phantom_object() -> None:
         info = probe_clip(path)
         counts[path.name] = len(track_frames(run_source(MotionSegmenter(info), info, max_frames=60)))
     print(f"RealEstate10K tracks per clip: {counts}")
-    assert sum(counts.values()) <= len(clips) and max(counts.values()) <= 2
+    assert sum(counts.values()) <= 2 and max(counts.values()) <= 1
