@@ -204,8 +204,8 @@ def test_real_static_camera_clips_have_about_one_track_per_mover(rel: str) -> No
 @pytest.mark.slow
 def test_realestate10k_static_rooms_grow_at_most_one_phantom_object() -> None:
     """Static rooms seen by a translating camera: parallax is no motion. Two of the ten clips
-    keep one phantom each (a near towel against a planar curtain fitted by a homography; a
-    glare patch), down from 1-22 per clip."""
+    keep one phantom each (one is a near towel in front of a planar curtain, whose frames are
+    fitted by a homography), down from 0-22 per clip."""
     clips = sorted((SHARED_DATA / "real" / "realestate10k").glob("*.mp4"))
     if not clips:
         pytest.skip("RealEstate10K clips not available")

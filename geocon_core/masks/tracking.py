@@ -23,8 +23,6 @@ class Track:
     velocity: np.ndarray  # (2,) px per step at the reduced scale
     last_step: int
     hist: np.ndarray  # colour histogram (running mean over the detections)
-    first_step: int = 0
-    first_centre: np.ndarray = field(default_factory=lambda: np.zeros(2))
     count: int = 1
     public: int = 0
     confirmed_at: int | None = None
@@ -98,8 +96,6 @@ class Tracker:
                 velocity=vels[j],
                 last_step=step,
                 hist=hists[j],
-                first_step=step,
-                first_centre=centroid(m),
             )
             self._next_tid += 1
             self.tracks.append(tr)
@@ -181,25 +177,28 @@ class Tracker:
         return best
 
     def _relink(self, tr: Track) -> int | None:
-        """The id of the lost track that ``tr`` continues, if any (and that lost track is
-        consumed): lost before ``tr`` began, at most ``link_gap`` steps earlier, ``tr``'s
-        first centre within ``link_radius`` object sizes (plus ``link_speed_px`` per step of
-        the gap) of where the lost track's velocity puts it, colours within ``link_hist``.
-        The nearest in position wins."""
+        """The id of the track that ``tr`` continues, if any (that track is consumed): a
+        confirmed track not detected in ``tr``'s latest frame and last detected at most
+        ``link_gap`` frames before it, where its velocity puts it within ``link_radius`` object
+        sizes (plus ``link_speed_px`` per frame of the gap) of ``tr``'s latest centre, colours
+        within ``link_hist``. The nearest in position wins. (``tr`` may have begun before the
+        other was lost: a mover whose detection split for a few frames.)"""
         cfg = self.config
+        now = tr.last_step
         cands: list[tuple[_Lost, Track | None]] = [(lo, None) for lo in self._lost]
         for other in self.alive:  # confirmed tracks still waiting out their gap
-            if other is not tr and other.confirmed_at is not None and other.last_step < tr.first_step:
+            if other is not tr and other.confirmed_at is not None and other.last_step < now:
                 cands.append((self._lost_of(other), other))
+        centre = centroid(tr.mask)
         best, best_d = None, np.inf
         for k, (lo, _) in enumerate(cands):
-            gap = tr.first_step - lo.last_step
+            gap = now - lo.last_step
             if not 0 < gap <= cfg.link_gap + 1:
                 continue
             if histogram_distance(lo.hist, tr.hist) > cfg.link_hist:
                 continue
             expected = lo.centre + lo.velocity * min(gap, cfg.max_gap + 1)
-            d = float(np.hypot(*(tr.first_centre - expected)))
+            d = float(np.hypot(*(centre - expected)))
             if d <= cfg.link_radius * lo.size + cfg.link_speed_px * self._s * gap and d < best_d:
                 best, best_d = k, d
         if best is None:
