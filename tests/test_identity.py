@@ -175,20 +175,10 @@ def test_tracker_relinks_a_lost_mover_and_drops_flicker() -> None:
 
 # movers a person counts in the first 96 frames (see the test docstring)
 REAL_MOVERS = {"real/sam2/dog.mp4": 2, "real/sam2/blocks.mp4": 2, "real/opencv/vtest.avi": 9}
-_BLOCKS_OPEN = pytest.mark.xfail(
-    strict=True, reason="blocks: 5 tracks for 2 hands (a hand that leaves and returns while the other is near)"
-)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "rel",
-    [
-        "real/sam2/dog.mp4",
-        pytest.param("real/sam2/blocks.mp4", marks=_BLOCKS_OPEN),
-        "real/opencv/vtest.avi",
-    ],
-)
+@pytest.mark.parametrize("rel", sorted(REAL_MOVERS))
 def test_real_static_camera_clips_have_about_one_track_per_mover(rel: str) -> None:
     """dog: the woman and the dog; blocks: two hands (the blocks they carry move with them);
     vtest: the pedestrians crossing in frames 0..95 (counted 9). Tracks <= 1.5 x movers + 1."""
