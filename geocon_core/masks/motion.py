@@ -91,12 +91,13 @@ class MotionSegmenter(Coverage):
        tracks survive ``max_gap`` = 2 frames without a detection; hard cuts end all tracks. A
        track becomes an object once detected in ``min_track`` = 6 distinct frames (shorter
        tracks are flicker). A newly confirmed track takes over an existing id when it is a
-       part of a confirmed track detected in the same frame (its centre inside that track's
-       box grown by ``merge_px``), or when it continues a confirmed track lost at most
-       ``link_gap`` = 60 frames before it began: its first centre within ``link_radius`` =
-       1.5 object sizes plus ``link_speed_px`` = 6 px per frame of the gap from where the lost
-       track's velocity puts it, and colour histograms (8x8x8 RGB) within Bhattacharyya
-       distance ``link_hist`` = 0.5; otherwise ids are 1, 2, ... in order of confirmation.
+       part of a confirmed track seen at most ``max_gap`` frames earlier (its centre inside
+       that track's last box grown by ``merge_px``), or when it continues a confirmed track
+       not seen in its latest frame and last seen at most ``link_gap`` = 60 frames earlier:
+       its latest centre within ``link_radius`` = 1.5 object sizes plus ``link_speed_px`` = 6
+       px per frame of the gap from where that track's velocity puts it, and colour
+       histograms (8x8x8 RGB) within Bhattacharyya distance ``link_hist`` = 0.5; otherwise
+       ids are 1, 2, ... in order of confirmation.
        ``labels(t)`` shows the components of frame t whose track is confirmed by the
        detections up to frame t + lookahead - 1, all known once frame t + lookahead was
        pushed, so labels never change once available.
