@@ -118,6 +118,14 @@ class MotionConfig:
     """Residual threshold in robust standard deviations of the background residual."""
     min_px: float = 2.0
     """Lower bound (px) of the residual threshold."""
+    parallax_share: float = 0.25
+    """With a fundamental-matrix background (a translating camera), this share of a pixel's parallax
+    (px: its displacement from the homography's prediction) is subtracted from its residual before
+    thresholding: flow errors grow with the displacement, and near surfaces move most. 0 disables it."""
+    slow_gap: int = 4
+    """With a still camera, frame t is also compared with the distinct frame this many frames earlier
+    (its residual thresholded like an adjacent pair's), so movers slower than ``min_px`` per frame are
+    found; 0 or 1 disables it."""
     min_area: float = 0.001
     """Smallest object, a share of the content area."""
     max_area: float = 0.35
@@ -140,8 +148,26 @@ class MotionConfig:
     """Smallest overlap ``|A & B| / min(|A|, |B|)`` between a track's predicted mask and a detection."""
     max_gap: int = 2
     """Frames a track survives without a detection."""
-    min_track: int = 2
-    """Distinct frames a track must be detected in to become an object."""
+    min_track: int = 6
+    """Distinct frames a track must be detected in to become an object (shorter tracks are flicker)."""
+    lookahead: int = 7
+    """Frames after t that must be pushed before the labels of frame t are final (at least 2); a track
+    is labelled in frame t when its ``min_track``-th detection comes by frame t + lookahead - 1."""
+    merge_px: float = 16.0
+    """Regions of one frame at most this far apart (px) and moving alike are parts of one mover."""
+    merge_speed_px: float = 1.0
+    """Parts of one mover: their velocities differ by at most this (px per frame) plus ``merge_speed_share``."""
+    merge_speed_share: float = 1.0
+    """Parts of one mover: allowed velocity difference as a share of the faster part's speed."""
+    link_gap: int = 60
+    """A newly confirmed track takes over the id of a track lost at most this many frames before it began."""
+    link_radius: float = 1.5
+    """Re-identification: largest distance from the lost track's expected position, in object sizes
+    (square root of its last area)."""
+    link_speed_px: float = 6.0
+    """Re-identification: extra distance allowed per frame of the gap (px per frame)."""
+    link_hist: float = 0.5
+    """Re-identification: largest Bhattacharyya distance (0..1) between the two tracks' colour histograms."""
     cheirality_min_share: float = 0.6
     """Share of the fundamental matrix's inlier vectors the cheirality pose must put in front of both
     cameras; otherwise that residual is not used."""
@@ -153,6 +179,8 @@ class MotionConfig:
             raise ValueError(f"scale must be in [0.05, 1], got {self.scale}")
         if self.min_track < 1:
             raise ValueError(f"min_track must be at least 1, got {self.min_track}")
+        if self.lookahead < 2:
+            raise ValueError(f"lookahead must be at least 2, got {self.lookahead}")
         if not 1.0 < self.fov_deg < 179.0:
             raise ValueError(f"fov_deg must be in (1, 179), got {self.fov_deg}")
         if min(self.fit_step, self.f_fit_points, self.fit_iters, self.fit_min_inliers) < 1 or self.halo_px < 0:

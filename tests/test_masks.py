@@ -409,7 +409,7 @@ def test_labels_are_final_deterministic_and_memory_is_bounded(small_c4) -> None:
     assert any(x.any() for x in a)
 
     seg = MotionSegmenter(info)
-    assert seg.name == "motion" and seg.lookahead == 2
+    assert seg.name == "motion" and seg.lookahead == seg.config.lookahead
     kept = []
     for frame in iter_frames(info):
         seg.push(frame)

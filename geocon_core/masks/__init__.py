@@ -40,10 +40,11 @@ Sources
     colour images or ids above 255 raise ValueError with one sentence naming the problem.
     Layouts (a) and (b) read one frame at a time; (c) holds the array in memory.
 
-``motion`` (:class:`MotionSegmenter`, lookahead 2, built in, no weights)
+``motion`` (:class:`MotionSegmenter`, lookahead 7 by default, built in, no weights)
     Dense flow at half resolution, a robust background model per pair (homography, or a
     fundamental matrix with a cheirality check when a moving camera shows parallax), compact,
-    sharply bounded residual regions, tracked into stable ids. Background failures
+    sharply bounded residual regions (and, with a still camera, a longer frame gap for slow
+    movers), parts of one mover merged, tracked into stable ids that survive gaps. Background failures
     (breathing, sliding layers, boiling texture) stay background. See the class docstring.
 
 ``sam2``
@@ -52,7 +53,8 @@ Sources
 
 Modules: :mod:`.base` (the protocol, coverage, canvas mapping), :mod:`.external`,
 :mod:`.motion` (the segmenter), :mod:`.evidence` (flow and background residuals),
-:mod:`.regions` (object regions of a score map), :mod:`.tracking` (object ids).
+:mod:`.regions` (object regions of a score map), :mod:`.identity` (colour, merged parts),
+:mod:`.tracking` (object ids).
 """
 
 from __future__ import annotations

@@ -58,6 +58,12 @@ class Evidence:
         b = self.side(bwd, -1, self.seed * 7919 + 2 * t1 + 1)
         return f, b
 
+    def slow(self, g1: np.ndarray, g0: np.ndarray, t1: int) -> Side | None:
+        """Backward evidence of frame t1 (grey ``g1``) against an earlier frame ``g0``."""
+        both = getattr(self.flow, "compute_both", None)
+        bwd = both(g1, g0)[0] if both is not None else self.flow.compute(g1, g0)
+        return self.side(bwd, -1, self.seed * 7919 + 2 * t1 + 1)
+
     def side(self, field: FlowField, direction: int, seed: int) -> Side | None:
         cfg = self.config
         flow, rel = field.flow, field.reliable
@@ -111,6 +117,13 @@ class Evidence:
             wrong = self.wrong_way(Fm, p1[inl], p2[inl], x2, y2)
             if wrong is not None:
                 res = np.maximum(res, wrong)
+            if cfg.parallax_share > 0:  # flow errors grow with the displacement: discount the parallax
+                h = Hm.astype(np.float32)
+                hc = h[2, 0] * gx + h[2, 1] * gy + h[2, 2]
+                hx = (h[0, 0] * gx + h[0, 1] * gy + h[0, 2]) / hc
+                hy = (h[1, 0] * gx + h[1, 1] * gy + h[1, 2]) / hc
+                parallax = np.hypot(x2 - hx, y2 - hy)
+                res = np.maximum(res - np.float32(cfg.parallax_share) * parallax, np.float32(0.0))
         else:  # transfer error |x2 - H x1|
             res = np.hypot(x2 - a / c, y2 - b / c)
             grid = np.hypot(*(p2 - apply_homography(Hm, p1, at_infinity=np.inf)).T)

@@ -3,6 +3,7 @@ The evidence is computed by :mod:`.evidence`, regions by :mod:`.regions`, ids by
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import replace
 from typing import Any
 
@@ -14,6 +15,7 @@ from ..reader import ClipInfo, Frame
 from ..stage_configs import MotionConfig
 from .base import MAX_ID, Coverage
 from .evidence import Evidence, Side
+from .identity import colour_histogram, merge_parts
 from .regions import RegionFinder
 from .tracking import Segmentation, Tracker
 
@@ -21,7 +23,7 @@ __all__ = ["MotionSegmenter"]
 
 
 class MotionSegmenter(Coverage):
-    """Built-in motion segmentation (``name = "motion"``, lookahead 2, no weights).
+    """Built-in motion segmentation (``name = "motion"``, lookahead ``lookahead`` = 7, no weights).
 
     Settings: ``config`` (:class:`~geocon_core.stage_configs.MotionConfig`, defaults when None;
     keyword arguments override single fields); ``flow`` is the flow backend, ``seed`` seeds the
@@ -53,13 +55,21 @@ class MotionSegmenter(Coverage):
        (R, t) that puts most vectors in front of both cameras, and a static point can only
        move from its point at infinity ``K R K^-1 x`` towards the epipole side, never against
        it; the component against it is residual (an object moving against the flow of a
-       translating camera). Threshold ``max(k_sigma * sigma, min_px)`` with ``sigma = 1.4826 *
+       translating camera). From this F residual, ``parallax_share`` = 1/4 of the pixel's
+       parallax (its displacement from the homography's prediction) is subtracted: flow
+       errors grow with the displacement, and near surfaces of a static scene seen by a
+       translating camera move most. Threshold ``max(k_sigma * sigma, min_px)`` with ``sigma = 1.4826 *
        median`` grid residual, ``k_sigma`` = 4, ``min_px`` = 2 px per frame: a breathing or
        drifting background moves less than that per frame (and is, if it moves more, still
        smooth; see 4) and is left to the scorer, which reports it as a failure. Frame t's
        score is residual / threshold from the pair (t, t+1) and from the backward pair
        (t, t-1); where both exist their minimum is taken, which removes the occlusion strips
        ahead of and behind a moving object (only one direction is occluded there).
+       **Slow movers**: when the camera is still (``static`` regime both over (t-1, t) and
+       over the gap), frame t is also compared with the distinct frame ``slow_gap`` = 4
+       frames earlier; that residual counts (max with the above) where its flow is reliable
+       and agrees with ``slow_gap`` times the adjacent backward flow within ``min_px`` plus
+       half its length (a steady slow mover; the wake of a fast mover disagrees).
     4. **Objects**: a pixel is kept where its score is >= 1 and at least ``refine`` = 1/2 of
        the highest score within ``halo_px`` = 6 reduced px (a local half-maximum boundary:
        flow is smoothed across object edges, and this trims the halo and separates objects
@@ -72,27 +82,33 @@ class MotionSegmenter(Coverage):
        consistent flow (on average over the directions at least ``min_reliable`` = 30 % of the
        pixels pass the forward-backward check: texture that re-synthesises itself every
        frame, "boiling", is a background failure, not an object).
-    5. **Tracks**: each track's last mask, shifted by its median flow, is matched greedily to
+    5. **Parts**: components at most ``merge_px`` = 16 px apart whose median velocities differ
+       by at most ``merge_speed_px`` = 1 px per frame plus ``merge_speed_share`` = 1 x the
+       faster one's speed are parts of one mover (limbs, a body split by its own texture)
+       and become one component.
+    6. **Tracks**: each track's last mask, shifted by its median flow, is matched greedily to
        the components by overlap (``|A & B| / min(|A|, |B|)`` >= ``match_overlap`` = 0.3);
        tracks survive ``max_gap`` = 2 frames without a detection; hard cuts end all tracks. A
-       track becomes an object once detected in ``min_track`` = 2 distinct frames (each
-       detection already needs consistent motion over three frames, t-1..t+1, so a confirmed
-       object moved coherently over at least four); object ids are 1, 2, ... in order of
-       confirmation. ``labels(t)`` shows the components of frame t whose track is confirmed
-       by the detections up to frame t + 1, all known once frame t + 2 was pushed
-       (lookahead 2), so labels never change once available.
+       track becomes an object once detected in ``min_track`` = 6 distinct frames (shorter
+       tracks are flicker). A newly confirmed track takes over an existing id when it is a
+       part of a confirmed track seen at most ``max_gap`` frames earlier (its centre inside
+       that track's last box grown by ``merge_px``), or when it continues a confirmed track
+       not seen in its latest frame and last seen at most ``link_gap`` = 60 frames earlier:
+       its latest centre within ``link_radius`` = 1.5 object sizes plus ``link_speed_px`` = 6
+       px per frame of the gap from where that track's velocity puts it, and colour
+       histograms (8x8x8 RGB) within Bhattacharyya distance ``link_hist`` = 0.5; otherwise
+       ids are 1, 2, ... in order of confirmation.
+       ``labels(t)`` shows the components of frame t whose track is confirmed by the
+       detections up to frame t + lookahead - 1, all known once frame t + lookahead was
+       pushed, so labels never change once available.
 
     Duplicated frames copy the labels of the frame they repeat (no new evidence); pairs across
     hard cuts give none. ``regimes`` records the background model of each frame's forward
-    pair. Memory: the last reduced grey frame, one frame of scores and the reduced component
+    pair. Memory: the last ``slow_gap`` reduced grey frames, one frame of scores and the reduced component
     maps of frames not yet released. Deterministic: seeded fits, and DIS is deterministic.
     """
 
     name = "motion"
-    lookahead = 2
-
-    name = "motion"
-    lookahead = 2
 
     def __init__(
         self,
@@ -114,12 +130,16 @@ class MotionSegmenter(Coverage):
         self._s = self._rw / self._cw  # actual reduced / working factor
         self._evidence = Evidence(cfg, self.flow, self.seed, self._rw, self._rh, self._s)
         self._regions = RegionFinder(cfg, self._rw * self._rh)
-        self._tracker = Tracker(cfg, self._extra_warnings)
+        self._tracker = Tracker(cfg, self._extra_warnings, self._s)
+        self.lookahead = cfg.lookahead
 
         self._pushed = 0
         self._finished = False
         self._released = 0
         self._prev_gray: np.ndarray | None = None
+        self._history: deque[np.ndarray] = deque(maxlen=max(1, cfg.slow_gap))  # last distinct grey frames
+        self._slow: Side | None = None  # slow evidence of the pending frame
+        self._rgb: dict[int, np.ndarray] = {}  # reduced colour frames not yet segmented
         self._prev_rep = -1  # representative (last distinct) frame of the previous frame
         self._pending: int | None = None  # representative frame waiting for its forward evidence
         self._pending_bwd: Side | None = None
@@ -154,18 +174,22 @@ class MotionSegmenter(Coverage):
             self._segs[p] = self._rep_seg  # kept even when the repeated frame was released
             return
         gray = self._reduce(frame.gray)
+        self._rgb[p] = self._reduce(frame.rgb)
         bwd = None
         if p > 0 and p in self._cuts:
             if self._pending is not None:
                 self._segment(self._pending, self._pending_bwd, None)
                 self._pending = None
             self._tracker.cut()
+            self._history.clear()
         elif p > 0:
             assert self._prev_gray is not None
             fwd, bwd = self._pair(self._prev_gray, gray, self._prev_rep, p)
             if self._pending is not None:
                 self._segment(self._pending, self._pending_bwd, fwd)
                 self._pending = None
+        self._slow = self._slow_side(gray, p, bwd)
+        self._history.append(gray)
         self._prev_gray, self._prev_rep = gray, p
         self._pending, self._pending_bwd = p, bwd
 
@@ -239,25 +263,49 @@ class MotionSegmenter(Coverage):
         self.regimes[t0] = f.regime if f is not None else "none"
         return f, b
 
+    def _slow_side(self, gray: np.ndarray, p: int, bwd: Side | None) -> Side | None:
+        """Evidence of frame p against the frame ``slow_gap`` distinct frames earlier, when the
+        camera is still over that gap (the static regime) and the adjacent pair is static too."""
+        k = self.config.slow_gap
+        if k < 2 or len(self._history) < k or bwd is None or bwd.regime != "static":
+            return None
+        side = self._evidence.slow(gray, self._history[0], p)
+        return side if side is not None and side.regime == "static" else None
+
+    def _slow_score(self, slow: Side, bwd: Side) -> np.ndarray:
+        """Slow-gap score where the flow over the gap is reliable and agrees with ``slow_gap``
+        times the adjacent backward flow (a steady slow mover; flow errors in the wake of a
+        fast one disagree), within ``min_px`` plus half its length; 0 elsewhere."""
+        k = np.float32(self.config.slow_gap)
+        diff = np.hypot(*(slow.flow - k * bwd.flow).transpose(2, 0, 1))
+        tol = np.float32(self.config.min_px * self._s) + np.float32(0.5) * np.hypot(*slow.flow.transpose(2, 0, 1))
+        ok = slow.reliable & bwd.reliable & (diff <= tol)
+        return np.where(ok, slow.score, np.float32(0.0))
+
     def _segment(self, t: int, bwd: Side | None, fwd: Side | None) -> None:
         sides = [s for s in (fwd, bwd) if s is not None]
         comps = np.zeros((self._rh, self._rw), np.uint8)
+        rgb = self._rgb.pop(t)
         masks: list[np.ndarray] = []
         if sides:
             score = sides[0].score if len(sides) == 1 else np.minimum(sides[0].score, sides[1].score)
+            if self._slow is not None and bwd is not None:
+                score = np.maximum(score, self._slow_score(self._slow, bwd))
             min_reliable = self.config.min_reliable
             for m in self._regions.objects(score):
                 # flow that is not forward-backward consistent on most of the region is no
                 # object moving: e.g. texture that re-synthesises itself every frame (boiling)
-                if np.mean([np.count_nonzero(s.reliable[m]) for s in sides]) < min_reliable * np.count_nonzero(m):
-                    continue
-                if len(masks) >= MAX_ID:
-                    break
-                comps[m] = len(masks) + 1
-                masks.append(m)
+                if np.mean([np.count_nonzero(s.reliable[m]) for s in sides]) >= min_reliable * np.count_nonzero(m):
+                    masks.append(m)
+        vels = [_velocity(m, fwd, bwd) for m in masks]
+        parts = merge_parts(masks, vels, self.config, self._s)[:MAX_ID]
+        masks = [np.logical_or.reduce([masks[i] for i in g]) for g in parts]
+        vels = [_velocity(m, fwd, bwd) for m in masks]
+        for k, m in enumerate(masks, start=1):
+            comps[m] = k
         seg = Segmentation(comps)
         self._segs[t] = self._rep_seg = seg
-        seg.tracks = self._tracker.step(t, masks, [_velocity(m, fwd, bwd) for m in masks])
+        seg.tracks = self._tracker.step(t, masks, vels, [colour_histogram(rgb, m) for m in masks])
 
 
 def _velocity(m: np.ndarray, fwd: Side | None, bwd: Side | None) -> np.ndarray:
