@@ -98,8 +98,9 @@ class MotionConfig:
     """Built-in motion segmentation (:class:`~geocon_core.masks.MotionSegmenter`). *Reduced* px
     are pixels of the analysis scale; other lengths are working pixels per frame."""
 
-    scale: float = 0.5
-    """Analysis scale, a share of the working resolution (0.05..1)."""
+    analysis_size: tuple[int, int] = (512, 360)
+    """(width, height), px: the content is analysed at the largest size that fits inside this,
+    never above the working size (a 1024x576 clip at half size, a 320x180 clip at its own)."""
     fit_step: int = 12
     """Spacing (reduced px) of the grid of flow vectors that the background models are fitted to."""
     fit_tau_px: float = 1.0
@@ -175,8 +176,8 @@ class MotionConfig:
     """About this many grid vectors feed a fundamental-matrix fit (every k-th one)."""
 
     def __post_init__(self) -> None:
-        if not 0.05 <= self.scale <= 1.0:
-            raise ValueError(f"scale must be in [0.05, 1], got {self.scale}")
+        if min(self.analysis_size) < 16:
+            raise ValueError(f"analysis_size must be at least 16x16 px, got {self.analysis_size}")
         if self.min_track < 1:
             raise ValueError(f"min_track must be at least 1, got {self.min_track}")
         if self.lookahead < 2:

@@ -169,7 +169,7 @@ def test_unknown_keys_fail_with_one_sentence() -> None:
 
 def test_invalid_sub_config_values_are_refused() -> None:
     for bad in (
-        lambda: MotionConfig(scale=2.0),
+        lambda: MotionConfig(analysis_size=(8, 4)),
         lambda: PoseConfig(trim=0.6),
         lambda: FlowConfig(preset="slow"),
         lambda: FlowConfig(fb_abs=-1.0),

@@ -291,8 +291,8 @@ def test_registry_and_errors(small_c4) -> None:
         make_mask_source("grabcut", info)
     with pytest.raises(ValueError, match="need path"):
         make_mask_source("external", info)
-    with pytest.raises(ValueError, match="scale"):
-        MotionSegmenter(info, scale=0.0)
+    with pytest.raises(ValueError, match="analysis_size"):
+        MotionSegmenter(info, analysis_size=(8, 8))
 
 
 # --- built-in motion segmentation: synthetic ground truth ------------------------------

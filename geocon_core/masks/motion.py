@@ -30,8 +30,9 @@ class MotionSegmenter(Coverage):
     background fits. The defaults quoted below are those of :class:`MotionConfig`.
 
     Lengths below are working pixels unless marked *reduced* (pixels of the analysis scale).
-    For every pair of consecutive distinct frames (t, t+1), at ``scale`` (default 1/2) of the
-    working resolution, over the content box only:
+    For every pair of consecutive distinct frames (t, t+1), at the analysis size (the largest
+    size inside ``analysis_size``, default 512x360, never above the working size) of the
+    content, over the content box only:
 
     1. **Flow**: forward and backward dense flow (``flow``, default :class:`DisFlow`, medium
        preset) with the forward-backward reliability check.
@@ -125,8 +126,10 @@ class MotionSegmenter(Coverage):
         self.seed = int(seed)
         x0, y0, x1, y1 = info.content_box
         self._cw, self._ch = x1 - x0, y1 - y0
-        self._rw = max(16, round(self._cw * cfg.scale))
-        self._rh = max(16, round(self._ch * cfg.scale))
+        aw, ah = cfg.analysis_size
+        fit = min(1.0, aw / self._cw, ah / self._ch)
+        self._rw = max(16, round(self._cw * fit))
+        self._rh = max(16, round(self._ch * fit))
         self._s = self._rw / self._cw  # actual reduced / working factor
         self._evidence = Evidence(cfg, self.flow, self.seed, self._rw, self._rh, self._s)
         self._regions = RegionFinder(cfg, self._rw * self._rh)
