@@ -49,12 +49,17 @@
 
     Otherwise (``method = "essential"``) the inliers in front of both cameras are triangulated
     (DLT, ``cv2.triangulatePoints``) with the baseline ``|t| = 1`` and the scene is scaled to
-    unit mean distance from camera 0: points behind either camera are dropped, the distances
-    are sorted and the ``trim`` share (5 %) at each end is dropped before the mean (near-epipole
-    points with almost no parallax triangulate to wild distances). ``t_inf`` is the max-abs
-    component of ``c / mean_distance`` where ``c = -R^T t`` is the last camera centre in
-    camera-0 coordinates. The mean runs over the matched points, so it estimates the mean
-    distance of the scene seen in both frames.
+    unit mean distance from camera 0, the mean the truth takes over every pixel of the first
+    frame: points behind either camera are dropped, then the distances whose log lies beyond
+    ``scale_fence_iqr`` (4) interquartile ranges outside the quartiles (near-epipole points with
+    almost no parallax triangulate to wild distances), and each remaining point is weighted by
+    the image area it stands for (``scale_area_grid``: its share of a 64-sample grid over the
+    matched area of the first frame, a discrete Voronoi area). Matched points crowd on textured
+    near layers: on multi-depth scenes with a plainer far wall a plain mean over the points read
+    t_inf 1.2-1.5x the truth with SIFT (the triangulated distances themselves were right to
+    1-10 %); the symmetric 5 % trim used before biased the mean of the skewed distances of such
+    scenes by a further 3-10 %. ``t_inf`` is the max-abs component of ``c / mean_distance``
+    where ``c = -R^T t`` is the last camera centre in camera-0 coordinates.
 
     *Failures* (``pose_present = False``, never an exception, never NaN):
     ``too_few_matches`` (fewer than ``min_matches`` = 30 finite matches), ``too_few_inliers``
