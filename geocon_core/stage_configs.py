@@ -219,8 +219,18 @@ class PoseConfig:
     """Least likelihood-ratio statistic for adopting a fitted focal scale in the essential model."""
     max_focal_ratio: float = 1.6
     """Bound on the focal scale (and on its inverse)."""
-    trim: float = 0.05
-    """Share of the sorted triangulated distances dropped at each end before the mean."""
+    trim: float = 0.0
+    """Share of the sorted triangulated distances dropped at each end before the mean (a symmetric
+    trim biases the mean of the skewed distances of a multi-depth scene; ``scale_fence_iqr`` is the
+    outlier rule)."""
+    scale_fence_iqr: float = 4.0
+    """Triangulated distances whose logarithm lies more than this many interquartile ranges (of the
+    log distances) outside the quartiles are dropped before the mean (wild near-epipole points)."""
+    scale_area_grid: int = 64
+    """Samples along the longer side of the first frame's matched area: each triangulated point is
+    weighted by the share of the samples nearest to it (its image area), so the mean scene distance
+    is a mean over the image, as the truth is, not over where the features cluster; 0 weights every
+    point equally."""
     ransac_iters: int = 5000
     """Iteration budget of the essential-matrix RANSAC."""
     rot_hypotheses: int = 300
@@ -235,6 +245,8 @@ class PoseConfig:
             raise ValueError(f"min_inliers must be at least 6, got {self.min_inliers}")
         if not 0 <= self.trim < 0.5:
             raise ValueError(f"trim must be in [0, 0.5), got {self.trim}")
+        if not (self.scale_fence_iqr > 0 and self.scale_area_grid >= 0):
+            raise ValueError("scale_fence_iqr must be positive and scale_area_grid non-negative")
         if not min(self.essential_px, self.rot_ransac_px, self.rot_median_px, self.rot_share_px) > 0:
             raise ValueError("pixel thresholds must be positive")
         if not (0 < self.rot_share <= 1 and 0 <= self.min_inlier_share <= 1):

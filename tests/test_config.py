@@ -50,7 +50,7 @@ def _changed(name: str, value: Any) -> list[Any]:
     if isinstance(value, int):
         return [value + 1, value - 1]
     if isinstance(value, float):
-        return [value * 0.9, value * 1.1, value + 0.5]
+        return [v for v in (value * 0.9, value * 1.1, value + 0.1, value + 0.5) if v != value]
     if isinstance(value, str):
         return [_STRINGS.get(name, value + "_other")]
     if isinstance(value, tuple):

@@ -49,12 +49,17 @@
 
     Otherwise (``method = "essential"``) the inliers in front of both cameras are triangulated
     (DLT, ``cv2.triangulatePoints``) with the baseline ``|t| = 1`` and the scene is scaled to
-    unit mean distance from camera 0: points behind either camera are dropped, the distances
-    are sorted and the ``trim`` share (5 %) at each end is dropped before the mean (near-epipole
-    points with almost no parallax triangulate to wild distances). ``t_inf`` is the max-abs
-    component of ``c / mean_distance`` where ``c = -R^T t`` is the last camera centre in
-    camera-0 coordinates. The mean runs over the matched points, so it estimates the mean
-    distance of the scene seen in both frames.
+    unit mean distance from camera 0, the mean the truth takes over every pixel of the first
+    frame: points behind either camera are dropped, then the distances whose log lies beyond
+    ``scale_fence_iqr`` (4) interquartile ranges outside the quartiles (near-epipole points with
+    almost no parallax triangulate to wild distances), and each remaining point is weighted by
+    the image area it stands for (``scale_area_grid``: its share of a 64-sample grid over the
+    matched area of the first frame, a discrete Voronoi area). Matched points crowd on textured
+    near layers: on multi-depth scenes with a plainer far wall a plain mean over the points read
+    t_inf 1.2-1.5x the truth with SIFT (the triangulated distances themselves were right to
+    1-10 %); the symmetric 5 % trim used before biased the mean of the skewed distances of such
+    scenes by a further 3-10 %. ``t_inf`` is the max-abs component of ``c / mean_distance``
+    where ``c = -R^T t`` is the last camera centre in camera-0 coordinates.
 
     *Failures* (``pose_present = False``, never an exception, never NaN):
     ``too_few_matches`` (fewer than ``min_matches`` = 30 finite matches), ``too_few_inliers``
@@ -72,6 +77,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..geometry import (
     cheirality_pose,
@@ -128,7 +134,7 @@ class ClassicalPose:
         c = self.config
         return (
             f"ClassicalPose(min_matches={c.min_matches}, essential_px={c.essential_px}, "
-            f"rot_median_px={c.rot_median_px}, fit_focal={c.fit_focal}, trim={c.trim})"
+            f"rot_median_px={c.rot_median_px}, fit_focal={c.fit_focal}, scale_area_grid={c.scale_area_grid})"
         )
 
     # ---- public
@@ -185,7 +191,9 @@ class ClassicalPose:
             return fail("too_few_inliers", n_inl)
         if ess.front.sum() < self.config.min_inliers:
             return fail("no_cheirality", n_inl)
-        scale = self._mean_distance(ess.n0[ess.front], ess.n1[ess.front], ess.R, ess.t)
+        scale = self._mean_distance(
+            ess.n0[ess.front], ess.n1[ess.front], ess.R, ess.t, x0[ess.front], (x0.min(axis=0), x0.max(axis=0))
+        )
         if scale is None:
             return fail("no_cheirality", n_inl)
         c = -ess.R.T @ ess.t / scale  # last camera centre in camera-0 coordinates, unit scale
@@ -317,20 +325,61 @@ class ClassicalPose:
             return None
         return _EssentialFit(R=R, t=t, focal_scale=sc, inliers=inl, front=front, n0=n0, n1=n1)
 
-    def _mean_distance(self, n0: np.ndarray, n1: np.ndarray, R: np.ndarray, t: np.ndarray) -> float | None:
-        """Trimmed mean distance from camera 0 of the triangulated points (baseline |t| = 1):
-        points behind either camera are dropped, then the ``trim`` share at each end of the
-        sorted distances."""
+    def _mean_distance(
+        self,
+        n0: np.ndarray,
+        n1: np.ndarray,
+        R: np.ndarray,
+        t: np.ndarray,
+        xy: np.ndarray,
+        extent: tuple[np.ndarray, np.ndarray],
+    ) -> float | None:
+        """Mean distance from camera 0 of the triangulated points (baseline |t| = 1), weighted by
+        the image area each point stands for: points behind either camera are dropped, then the
+        ``trim`` share at each end of the sorted distances and the distances outside the
+        ``scale_fence_iqr`` fence (log scale). ``xy`` (N, 2) are the points' first-frame pixels,
+        ``extent`` the (min, max) corners of the first frame's matched area."""
         X = triangulate_normalised(n0, n1, R, t)
         z1 = X @ R.T + t
         ok = np.isfinite(X).all(axis=1) & (X[:, 2] > 0) & (z1[:, 2] > 0)
         if ok.sum() < self.config.min_inliers:
             return None
-        d = np.sort(np.linalg.norm(X[ok], axis=1))
+        d, xy = np.linalg.norm(X[ok], axis=1), xy[ok]
+        order = np.argsort(d, kind="stable")
         k = int(math.floor(self.config.trim * len(d)))
-        d = d[k : len(d) - k]
-        m = float(d.mean())
+        order = order[k : len(d) - k]
+        d, xy = d[order], xy[order]
+        keep = _log_fence(d, self.config.scale_fence_iqr)
+        d, xy = d[keep], xy[keep]
+        w = area_weights(xy, extent, self.config.scale_area_grid)
+        m = float(np.sum(w * d) / np.sum(w)) if len(d) and np.sum(w) > 0 else math.nan
         return m if math.isfinite(m) and m > 0 else None
+
+
+def _log_fence(d: np.ndarray, k: float) -> np.ndarray:
+    """Mask (N,) of the positive distances whose log lies within ``k`` interquartile ranges of the
+    quartiles of the log distances."""
+    with np.errstate(divide="ignore"):
+        lg = np.log(d)
+    q1, q3 = np.percentile(lg, [25.0, 75.0])
+    iqr = q3 - q1
+    return (lg >= q1 - k * iqr) & (lg <= q3 + k * iqr)
+
+
+def area_weights(xy: np.ndarray, extent: tuple[np.ndarray, np.ndarray], grid: int) -> np.ndarray:
+    """Image area (N,) each point of ``xy`` (N, 2) stands for: the number of samples of a regular
+    grid over ``extent`` (min corner, max corner; ``grid`` samples along the longer side) whose
+    nearest point it is (a discrete Voronoi area). ``grid = 0`` gives every point weight 1."""
+    n = len(xy)
+    if grid == 0 or n == 0:
+        return np.ones(n)
+    lo, hi = np.asarray(extent[0], float), np.asarray(extent[1], float)
+    step = max(float(np.max(hi - lo)), 1e-9) / grid
+    gx = np.arange(lo[0] + step / 2, max(hi[0], lo[0] + step), step)
+    gy = np.arange(lo[1] + step / 2, max(hi[1], lo[1] + step), step)
+    samples = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
+    _, nearest = cKDTree(xy).query(samples)
+    return np.bincount(nearest, minlength=n).astype(float)
 
 
 def _recover(E: np.ndarray, n0: np.ndarray, n1: np.ndarray, inl: np.ndarray):
