@@ -86,7 +86,7 @@ def coverage_note(summary: FamilySummary, min_coverage: float) -> str | None:
     its headline (None when every gap was judged)."""
     if summary.valid_pairs == 0:
         return "no valid pair: the background could not be judged"
-    out = [g for g in summary.per_gap if not g.judged]
+    out = [g for g in summary.per_gap if not g.judged and g.judgeable_pairs]  # a gap longer than the clip: no pair
     if not out:
         return None
     parts = ", ".join(f"gap {g.gap}: {g.valid_pairs} of {g.judgeable_pairs}" for g in out)

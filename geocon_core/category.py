@@ -3,7 +3,8 @@
 The rule, in order (the first that fires wins):
 
 1. **C6 stress** when the geometry cannot be measured well: no first-last pose, fewer than
-   ``min_valid_share`` of the background (pair, scale) entries valid, fewer than ``min_matches``
+   ``min_valid_share`` of the judgeable background (pair, scale) entries valid (not counting
+   pairs across duplicated frames or cuts, or scales too small to score), fewer than ``min_matches``
    background correspondences per valid pair at the largest scale (low texture), or a
    translating camera whose background IR stays below ``stress_ir`` (thin structures and
    occlusions defeat every single model).
@@ -97,13 +98,14 @@ def categorize_record(record: ClipRecord, object_frames: list[int]) -> Category:
         motions.append(float(np.median(np.linalg.norm(arr["x2"][inl] - arr["x1"][inl], axis=1))))
         matches.append(p.n_matches)
     bg = record.background
+    judgeable = sum(1 for p in record.pairs if p.skip is None)  # not across duplicates, cuts, tiny scales
     return categorize(
         gate_model=record.gate.model,
         pose_present=record.gate.pose_present,
         t_inf=record.gate.t_inf,
         rotation_deg=record.gate.pose.rotation_deg,
         background_motion_px=float(np.median(motions)) if motions else None,
-        valid_share=bg.valid_pairs / bg.total_pairs if bg.total_pairs else 0.0,
+        valid_share=bg.valid_pairs / judgeable if judgeable else 0.0,
         median_matches=float(np.median(matches)) if matches else None,
         background_ir=bg.ir,
         object_frames=object_frames,
