@@ -293,7 +293,12 @@ class AuditApp(AuditPanels):
                 if view is not self.view:
                     continue
                 if f.index in view.frustums:
-                    view.frustums[f.index].image = thumb(img)
+                    try:
+                        view.frustums[f.index].image = thumb(img)
+                    except RuntimeError:  # another clip was selected and removed this one's frustums meanwhile
+                        if view is self.view and not view.cancel.is_set():
+                            raise
+                        continue
                 if f.index == self.frame:
                     self._render_frame()
         except (ClipError, OSError, ValueError) as exc:
