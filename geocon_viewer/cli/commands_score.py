@@ -134,7 +134,10 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
     if len(bg.chosen.per_gap) > 1:
         table.add_row(
             "per gap",
-            "   ".join(f"gap {p.gap}: IR {fmt(p.ir, '.3f')} GE {fmt(p.ge, '.2f')}" for p in bg.chosen.per_gap),
+            "   ".join(
+                f"gap {p.gap}: IR {fmt(p.ir, '.3f')} GE {fmt(p.ge, '.2f')}" + ("" if p.judged else " (not judged)")
+                for p in bg.chosen.per_gap
+            ),
         )
     table.add_row(
         "other family",
