@@ -33,7 +33,7 @@ __all__ = ["chain_hops", "compose_chain"]
 def chain_hops(n: int, hop: int) -> list[tuple[int, int]]:
     """Consecutive hops ``(start, end)`` of ``hop`` frames covering frames ``0 .. n - 1``; a last
     hop shorter than half a hop is merged into the one before. Empty when the clip is not longer
-    than two hops (the first-last pair is then itself a short hop)."""
+    than one hop (the first-last pair is then itself a short hop)."""
     if hop < 1:
         raise ValueError(f"hop must be a positive number of frames, got {hop}")
     if n - 1 <= hop:
@@ -68,7 +68,7 @@ def compose_chain(
         return None
     present = [(w, e) for w, e in hops if e.pose_present]
     spanned = sum(e - s for (s, e), _ in present)
-    if spanned < min_share * (n - 1) or not present:
+    if not present or spanned < min_share * (n - 1):
         return None
     runs: list[list[PoseEstimate]] = [[]]
     for _, est in hops:
