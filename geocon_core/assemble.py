@@ -241,7 +241,15 @@ def add_objects(
     source's warnings and the category (:func:`~geocon_core.category.categorize_record`)."""
     entries, cells = object_entries(scores)
     min_pairs = record.config.min_object_pairs
-    summaries = object_summaries(entries, scales, object_share, min_pairs=min_pairs)
+    cfg = record.config
+    summaries = object_summaries(
+        entries,
+        scales,
+        object_share,
+        min_pairs=min_pairs,
+        jump_window=cfg.mask_jump_window,
+        max_jump=cfg.max_mask_jump,
+    )
     warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
     thin = [o.object_id for o in summaries if o.adadfrc is None]
     if thin:

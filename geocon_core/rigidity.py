@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Collection, Sequence
 
 import numpy as np
 
@@ -63,6 +63,8 @@ __all__ = [
     "object_scores",
     "ObjectPairScore",
     "object_summaries",
+    "mask_jumps",
+    "MASK_JUMP",
 ]
 
 # HiGHS dual simplex without presolve (about 1.6x faster on these small dense transportation
@@ -351,12 +353,41 @@ class ObjectPairScore:
         return (self.object_id, self.t0, self.scale)
 
 
-def _scale_summary(mine: list[ObjectEntry], s: float) -> ObjectScaleSummary:
-    valid = [e for e in mine if e.scale == s and e.valid]
+MASK_JUMP = "mask_jump"
+"""Skip reason of an object pair whose mask area departs from its track's neighbours
+(:func:`mask_jumps`)."""
+
+
+def mask_jumps(shares: dict[int, float], *, window: int, max_jump: float) -> set[int]:
+    """Frames of one track whose mask is implausible: the mask's area (``shares``: frame -> share
+    of the content) departs from the median of up to ``window`` of the track's frames on each side
+    by more than the factor ``1 + max_jump`` (either way). A rigid object changes its image area
+    slowly; a mask that swells by a neighbour's region, or loses half the object, for one frame is
+    a segmentation glitch, and its flow would read as deformation. ``max_jump <= 0`` turns the
+    rule off; a frame needs two neighbours to be judged."""
+    if max_jump <= 0 or window < 1:
+        return set()
+    frames = sorted(shares)
+    limit = 1.0 + max_jump
+    out = set()
+    for i, t in enumerate(frames):
+        around = frames[max(0, i - window) : i] + frames[i + 1 : i + 1 + window]
+        if len(around) < 2:
+            continue
+        ref = float(np.median([shares[k] for k in around]))
+        area = shares[t]
+        if ref > 0 and (area > limit * ref or area * limit < ref):
+            out.add(t)
+    return out
+
+
+def _scale_summary(mine: list[ObjectEntry], s: float, jumps: Collection[int] = ()) -> ObjectScaleSummary:
+    valid = [e for e in mine if e.scale == s and e.valid and e.t0 not in jumps]
     skipped: dict[str, int] = {}
     for e in mine:
-        if e.scale == s and not e.valid:
-            skipped[e.reason or "invalid"] = skipped.get(e.reason or "invalid", 0) + 1
+        if e.scale == s and not (e.valid and e.t0 not in jumps):
+            reason = (e.reason or "invalid") if not e.valid else MASK_JUMP
+            skipped[reason] = skipped.get(reason, 0) + 1
     S: float | None = None
     p90: float | None = None
     w2: float | None = None
@@ -372,18 +403,23 @@ def object_summaries(
     object_share: dict[int, dict[int, float]],
     *,
     min_pairs: int = 1,
+    jump_window: int = 3,
+    max_jump: float = 0.0,
 ) -> list[ObjectSummary]:
     """Per object (in id order): frames seen, mean masked share (``object_share[t][id]``, a share
     of the content area), and per scale ``S`` (mean ``D_t``), mean W2 and AdaP90
     (:func:`object_scores`) over its valid pairs; the headline values are those of the largest
     scale, None when it has fewer than ``min_pairs`` valid pairs there (the coverage rule,
-    ``ScoreConfig.min_object_pairs``)."""
+    ``ScoreConfig.min_object_pairs``). With ``max_jump > 0``, pairs whose mask jumps in area
+    (:func:`mask_jumps`) are left out and counted as skipped (``mask_jump``)."""
     summaries = []
     s_max = max(scales)
     for oid in sorted({e.object_id for e in entries}):
         mine = [e for e in entries if e.object_id == oid]
         frames = sorted({e.t0 for e in mine})
-        per_scale = [_scale_summary(mine, s) for s in scales]
+        areas = {t: object_share[t][oid] for t in frames if oid in object_share.get(t, {})}
+        jumps = mask_jumps(areas, window=jump_window, max_jump=max_jump)
+        per_scale = [_scale_summary(mine, s, jumps) for s in scales]
         head = next(p for p in per_scale if p.scale == s_max)
         judged = head.valid_frames >= min_pairs
         shares = [object_share.get(t, {}).get(oid, 0.0) for t in frames]

@@ -14,11 +14,15 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.optimize import linear_sum_assignment
 
+from geocon_core.record import ObjectEntry
 from geocon_core.rigidity import (
+    MASK_JUMP,
     CellVectors,
     RigidityResult,
     adadfrc_pair,
+    mask_jumps,
     object_scores,
+    object_summaries,
     w2_cost,
     weighted_affine_fit,
     weighted_mse,
@@ -540,3 +544,47 @@ def test_speed_sanity_200x200_grid8():
     ms = (time.perf_counter() - t0) / reps * 1e3
     assert res.valid and res.cells.num_cells > 50
     print(f"\nadadfrc_pair 200x200 disc, grid 8, {res.cells.num_cells} cells: {ms:.2f} ms/call")
+
+
+# --- mask jumps: a one-frame segmentation glitch is not a deformation ---------------------------
+
+
+def test_mask_jumps_flags_one_frame_swell_and_shrink_not_steady_growth():
+    steady = {t: 0.02 * 1.05**t for t in range(20)}  # an object approaching: +5% area per frame
+    assert mask_jumps(steady, window=3, max_jump=0.25) == set()
+    glitchy = {t: 0.02 for t in range(20)}
+    glitchy[7] = 0.03  # swells by half (a neighbour's region joins the mask)
+    glitchy[12] = 0.009  # loses half the object
+    assert mask_jumps(glitchy, window=3, max_jump=0.25) == {7, 12}
+    assert mask_jumps(glitchy, window=3, max_jump=0.0) == set()  # the paper keeps every pair
+    assert mask_jumps({0: 0.02, 1: 0.05}, window=3, max_jump=0.25) == set()  # two frames: no neighbours to judge by
+
+
+def _translating_object_entries(glitch_frame: int, n: int = 12) -> tuple[list, dict]:
+    """A rigid square translating by (2, 1) px per frame over a still background; at
+    ``glitch_frame`` its mask also swallows a strip of the still background."""
+    entries, shares = [], {}
+    H = W = 120
+    for t in range(n):
+        mask = np.zeros((H, W), bool)
+        x0, y0 = 20 + 2 * t, 30 + t
+        mask[y0 : y0 + 40, x0 : x0 + 40] = True
+        flow = np.zeros((H, W, 2))
+        flow[mask] = (2.0, 1.0)
+        if t == glitch_frame:
+            mask[y0 : y0 + 40, x0 + 40 : x0 + 60] = True  # background strip, flow 0
+        r = adadfrc_pair(flow, mask)
+        entries.append(ObjectEntry(t, 1, t, t + 1, 1.0, r.valid, r.reason, r.d_t, r.w2, r.n_pixels, None))
+        shares[t] = {1: float(mask.mean())}
+    return entries, shares
+
+
+def test_object_summary_leaves_out_a_glitched_mask_pair():
+    entries, shares = _translating_object_entries(glitch_frame=5)
+    assert entries[5].d_t > 0.1 and all(e.d_t < 1e-9 for i, e in enumerate(entries) if i != 5)
+    (kept,) = object_summaries(entries, [1.0], shares, max_jump=0.0)
+    assert kept.adadfrc == pytest.approx(entries[5].d_t / len(entries))  # the glitch dominates the mean
+    (clean,) = object_summaries(entries, [1.0], shares, max_jump=0.25)
+    assert clean.adadfrc == pytest.approx(0.0, abs=1e-9)
+    assert clean.per_scale[0].skipped == {MASK_JUMP: 1}
+    assert clean.per_scale[0].valid_frames == len(entries) - 1

@@ -100,7 +100,8 @@ def test_quick_run_table_matches_its_records_and_the_planted_failure(tmp_path):
     assert det["hits"] == 1  # an 8 px non-affine warp of a moving object is found
     ff = metrics["false flags", "clean synthetic"]
     assert ff["n"] == 1 and ff["hits"] == int(clean.verdict != "consistent")
-    assert "elastic high" in res.output and (out / "validation.md").read_text().count("C4__") == 2
+    cases_md = (out / "validation.md").read_text().split("## Cases")[1]
+    assert "elastic high" in res.output and cases_md.count("C4__") == 2
 
 
 def test_plan_covers_the_grid():
@@ -121,3 +122,53 @@ def test_every_real_clip_is_annotated():
         assert note.source in ("real", "rendered", "generated")
         assert note.regime in ("static", "rotation", "zoom", "translation")
         assert note.gate is None or note.gate == ("F" if note.regime == "translation" else "H")
+
+
+def test_worst_pair_note_names_the_lowest_ir_pair_and_how_far_its_outliers_lie(synth_dir, scored_clip):
+    from geocon_core.config import preset
+    from geocon_core.validation.results import worst_pair_note
+
+    cfg = preset("audit").with_(masks="none", scales=(1.0,), gaps=(8,))
+    rec = scored_clip(synth_dir / "c1_static__breathing-s3.mp4", cfg)
+    fits = [(p, p.h) for p in rec.pairs if p.h is not None and p.h.valid]
+    worst, fit = min(fits, key=lambda pf: (pf[1].ir, pf[0].t0))
+    note = worst_pair_note(rec)
+    assert note is not None and note.startswith(f"pair ({worst.t0}, {worst.t1}), gap 8: IR {fit.ir:.3f}")
+    low = float(note.split(" outliers ")[1].split("-")[0])
+    assert low >= cfg.tau_h  # an outlier lies beyond the inlier threshold (the note rounds to 0.1 px)
+    assert fit.ir < 0.97  # a 3 px breathing background, 8 frames apart, loses inliers
+
+
+def test_report_lists_flagged_clean_and_real_camera_clips_as_exceptions(tmp_path):
+    from geocon_core.validation.report import ValidationReport, write_report
+
+    rows = (
+        _row(case_id="clean-ok"),
+        _row(case_id="clean-flagged", verdict="inconsistent", ir=0.95, worst_pair="pair (0, 8), gap 8: IR 0.950"),
+        _row(case_id="damaged", failure="breathing", level="high", verdict="inconsistent"),
+        _row(case_id="real-flagged", kind="real", source="real", verdict="inconsistent"),
+        _row(case_id="generated-flagged", kind="real", source="generated", verdict="inconsistent"),
+    )
+    report = ValidationReport((), rows, "audit", "0", 0.0, 0.0, ValidationPlan(), len(rows))
+    md, _ = write_report(report, tmp_path)
+    text = md.read_text()
+    section = text.split("## Exceptions")[1].split("## Cases")[0]
+    assert "clean-flagged" in section and "pair (0, 8), gap 8: IR 0.950" in section and "real-flagged" in section
+    assert "clean-ok" not in section and "damaged" not in section and "generated-flagged" not in section
+
+
+def test_seed_option_renders_other_scenes_for_a_held_out_check(tmp_path):
+    cache = tmp_path / "cache"
+    clips = {}
+    for seed in (0, 1):
+        out = tmp_path / f"seed{seed}"
+        args = ["validate", "--out", str(out), "--cache", str(cache), "--seed", str(seed), "--heights", "64"]
+        args += ["--codecs", "png", "--families", "C1", "--failures", "none", "--frames", "4", "--no-real"]
+        res = runner.invoke(app, args)
+        assert res.exit_code == 0, res.output
+        status = json.loads((out / "cases" / "C1__clean__h64__png" / "case.json").read_text())
+        assert load_ground_truth(status["truth"]).seed == seed
+        assert json.loads((out / "validation.json").read_text())["plan"]["seed"] == seed
+        assert f"scene seed {seed}" in (out / "validation.md").read_text()
+        clips[seed] = status["clip"]
+    assert clips[0] != clips[1]  # its own rendering, not the cached scene of the other seed

@@ -123,6 +123,20 @@ def _case_cells(r: CaseResult) -> list[str]:
     ]
 
 
+def _exceptions(cases: tuple[CaseResult, ...]) -> list[str]:
+    """A section listing the clips that should pass and did not (clean synthetic, real camera),
+    each with the pair where its background fits worst, so every exception can be explained."""
+    rows = [r for r in cases if r.flagged and (r.clean or (r.kind == "real" and r.source == "real"))]
+    if not rows:
+        return []
+    lines = ["## Exceptions: clean or real-camera clips not called consistent", ""]
+    lines += _md_table(
+        ["case", "verdict", "IR", "GE", "worst pair"],
+        [[r.case_id, r.verdict, _fmt(r.ir, ".3f"), _fmt(r.ge, ".2f"), r.worst_pair or r.error or "-"] for r in rows],
+    )
+    return lines + [""]
+
+
 def _md_table(header: tuple[str, ...] | list[str], rows: list[list[str]]) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in rows]
@@ -142,12 +156,13 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         "# GeoCon validation report",
         "",
         f"Preset `{report.preset}` (config {report.config_hash}); synthetic heights {list(p.heights)}, codecs "
-        f"{list(p.codecs)}, {p.frames} frames per clip; real clips cut to {p.max_frames} frames. "
+        f"{list(p.codecs)}, {p.frames} frames per clip, scene seed {p.seed}; real clips cut to {p.max_frames} frames. "
         f"{len(report.cases)} of {report.planned} planned cases in {report.seconds:.0f} s "
         f"(scoring {report.score_seconds:.0f} s summed over the cases).",
         "",
         *_md_table(["measure", "set", "value", "target", "met", "detail"], [metric_cells(m) for m in report.metrics]),
         "",
+        *_exceptions(report.cases),
         "## Cases",
         "",
         *_md_table(_CASE_COLUMNS, [_case_cells(r) for r in report.cases]),

@@ -10,7 +10,7 @@ from typing import Any
 
 from .cases import Annotation, CaseSpec
 
-__all__ = ["CaseResult", "case_result", "VERDICTS"]
+__all__ = ["CaseResult", "case_result", "worst_pair_note", "VERDICTS"]
 
 VERDICTS = ("consistent", "inconsistent", "not judged", "failed")
 """A case's verdict: the record's report gate (``background.consistent`` True / False / None), or
@@ -55,6 +55,8 @@ class CaseResult:
     category: str | None = None
     seconds: float | None = None
     error: str | None = None
+    worst_pair: str | None = None
+    """Where the background fits worst (:func:`worst_pair_note`); set on flagged scored cases."""
 
     @property
     def flagged(self) -> bool:
@@ -64,6 +66,32 @@ class CaseResult:
     @property
     def clean(self) -> bool:
         return self.kind == "synthetic" and self.failure is None
+
+
+def worst_pair_note(rec: Any) -> str | None:
+    """The valid pair (largest scale, the record's background model) with the lowest IR, in
+    words: frames, gap, matches, and how far its outliers lie from the model (px of the scale).
+    A flag from a handful of far-off matches on a pair with few matches reads differently from
+    a flag from many matches a pixel or two off."""
+    from ..models import family_spec
+
+    model = rec.background.model
+    if model is None or not rec.pairs:
+        return None
+    s_max = max(p.scale for p in rec.pairs)
+    fits = [(p, p.fit(model)) for p in rec.pairs if p.scale == s_max and p.skip is None]
+    fits = [(p, f) for p, f in fits if f is not None and f.valid and f.ir is not None]
+    if not fits:
+        return None
+    pair, fit = min(fits, key=lambda pf: (pf[1].ir, pf[0].t0, pf[0].gap))
+    spec = family_spec(model)
+    rows = rec.matches.rows(pair.index)
+    res = getattr(rec.matches, spec.residual_px)[rows]
+    out = res[~getattr(rec.matches, spec.inliers)[rows]]
+    note = f"pair ({pair.t0}, {pair.t1}), gap {pair.gap}: IR {fit.ir:.3f} of {pair.n_matches} matches"
+    if len(out):
+        note += f"; {len(out)} outliers {out.min():.1f}-{out.max():.1f} px off the {model} model"
+    return note
 
 
 def _verdict(consistent: bool | None) -> str:
@@ -120,9 +148,10 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
 
     rec = read_record(folder)
     scores = [o.adadfrc for o in rec.objects if o.adadfrc is not None]
+    verdict = _verdict(rec.background.consistent)
     return CaseResult(
         **base,
-        verdict=_verdict(rec.background.consistent),
+        verdict=verdict,
         gate=rec.gate.label,
         t_inf=rec.gate.t_inf,
         pose_present=rec.gate.pose_present,
@@ -133,4 +162,5 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
         objects=len(rec.objects),
         max_adadfrc=max(scores) if scores else None,
         category=None if rec.category is None else rec.category.label,
+        worst_pair=worst_pair_note(rec) if verdict != "consistent" else None,
     )
