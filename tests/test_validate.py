@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -172,3 +173,44 @@ def test_seed_option_renders_other_scenes_for_a_held_out_check(tmp_path):
         assert f"scene seed {seed}" in (out / "validation.md").read_text()
         clips[seed] = status["clip"]
     assert clips[0] != clips[1]  # its own rendering, not the cached scene of the other seed
+
+
+def test_track_coverage_is_the_least_single_track_share_over_the_movers():
+    from geocon_core.validation.results import track_coverage
+
+    T, H, W = 10, 60, 80
+    truth = np.zeros((T, H, W), np.uint8)
+    labels = np.zeros((T, H, W), np.uint16)
+    truth[:, 5:25, 5:25] = 1  # mover 1: 400 px
+    truth[:, 30:50, 40:70] = 2  # mover 2: 600 px
+    labels[:8, 5:25, 5:25] = 5  # mover 1 followed by track 5 for 8 frames ...
+    labels[8:, 5:25, 5:25] = 7  # ... then by a second id: 8 / 10 of its frames on one track
+    labels[:, 30:50, 40:70] = 3
+    labels[:3, 30:50, 40:70] = 0
+    labels[:3, 30:40, 40:70] = 3  # half the mover: IoU 0.5, still covered
+    labels[3:6, 30:50, 40:70] = 0
+    labels[3:6, 30:35, 40:70] = 3  # a quarter: IoU 0.25, not covered -> 7 / 10
+    assert track_coverage(labels, list(truth)) == pytest.approx(0.7)
+    truth_big = np.repeat(np.repeat(truth, 2, axis=1), 2, axis=2)  # true masks at twice the size
+    assert track_coverage(labels, list(truth_big)) == pytest.approx(0.7)
+    truth[:, :, :] = 0
+    truth[:, 0:5, 0:5] = 1  # 25 px: never visible enough to count
+    assert track_coverage(labels, list(truth)) is None
+
+
+def test_identity_rows_count_followed_movers_phantoms_and_still_camera_categories():
+    rows = [
+        _row(case_id="a", track_coverage=0.95),
+        _row(case_id="b", track_coverage=0.6, category="C2"),
+        _row(case_id="c", family="C3", truth_movers=0, static_camera=False, objects=0, category="C3", truth_gate="F"),
+        _row(case_id="d", family="C3", truth_movers=0, static_camera=False, objects=2, category="C5", truth_gate="F"),
+        _row(case_id="e", kind="real", source="real", truth_movers=0, static_camera=False, objects=1, category="C3"),
+    ]
+    table = {(m.metric, m.subset): m for m in compute_metrics(rows)}
+    ident = table["object identity", "clean synthetic with movers"]
+    assert (ident.hits, ident.n, ident.ok) == (1, 2, False) and ident.detail == "least coverage 0.60"
+    phantom = table["no phantom objects", "clean synthetic, moving camera"]
+    assert (phantom.hits, phantom.n) == (1, 2)
+    assert table["no phantom objects", "real camera, annotated"].hits == 0
+    c4 = table["category C4", "still camera with movers, clean synthetic"]
+    assert (c4.hits, c4.n) == (1, 2)

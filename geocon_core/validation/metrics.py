@@ -14,6 +14,11 @@ detection               per failure and severity: background inconsistent, or (e
 clean IR 256 vs 1080    per scene family: the largest |IR(256) - IR(1080)| over codecs
 object count            tracks <= 1.5 x movers + 1 (synthetic: truth objects; real: annotated
                         movers); the detail gives the mean |tracks - movers|
+object identity         synthetic clips with movers: one track covers >= 80% of the visible
+                        frames of every true mover (checked against the true masks)
+no phantom objects      still scenes seen by a moving camera (synthetic C3/C5, annotated real
+                        walk-throughs) get no object
+category C4             a still camera with movers is categorised C4
 category accuracy       record category == expected family (synthetic clean; real where
                         annotated)
 pose coverage           share of clips whose gate had a pose (generated clips annotated as a
@@ -33,7 +38,7 @@ from dataclasses import dataclass, replace
 from .cases import LEVELS, SEVERITIES
 from .results import CaseResult
 
-__all__ = ["MetricRow", "OBJECT_RATIO", "IR_TOLERANCE", "compute_metrics", "detected"]
+__all__ = ["MetricRow", "OBJECT_RATIO", "IR_TOLERANCE", "TRACK_COVERAGE", "compute_metrics", "detected"]
 
 OBJECT_RATIO = 5.0
 """An injected object failure is detected when the object's AdaDFRC is at least this many times
@@ -198,6 +203,41 @@ def _object_rows(rows: list[CaseResult]) -> list[MetricRow]:
     return out
 
 
+TRACK_COVERAGE = 0.8
+"""A mover is followed when one track covers at least this share of its visible frames."""
+
+
+def _identity_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    """One id per mover (synthetic truth masks), no objects on still scenes seen by a moving
+    camera, and C4 for a still camera with movers."""
+    out = []
+    followed = [r for r in rows if r.clean and r.track_coverage is not None]
+    row = _share(
+        "object identity",
+        "clean synthetic with movers",
+        followed,
+        lambda r: (r.track_coverage or 0.0) >= TRACK_COVERAGE,
+        f"one track >= {TRACK_COVERAGE:.0%} of each mover's frames",
+        lambda v: v == 1.0,
+    )
+    if followed:
+        row = replace(row, detail=f"least coverage {min(r.track_coverage or 0.0 for r in followed):.2f}")
+    out.append(row)
+    for subset, pick in (
+        ("clean synthetic, moving camera", lambda r: r.clean and r.static_camera is False),
+        ("real camera, annotated", lambda r: r.kind == "real" and r.source == "real" and r.static_camera is False),
+    ):
+        group = [r for r in rows if pick(r) and r.truth_movers == 0 and r.objects is not None]
+        out.append(_share("no phantom objects", subset, group, lambda r: r.objects == 0, "all", lambda v: v == 1.0))
+    for subset, pick in (("clean synthetic", lambda r: r.clean), ("real clips, annotated", lambda r: r.kind == "real")):
+        group = [r for r in rows if pick(r) and r.static_camera and (r.truth_movers or 0) > 0 and r.verdict != "failed"]
+        out.append(
+            _share("category C4", f"still camera with movers, {subset}", group, lambda r: r.category == "C4", "all",
+                   lambda v: v == 1.0)
+        )  # fmt: skip
+    return out
+
+
 def _category_rows(rows: list[CaseResult]) -> list[MetricRow]:
     out = []
     for subset, pick in (("clean synthetic", lambda r: r.clean), ("real clips, annotated", lambda r: r.kind == "real")):
@@ -240,6 +280,7 @@ def compute_metrics(rows: list[CaseResult]) -> list[MetricRow]:
             ", ".join(r.case_id for r in failed[:5]) + (" ..." if len(failed) > 5 else ""),
         )
     ]
-    for part in (_gate_rows, _false_flag_rows, _detection_rows, _ir_rows, _object_rows, _category_rows, _pose_rows):
+    parts = (_gate_rows, _false_flag_rows, _detection_rows, _ir_rows, _object_rows, _identity_rows, _category_rows)
+    for part in (*parts, _pose_rows):
         table += [row for row in part(rows) if row.n > 0]
     return table

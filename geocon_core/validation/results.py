@@ -4,13 +4,23 @@ and what the saved record says. Everything here is read from ``record.json`` and
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
+
 from .cases import Annotation, CaseSpec
 
-__all__ = ["CaseResult", "case_result", "worst_pair_note", "VERDICTS"]
+__all__ = ["CaseResult", "case_result", "worst_pair_note", "track_coverage", "VERDICTS", "MIN_VISIBLE_PX", "MIN_IOU"]
+
+MIN_VISIBLE_PX = 100
+"""A true object counts as visible in a frame when its mask covers at least this many pixels at
+the working size."""
+MIN_IOU = 0.5
+"""A track covers a true object in a frame when their masks overlap with at least this IoU."""
 
 VERDICTS = ("consistent", "inconsistent", "not judged", "failed")
 """A case's verdict: the record's report gate (``background.consistent`` True / False / None), or
@@ -57,6 +67,9 @@ class CaseResult:
     error: str | None = None
     worst_pair: str | None = None
     """Where the background fits worst (:func:`worst_pair_note`); set on flagged scored cases."""
+    track_coverage: float | None = None
+    """Synthetic clips with movers: over the true movers, the least share of visible frames that a
+    single track covers (:func:`track_coverage`); None without true masks or saved labels."""
 
     @property
     def flagged(self) -> bool:
@@ -92,6 +105,62 @@ def worst_pair_note(rec: Any) -> str | None:
     if len(out):
         note += f"; {len(out)} outliers {out.min():.1f}-{out.max():.1f} px off the {model} model"
     return note
+
+
+def track_coverage(labels: np.ndarray, truth_masks: Sequence[np.ndarray]) -> float | None:
+    """How well single tracks follow the true movers: for each true object, the largest share of
+    the frames where it is visible (at least :data:`MIN_VISIBLE_PX` pixels) that one track id
+    covers (IoU >= :data:`MIN_IOU` with the object, the best-overlapping track in that frame);
+    the least such share over the objects. ``labels``: (T, H, W) track ids (0 = background);
+    ``truth_masks``: T true id images at any size (resized to the labels', nearest). None when
+    no object is ever visible."""
+    h, w = labels.shape[1:]
+    visible: dict[int, int] = {}
+    covered: dict[int, dict[int, int]] = {}
+    for lab, truth in zip(labels, truth_masks, strict=True):
+        if truth.shape != (h, w):
+            truth = cv2.resize(truth, (w, h), interpolation=cv2.INTER_NEAREST)
+        for oid in (int(i) for i in np.unique(truth) if i):
+            obj = truth == oid
+            area = int(obj.sum())
+            if area < MIN_VISIBLE_PX:
+                continue
+            visible[oid] = visible.get(oid, 0) + 1
+            ids, inter = np.unique(lab[obj], return_counts=True)
+            best, best_iou = 0, 0.0
+            for tid, n in zip(ids.tolist(), inter.tolist(), strict=True):
+                if tid == 0:
+                    continue
+                iou = n / (area + int((lab == tid).sum()) - n)
+                if iou > best_iou:
+                    best, best_iou = tid, iou
+            if best and best_iou >= MIN_IOU:
+                covered.setdefault(oid, {})[best] = covered.get(oid, {}).get(best, 0) + 1
+    if not visible:
+        return None
+    return min(max(covered.get(oid, {0: 0}).values()) / n for oid, n in visible.items())
+
+
+def _coverage_of(folder: Path, truth_path: str | None) -> float | None:
+    from ..synth import load_ground_truth
+    from .runner import LABELS_FILE
+
+    labels_file = folder / LABELS_FILE
+    if truth_path is None or not labels_file.is_file():
+        return None
+    gt = load_ground_truth(truth_path)
+    if not gt.objects or gt.masks_path is None:
+        return None
+    masks_dir = Path(truth_path).parent / gt.masks_path
+    files = sorted(masks_dir.glob("*.png"))
+    with np.load(labels_file) as z:
+        labels = z["labels"]
+    if len(files) < len(labels):
+        return None
+    truth = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in files[: len(labels)]]
+    if any(t is None for t in truth):
+        return None
+    return track_coverage(labels, [t for t in truth if t is not None])
 
 
 def _verdict(consistent: bool | None) -> str:
@@ -163,4 +232,5 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
         max_adadfrc=max(scores) if scores else None,
         category=None if rec.category is None else rec.category.label,
         worst_pair=worst_pair_note(rec) if verdict != "consistent" else None,
+        track_coverage=_coverage_of(folder, status.get("truth")) if case["kind"] == "synthetic" else None,
     )

@@ -22,14 +22,19 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..config import ScoreConfig, config_hash
 from .cases import CaseSpec, ValidationPlan
 from .prepare import clip_for, code_digest, prepare_case
 
-__all__ = ["CASES_DIR", "CASE_FILE", "Progress", "run_cases", "case_folder"]
+__all__ = ["CASES_DIR", "CASE_FILE", "LABELS_FILE", "Progress", "run_cases", "case_folder"]
 
 CASES_DIR = "cases"
 CASE_FILE = "case.json"
+LABELS_FILE = "labels.npz"
+"""Object ids per frame (T, H, W) of a synthetic case scored with masks, kept so the tracks can
+be checked against the scene's true masks (:func:`~.results.track_coverage`)."""
 
 Progress = Callable[[str, int, int], None]
 """``progress(phase, done, total)``: phase is ``prepare`` or ``score``."""
@@ -63,8 +68,17 @@ def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], fold
     try:
         prepared = clip_for(case, Path(cache_folder))
         status.update(clip=str(prepared.clip), truth=None if prepared.truth is None else str(prepared.truth))
-        record = score_clip(prepared.clip, cfg, workers=threads)
+        labels: list[np.ndarray | None] = []
+        keep = (
+            None if prepared.truth is None else (lambda d: labels.append(None if d.labels is None else d.labels.copy()))
+        )
+        record = score_clip(prepared.clip, cfg, workers=threads, on_frame=keep)
         write_record(record, out)
+        kept = [lab for lab in labels if lab is not None]
+        saved = bool(kept) and len(kept) == len(labels)
+        if saved:  # object ids per frame, for identity checks
+            np.savez_compressed(out / LABELS_FILE, labels=np.stack(kept))
+        status["labels"] = saved
     except Exception as exc:  # every failure is recorded with its reason
         status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=6))
     status["seconds"] = round(time.perf_counter() - start, 3)
@@ -79,6 +93,8 @@ def _finished(folder: Path, digest: str, clip: Path) -> dict | None:
     except (OSError, json.JSONDecodeError):
         return None
     if status.get("status") != "ok" or status.get("config_hash") != digest or status.get("clip") != str(clip):
+        return None
+    if status.get("truth") is not None and "labels" not in status:  # scored before labels were kept
         return None
     return status if (folder / "record.json").is_file() else None
 
