@@ -31,7 +31,7 @@ from .record import (
     ObjectEntry,
     PairRecord,
 )
-from .rigidity import ObjectPairScore, object_summaries
+from .rigidity import MASK_JUMP, ObjectPairScore, object_summaries
 from .verdict import ClipVerdict, Thresholds, family_verdict, gate_decision, summarize_family
 
 __all__ = ["software_versions", "fit_summary", "assemble_record", "add_objects", "object_entries"]
@@ -251,6 +251,16 @@ def add_objects(
         max_jump=cfg.max_mask_jump,
     )
     warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
+    jumped = {
+        o.object_id: max(o.per_scale, key=lambda p: p.scale).skipped.get(MASK_JUMP, 0) for o in summaries if o.per_scale
+    }
+    jumped = {oid: n for oid, n in jumped.items() if n}
+    if jumped:
+        listed = ", ".join(f"{oid} ({n})" for oid, n in list(jumped.items())[:12])
+        warnings.append(
+            f"{sum(jumped.values())} object pair(s) left out of AdaDFRC because the mask's area jumped by more than "
+            f"{cfg.max_mask_jump:.0%} against its neighbouring frames (a segmentation glitch): object (pairs) {listed}"
+        )
     thin = [o.object_id for o in summaries if o.adadfrc is None]
     if thin:
         ids = ", ".join(map(str, thin[:12])) + (" ..." if len(thin) > 12 else "")
