@@ -101,6 +101,12 @@ class MotionConfig:
     analysis_size: tuple[int, int] = (512, 360)
     """(width, height), px: the content is analysed at the largest size that fits inside this,
     never above the working size (a 1024x576 clip at half size, a 320x180 clip at its own)."""
+    px_reference: tuple[int, int] = (1024, 720)
+    """(width, height), px: the pixel settings below (``fit_tau_px``, ``static_px``, ``min_px``,
+    ``merge_px``, ``merge_speed_px``, ``link_speed_px``) are pixels of the content fitted inside
+    this size (never up). The segmentation analyses an image of at most ``analysis_size`` whatever
+    the scoring canvas, so its settings must not follow the canvas: a 1280x720 clip scored on a
+    1920x1080 canvas is segmented exactly as on a 1024x720 one."""
     fit_step: int = 12
     """Spacing (reduced px) of the grid of flow vectors that the background models are fitted to."""
     fit_tau_px: float = 1.0
@@ -176,6 +182,8 @@ class MotionConfig:
     """About this many grid vectors feed a fundamental-matrix fit (every k-th one)."""
 
     def __post_init__(self) -> None:
+        if min(self.px_reference) < 16:
+            raise ValueError(f"px_reference must be at least 16x16 px, got {self.px_reference}")
         if min(self.analysis_size) < 16:
             raise ValueError(f"analysis_size must be at least 16x16 px, got {self.analysis_size}")
         if self.min_track < 1:

@@ -477,3 +477,23 @@ def test_duplicates_copy_labels_and_cuts_restart_tracks(synth, tmp_path: Path) -
     after = {int(v) for p in labels[11:] for v in np.unique(p) if v}
     assert before == {1, 2}
     assert after and after.isdisjoint(before)  # tracks end at the cut: new objects, new ids
+
+
+def test_motion_settings_do_not_follow_the_scoring_canvas(tmp_path: Path) -> None:
+    """The segmentation's pixel settings are pixels of the clip fitted into ``px_reference``
+    (1024x720): a 1280x720 clip read on the 1024x720 canvas and on the 1920x1080 one is analysed
+    at the same size with the same thresholds in analysis pixels. Before, the larger canvas
+    shrank every threshold by 0.8 and split the sam2 dog clip's 3 movers into 8 tracks."""
+    from geocon_core.config import ScoreConfig
+
+    write_clip(ClipPlan("C1"), tmp_path, seed=0, width=1280, height=720, num_frames=3)
+    segs = {}
+    for canvas in ((1024, 720), (1920, 1080)):
+        info = probe_clip(tmp_path / "c1_static.mp4", ScoreConfig(working_size=canvas))
+        segs[canvas] = MotionSegmenter(info)
+    small, big = segs[(1024, 720)], segs[(1920, 1080)]
+    assert small.info.working_size == (1024, 576) and big.info.working_size == (1280, 720)
+    assert small.analysis_size == big.analysis_size == (512, 288)
+    assert small.px_scale == pytest.approx(0.5) and big.px_scale == pytest.approx(0.5)
+    native = MotionSegmenter(big.info, px_reference=(1920, 1080))  # settings in the canvas's own pixels
+    assert native.px_scale == pytest.approx(0.4)

@@ -36,8 +36,9 @@ class Side:
 
 
 class Evidence:
-    """Evidence of frame pairs on a reduced (rw x rh) canvas; ``s`` is the reduced / working
-    factor, ``seed`` the clip's seed (each direction of each pair gets its own)."""
+    """Evidence of frame pairs on a reduced (rw x rh) canvas; ``s`` converts the pixel settings
+    to reduced px (``MotionConfig.px_reference``), ``seed`` is the clip's seed (each direction of
+    each pair gets its own)."""
 
     def __init__(self, config: MotionConfig, flow: FlowBackend, seed: int, rw: int, rh: int, s: float) -> None:
         self.config, self.flow, self.seed = config, flow, seed

@@ -131,9 +131,12 @@ class MotionSegmenter(Coverage):
         self._rw = max(16, round(self._cw * fit))
         self._rh = max(16, round(self._ch * fit))
         self._s = self._rw / self._cw  # actual reduced / working factor
-        self._evidence = Evidence(cfg, self.flow, self.seed, self._rw, self._rh, self._s)
+        pw, ph = cfg.px_reference
+        ref = min(1.0, pw / self._cw, ph / self._ch)
+        self._px = self._s / ref  # reduced px per px of a setting (see MotionConfig.px_reference)
+        self._evidence = Evidence(cfg, self.flow, self.seed, self._rw, self._rh, self._px)
         self._regions = RegionFinder(cfg, self._rw * self._rh)
-        self._tracker = Tracker(cfg, self._extra_warnings, self._s)
+        self._tracker = Tracker(cfg, self._extra_warnings, self._px)
         self.lookahead = cfg.lookahead
 
         self._pushed = 0
@@ -255,6 +258,16 @@ class MotionSegmenter(Coverage):
         segs = list(self._segs.values()) + ([self._rep_seg] if self._rep_seg is not None else [])
         self._tracker.prune({tid for s in segs for tid in s.tracks})
 
+    @property
+    def analysis_size(self) -> tuple[int, int]:
+        """(width, height) of the image the segmentation analyses, px."""
+        return (self._rw, self._rh)
+
+    @property
+    def px_scale(self) -> float:
+        """Analysis pixels per pixel of a setting (see ``MotionConfig.px_reference``)."""
+        return self._px
+
     def _reduce(self, gray: np.ndarray) -> np.ndarray:
         x0, y0, x1, y1 = self.info.content_box
         crop = gray[y0:y1, x0:x1]
@@ -281,7 +294,7 @@ class MotionSegmenter(Coverage):
         fast one disagree), within ``min_px`` plus half its length; 0 elsewhere."""
         k = np.float32(self.config.slow_gap)
         diff = np.hypot(*(slow.flow - k * bwd.flow).transpose(2, 0, 1))
-        tol = np.float32(self.config.min_px * self._s) + np.float32(0.5) * np.hypot(*slow.flow.transpose(2, 0, 1))
+        tol = np.float32(self.config.min_px * self._px) + np.float32(0.5) * np.hypot(*slow.flow.transpose(2, 0, 1))
         ok = slow.reliable & bwd.reliable & (diff <= tol)
         return np.where(ok, slow.score, np.float32(0.0))
 
@@ -301,7 +314,7 @@ class MotionSegmenter(Coverage):
                 if np.mean([np.count_nonzero(s.reliable[m]) for s in sides]) >= min_reliable * np.count_nonzero(m):
                     masks.append(m)
         vels = [_velocity(m, fwd, bwd) for m in masks]
-        parts = merge_parts(masks, vels, self.config, self._s)[:MAX_ID]
+        parts = merge_parts(masks, vels, self.config, self._px)[:MAX_ID]
         masks = [np.logical_or.reduce([masks[i] for i in g]) for g in parts]
         vels = [_velocity(m, fwd, bwd) for m in masks]
         for k, m in enumerate(masks, start=1):

@@ -55,7 +55,7 @@ class Tracker:
     def __init__(self, config: MotionConfig, warnings: list[str], s: float = 1.0) -> None:
         self.config = config
         self.warnings = warnings
-        self._s = s  # reduced / working px
+        self._s = s  # reduced px per px of a setting (MotionConfig.px_reference)
         self.tracks: list[Track] = []
         """Every track a kept frame may still refer to."""
         self.alive: list[Track] = []
