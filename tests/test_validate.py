@@ -208,9 +208,18 @@ def test_identity_rows_count_followed_movers_phantoms_and_still_camera_categorie
     ]
     table = {(m.metric, m.subset): m for m in compute_metrics(rows)}
     ident = table["object identity", "clean synthetic with movers"]
-    assert (ident.hits, ident.n, ident.ok) == (1, 2, False) and ident.detail == "least coverage 0.60"
+    assert (ident.hits, ident.n, ident.ok) == (1, 2, False) and ident.detail == "C4: 1/2;  least coverage 0.60"
     phantom = table["no phantom objects", "clean synthetic, moving camera"]
     assert (phantom.hits, phantom.n) == (1, 2)
     assert table["no phantom objects", "real camera, annotated"].hits == 0
     c4 = table["category C4", "still camera with movers, clean synthetic"]
     assert (c4.hits, c4.n) == (1, 2)
+
+
+def test_report_only_says_when_planned_cases_have_no_record(tmp_path):
+    args = ["validate", "--report-only", "--out", str(tmp_path / "empty"), "--heights", "64", "--codecs", "png"]
+    args += ["--families", "C1", "--failures", "none", "--frames", "4", "--no-real"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert "1 of 1 planned cases have no record" in " ".join(res.output.split())
+    assert not (tmp_path / "empty" / "cache").exists() or not any((tmp_path / "empty" / "cache").iterdir())

@@ -221,7 +221,14 @@ def _identity_rows(rows: list[CaseResult]) -> list[MetricRow]:
         lambda v: v == 1.0,
     )
     if followed:
-        row = replace(row, detail=f"least coverage {min(r.track_coverage or 0.0 for r in followed):.2f}")
+        fams: dict[str, list[CaseResult]] = defaultdict(list)
+        for r in followed:
+            fams[r.family or "?"].append(r)
+        per = "  ".join(
+            f"{f}: {sum((r.track_coverage or 0.0) >= TRACK_COVERAGE for r in g)}/{len(g)}"
+            for f, g in sorted(fams.items())
+        )
+        row = replace(row, detail=f"{per};  least coverage {min(r.track_coverage or 0.0 for r in followed):.2f}")
     out.append(row)
     for subset, pick in (
         ("clean synthetic, moving camera", lambda r: r.clean and r.static_camera is False),

@@ -127,6 +127,12 @@ def validate(
     if real and not data.is_dir():
         raise fail(f"{data}: no such folder of real clips (give --data, or --no-real)")
     report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only)
+    if report_only and len(report.cases) < report.planned:
+        out.print(
+            f"[yellow]{report.planned - len(report.cases)} of {report.planned} planned cases have no record in "
+            f"{out_dir} scored with these settings from these clips[/] (a case counts when its preset, "
+            "--cache, --seed and grid match the run that scored it)"
+        )
     print_report(report)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
 
