@@ -240,21 +240,19 @@ def add_objects(
     (:func:`~geocon_core.rigidity.object_summaries`), the masked share per frame, the mask
     source's warnings and the category (:func:`~geocon_core.category.categorize_record`)."""
     entries, cells = object_entries(scores)
-    min_pairs = record.config.min_object_pairs
     cfg = record.config
+    min_pairs = cfg.min_object_pairs
     summaries = object_summaries(
-        entries,
-        scales,
-        object_share,
-        min_pairs=min_pairs,
-        jump_window=cfg.mask_jump_window,
-        max_jump=cfg.max_mask_jump,
+        entries, scales, object_share, min_pairs=min_pairs, jump_window=cfg.mask_jump_window, max_jump=cfg.max_mask_jump
     )
     warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
+    s_max = max(scales)
     jumped = {
-        o.object_id: max(o.per_scale, key=lambda p: p.scale).skipped.get(MASK_JUMP, 0) for o in summaries if o.per_scale
+        o.object_id: p.skipped[MASK_JUMP]
+        for o in summaries
+        for p in o.per_scale
+        if p.scale == s_max and MASK_JUMP in p.skipped
     }
-    jumped = {oid: n for oid, n in jumped.items() if n}
     if jumped:
         listed = ", ".join(f"{oid} ({n})" for oid, n in list(jumped.items())[:12])
         warnings.append(

@@ -382,12 +382,15 @@ def mask_jumps(shares: dict[int, float], *, window: int, max_jump: float) -> set
 
 
 def _scale_summary(mine: list[ObjectEntry], s: float, jumps: Collection[int] = ()) -> ObjectScaleSummary:
-    valid = [e for e in mine if e.scale == s and e.valid and e.t0 not in jumps]
+    valid: list[ObjectEntry] = []
     skipped: dict[str, int] = {}
-    for e in mine:
-        if e.scale == s and not (e.valid and e.t0 not in jumps):
-            reason = (e.reason or "invalid") if not e.valid else MASK_JUMP
-            skipped[reason] = skipped.get(reason, 0) + 1
+    for e in (e for e in mine if e.scale == s):
+        if not e.valid:
+            skipped[e.reason or "invalid"] = skipped.get(e.reason or "invalid", 0) + 1
+        elif e.t0 in jumps:
+            skipped[MASK_JUMP] = skipped.get(MASK_JUMP, 0) + 1
+        else:
+            valid.append(e)
     S: float | None = None
     p90: float | None = None
     w2: float | None = None

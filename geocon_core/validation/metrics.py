@@ -238,10 +238,8 @@ def _identity_rows(rows: list[CaseResult]) -> list[MetricRow]:
         out.append(_share("no phantom objects", subset, group, lambda r: r.objects == 0, "all", lambda v: v == 1.0))
     for subset, pick in (("clean synthetic", lambda r: r.clean), ("real clips, annotated", lambda r: r.kind == "real")):
         group = [r for r in rows if pick(r) and r.static_camera and (r.truth_movers or 0) > 0 and r.verdict != "failed"]
-        out.append(
-            _share("category C4", f"still camera with movers, {subset}", group, lambda r: r.category == "C4", "all",
-                   lambda v: v == 1.0)
-        )  # fmt: skip
+        subset = f"still camera with movers, {subset}"
+        out.append(_share("category C4", subset, group, lambda r: r.category == "C4", "all", lambda v: v == 1.0))
     return out
 
 
@@ -287,7 +285,15 @@ def compute_metrics(rows: list[CaseResult]) -> list[MetricRow]:
             ", ".join(r.case_id for r in failed[:5]) + (" ..." if len(failed) > 5 else ""),
         )
     ]
-    parts = (_gate_rows, _false_flag_rows, _detection_rows, _ir_rows, _object_rows, _identity_rows, _category_rows)
-    for part in (*parts, _pose_rows):
+    for part in (
+        _gate_rows,
+        _false_flag_rows,
+        _detection_rows,
+        _ir_rows,
+        _object_rows,
+        _identity_rows,
+        _category_rows,
+        _pose_rows,
+    ):
         table += [row for row in part(rows) if row.n > 0]
     return table

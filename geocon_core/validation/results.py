@@ -7,12 +7,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
 from .cases import Annotation, CaseSpec
+
+if TYPE_CHECKING:
+    from ..record import ClipRecord
 
 __all__ = ["CaseResult", "case_result", "worst_pair_note", "track_coverage", "VERDICTS", "MIN_VISIBLE_PX", "MIN_IOU"]
 
@@ -81,7 +84,7 @@ class CaseResult:
         return self.kind == "synthetic" and self.failure is None
 
 
-def worst_pair_note(rec: Any) -> str | None:
+def worst_pair_note(rec: ClipRecord) -> str | None:
     """The valid pair (largest scale, the record's background model) with the lowest IR, in
     words: frames, gap, matches, and how far its outliers lie from the model (px of the scale).
     A flag from a handful of far-off matches on a pair with few matches reads differently from
@@ -92,16 +95,19 @@ def worst_pair_note(rec: Any) -> str | None:
     if model is None or not rec.pairs:
         return None
     s_max = max(p.scale for p in rec.pairs)
-    fits = [(p, p.fit(model)) for p in rec.pairs if p.scale == s_max and p.skip is None]
-    fits = [(p, f) for p, f in fits if f is not None and f.valid and f.ir is not None]
+    fits = []
+    for p in rec.pairs:
+        f = p.fit(model) if p.scale == s_max and p.skip is None else None
+        if f is not None and f.valid and f.ir is not None:
+            fits.append((f.ir, p.t0, p.gap, p))
     if not fits:
         return None
-    pair, fit = min(fits, key=lambda pf: (pf[1].ir, pf[0].t0, pf[0].gap))
+    ir, _, _, pair = min(fits, key=lambda x: x[:3])
     spec = family_spec(model)
     rows = rec.matches.rows(pair.index)
     res = getattr(rec.matches, spec.residual_px)[rows]
     out = res[~getattr(rec.matches, spec.inliers)[rows]]
-    note = f"pair ({pair.t0}, {pair.t1}), gap {pair.gap}: IR {fit.ir:.3f} of {pair.n_matches} matches"
+    note = f"pair ({pair.t0}, {pair.t1}), gap {pair.gap}: IR {ir:.3f} of {pair.n_matches} matches"
     if len(out):
         note += f"; {len(out)} outliers {out.min():.1f}-{out.max():.1f} px off the {model} model"
     return note
@@ -120,6 +126,7 @@ def track_coverage(labels: np.ndarray, truth_masks: Sequence[np.ndarray]) -> flo
     for lab, truth in zip(labels, truth_masks, strict=True):
         if truth.shape != (h, w):
             truth = cv2.resize(truth, (w, h), interpolation=cv2.INTER_NEAREST)
+        track_area = np.bincount(lab.ravel())
         for oid in (int(i) for i in np.unique(truth) if i):
             obj = truth == oid
             area = int(obj.sum())
@@ -131,7 +138,7 @@ def track_coverage(labels: np.ndarray, truth_masks: Sequence[np.ndarray]) -> flo
             for tid, n in zip(ids.tolist(), inter.tolist(), strict=True):
                 if tid == 0:
                     continue
-                iou = n / (area + int((lab == tid).sum()) - n)
+                iou = n / (area + int(track_area[tid]) - n)
                 if iou > best_iou:
                     best, best_iou = tid, iou
             if best and best_iou >= MIN_IOU:
@@ -141,7 +148,10 @@ def track_coverage(labels: np.ndarray, truth_masks: Sequence[np.ndarray]) -> flo
     return min(max(covered.get(oid, {0: 0}).values()) / n for oid, n in visible.items())
 
 
-def _coverage_of(folder: Path, truth_path: str | None) -> float | None:
+def _coverage_of(folder: Path, truth_path: str | None, rec: ClipRecord) -> float | None:
+    """:func:`track_coverage` of a scored synthetic case: its saved labels against the scene's
+    true label images, read into the record's working canvas as external masks are."""
+    from ..masks import ExternalMasks
     from ..synth import load_ground_truth
     from .runner import LABELS_FILE
 
@@ -151,16 +161,10 @@ def _coverage_of(folder: Path, truth_path: str | None) -> float | None:
     gt = load_ground_truth(truth_path)
     if not gt.objects or gt.masks_path is None:
         return None
-    masks_dir = Path(truth_path).parent / gt.masks_path
-    files = sorted(masks_dir.glob("*.png"))
     with np.load(labels_file) as z:
         labels = z["labels"]
-    if len(files) < len(labels):
-        return None
-    truth = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in files[: len(labels)]]
-    if any(t is None for t in truth):
-        return None
-    return track_coverage(labels, [t for t in truth if t is not None])
+    truth = ExternalMasks(Path(truth_path).parent / gt.masks_path, rec.video)
+    return track_coverage(labels, [truth.labels(t) for t in range(len(labels))])
 
 
 def _verdict(consistent: bool | None) -> str:
@@ -232,5 +236,5 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
         max_adadfrc=max(scores) if scores else None,
         category=None if rec.category is None else rec.category.label,
         worst_pair=worst_pair_note(rec) if verdict != "consistent" else None,
-        track_coverage=_coverage_of(folder, status.get("truth")) if case["kind"] == "synthetic" else None,
+        track_coverage=_coverage_of(folder, status.get("truth"), rec) if case["kind"] == "synthetic" else None,
     )
