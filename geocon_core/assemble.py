@@ -141,6 +141,7 @@ def _pair_record(i: int, r: PairFits) -> tuple[PairRecord, dict[str, np.ndarray]
         skip=r.skip,
         h=None if h is None else fit_summary(h),
         f=None if f is None else fit_summary(f),
+        n_gross=r.n_gross,
     )
     return pair, arrays
 

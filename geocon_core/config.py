@@ -66,6 +66,14 @@ class ScoreConfig:
     """Lowe ratio of the mutual nearest-neighbour matching."""
     max_features: int = 2000
     """Features per frame at scale 1; ``max_features * scale`` at smaller scales."""
+    gross_match_share: float = 0.0
+    """Gross-mismatch rule: a match whose displacement differs by more than this share of the
+    image diagonal from the median displacement of its ``gross_match_neighbours`` nearest matches,
+    in both frames, is a matcher's error (repeated structure) and is dropped before the background
+    fits (:func:`~geocon_core.features.gross_mismatches`); counted per pair as ``n_gross``. 0 (the
+    paper) keeps every match."""
+    gross_match_neighbours: int = 8
+    """Neighbours whose median displacement a match is compared with (gross-mismatch rule)."""
     # mask-first separation and object rigidity (SPEC sections 2, 4)
     masks: str = "motion"
     """Where object masks come from: ``motion`` (built-in segmentation, no weights) or ``none``;
@@ -103,6 +111,11 @@ class ScoreConfig:
     (``mask_jump_window`` on each side) by more than the factor ``1 + max_mask_jump`` are left
     out of the object's scores and counted as ``mask_jump`` (a segmentation glitch, not a
     deformation); 0 (the paper) keeps every pair."""
+    refine_object_masks: bool = False
+    """Before AdaDFRC, each object pair's mask keeps only the pixels whose flow the object's own
+    affine motion explains better than the background's (:func:`~geocon_core.rigidity.refine_object_mask`):
+    a motion mask that spills over the object's edge would read as deformation. False (the paper)
+    scores the masks as given."""
     mask_jump_window: int = 3
     """Frames on each side of a track's frame that set its expected mask area."""
     ransac_iters: int = 2000
@@ -175,6 +188,8 @@ class ScoreConfig:
             raise ValueError("chain_hop must be >= 0 and chain_min_share in (0, 1]")
         if not self.tau_t_low <= self.tau_t_high:
             raise ValueError("tau_t_low must not exceed tau_t_high")
+        if not 0.0 <= self.gross_match_share < 1.0 or self.gross_match_neighbours < 3:
+            raise ValueError("gross_match_share must be in [0, 1) and gross_match_neighbours at least 3")
         if min(self.working_size) < 32:
             raise ValueError(f"working_size too small: {self.working_size}")
 
@@ -216,7 +231,11 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "a clip up to full HD is scored in its own pixels and a defect of a few source pixels is "
         "judged alike at every size; an object's pairs whose mask jumps in area by more than 25% "
         "against its neighbouring frames are left out of its AdaDFRC (a segmentation glitch reads "
-        "as deformation); the default of `geocon score` and `geocon bench`",
+        "as deformation), and each object's mask keeps only the pixels its own motion explains better "
+        "than the background's (a mask that spills over the edge reads as deformation too); matches "
+        "that disagree with all their neighbours by more than 4% of the image diagonal (repeated "
+        "structure) are dropped before the background fits; the default of `geocon score` and "
+        "`geocon bench`",
         ScoreConfig(
             preset="audit",
             working_size=(1920, 1080),
@@ -226,6 +245,8 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             ratio=0.7,
             ge_gate=0.6,
             max_mask_jump=0.25,
+            gross_match_share=0.04,
+            refine_object_masks=True,
         ),
     ),
 }

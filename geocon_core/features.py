@@ -23,6 +23,7 @@ __all__ = [
     "make_matcher",
     "scaled_inputs",
     "mutual_ratio_matches",
+    "gross_mismatches",
 ]
 
 BORDER_PX = 4
@@ -105,6 +106,33 @@ def mutual_ratio_matches(dist2: np.ndarray, ratio: float) -> tuple[np.ndarray, n
     d_second = np.min(dist2, axis=1)
     keep = (back[best] == i) & (d_best < (ratio * ratio) * d_second)
     return i[keep], best[keep]
+
+
+def gross_mismatches(x1: np.ndarray, x2: np.ndarray, max_px: float, neighbours: int = 8) -> np.ndarray:
+    """Mask (N,) of the matches that disagree with their neighbourhood in both frames: the match's
+    displacement ``x2 - x1`` differs by more than ``max_px`` from the median displacement of its
+    ``neighbours`` nearest matches around ``x1`` in the first frame *and* from that of its
+    nearest matches around ``x2`` in the second.
+
+    Such a match is a matcher's error (repeated structure: one window matched to the next), not
+    evidence about the scene: a surface that bends, slides or breathes moves its matches
+    together, so they keep agreeing with their neighbours. With fewer than ``neighbours + 2``
+    matches nothing is flagged."""
+    n = len(x1)
+    out = np.zeros(n, bool)
+    if n < neighbours + 2 or not max_px > 0:
+        return out
+    from scipy.spatial import cKDTree
+
+    x1 = np.asarray(x1, np.float64)
+    x2 = np.asarray(x2, np.float64)
+    d = x2 - x1
+    out[:] = True
+    for pts in (x1, x2):
+        _, idx = cKDTree(pts).query(pts, neighbours + 1)
+        local = np.median(d[idx[:, 1:]], axis=1)
+        out &= np.linalg.norm(d - local, axis=1) > max_px
+    return out
 
 
 class _DescriptorMatcher:

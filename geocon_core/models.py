@@ -345,6 +345,8 @@ class PairFits:
     x2: np.ndarray
     h: ModelFit | None
     f: ModelFit | None
+    n_gross: int = 0
+    """Matches dropped before the fits as gross mismatches (``ScoreConfig.gross_match_share``)."""
 
     def fit(self, family: str) -> ModelFit | None:
         """This pair's fit of ``family`` (None when the pair was skipped)."""

@@ -63,6 +63,8 @@ class PairRecord:
     skip: str | None
     h: FitSummary | None
     f: FitSummary | None
+    n_gross: int = 0
+    """Matches dropped as gross mismatches before the fits (not in ``n_matches``)."""
 
     def fit(self, family: Family) -> FitSummary | None:
         return self.h if family == "H" else self.f

@@ -58,6 +58,7 @@ __all__ = [
     "RigidityResult",
     "adadfrc_pair",
     "weighted_affine_fit",
+    "refine_object_mask",
     "weighted_mse",
     "w2_cost",
     "object_scores",
@@ -228,6 +229,44 @@ def _transport_lp(cost: np.ndarray, marginal: np.ndarray) -> float:
     if res.status != 0 or res.x is None:  # a feasible, bounded LP: should never happen
         raise RuntimeError(f"optimal transport LP failed: {res.message}")
     return float(cost.ravel() @ np.clip(res.x, 0.0, None))
+
+
+def refine_object_mask(
+    flow: np.ndarray, mask: np.ndarray, others: np.ndarray, *, min_keep: float = 0.5, iters: int = 2
+) -> np.ndarray:
+    """The object's pixels in ``mask`` (h, w) bool whose flow the object's own motion explains
+    better than the background's: a two-layer assignment on one pair's flow (h, w, 2).
+
+    The object's motion is an affine flow fitted to its mask pixels (refitted ``iters`` times on
+    the pixels kept), the background's an affine flow fitted to the region's pixels outside
+    ``mask`` and ``others`` (other objects); a pixel stays when its flow is closer to the object's
+    prediction than to the background's. A motion segmentation's mask spills over the object's
+    edge (flow is smooth across it), and the spilled background pixels, which move with the
+    background, would read as a deformation of the object. When fewer than ``min_keep`` of the mask
+    would stay (an object that moves like its background cannot be told apart by motion), or
+    either layer has fewer than 20 pixels, the mask is returned unchanged."""
+    mask = np.asarray(mask, bool)
+    bg = ~mask & ~np.asarray(others, bool)
+    finite = np.isfinite(flow).all(axis=2)
+    mask_f, bg = mask & finite, bg & finite
+    if mask_f.sum() < 20 or bg.sum() < 20:
+        return mask
+    ys, xs = np.nonzero(mask_f)
+    pos = np.column_stack([xs, ys]).astype(np.float64)
+    vec = flow[ys, xs].astype(np.float64)
+    by, bx = np.nonzero(bg)
+    bpos = np.column_stack([bx, by]).astype(np.float64)
+    background = weighted_affine_fit(bpos, flow[by, bx].astype(np.float64), np.ones(len(bx)))
+    d_bg = np.linalg.norm(vec - (pos @ background[:, :2].T + background[:, 2]), axis=1)
+    keep = np.ones(len(xs), bool)
+    for _ in range(max(1, iters)):
+        obj = weighted_affine_fit(pos[keep], vec[keep], np.ones(int(keep.sum())))
+        keep = np.linalg.norm(vec - (pos @ obj[:, :2].T + obj[:, 2]), axis=1) < d_bg
+        if not np.isfinite(obj).all() or keep.sum() < max(20, min_keep * len(xs)):
+            return mask
+    out = np.zeros_like(mask)
+    out[ys[keep], xs[keep]] = True
+    return out
 
 
 def adadfrc_pair(

@@ -14,6 +14,7 @@ through the verdict rules of :mod:`geocon_core.verdict`.
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 import time
@@ -29,7 +30,7 @@ import numpy as np
 from .assemble import add_objects, assemble_record, software_versions
 from .config import ScoreConfig
 from .diagnostics import FrameDiagnostics, ObjectFlow
-from .features import FeatureSet, Matcher, make_matcher, scaled_inputs
+from .features import FeatureSet, Matcher, gross_mismatches, make_matcher, scaled_inputs
 from .flow import FlowBackend, make_flow_backend
 from .geometry import scale_intrinsics, two_view_cloud
 from .masks import MaskSource, make_mask_source
@@ -38,7 +39,7 @@ from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, 
 from .pose.chain import chain_hops, compose_chain
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .record import ClipRecord, PointCloud
-from .rigidity import ObjectPairScore, adadfrc_pair
+from .rigidity import ObjectPairScore, adadfrc_pair, refine_object_mask
 from .schedule import StreamSchedule, gate_windows
 
 __all__ = ["score_clip", "software_versions"]
@@ -146,6 +147,12 @@ class _Pipeline:
                 continue
             start = time.perf_counter()
             x1, x2 = self.matcher.match(a[s], b[s])
+            n_gross = 0
+            if cfg.gross_match_share > 0:
+                h, w = a[s].mask.shape
+                gross = gross_mismatches(x1, x2, cfg.gross_match_share * math.hypot(w, h), cfg.gross_match_neighbours)
+                n_gross = int(gross.sum())
+                x1, x2 = x1[~gross], x2[~gross]
             start = self.timer.add("matching", start)
             seed = _pair_seed(cfg.seed, t0, t1, si)
             kw = dict(min_inliers=cfg.min_inliers, iters=cfg.ransac_iters, confidence=cfg.ransac_confidence)
@@ -156,7 +163,9 @@ class _Pipeline:
             self.timer.add("model_fitting", start)
             # kept as the record stores them (float32), so memory per match stays small
             results.append(
-                PairFits(t0, t1, gap, s, None, x1.astype(np.float32), x2.astype(np.float32), fits["H"], fits["F"])
+                PairFits(
+                    t0, t1, gap, s, None, x1.astype(np.float32), x2.astype(np.float32), fits["H"], fits["F"], n_gross
+                )
             )
         return results
 
@@ -190,9 +199,12 @@ class _Pipeline:
                 assert self.flow is not None, "objects are scored only with a flow backend"
                 field = self.flow.compute(g0, g1, box)
                 x0, y0, x1, y1 = field.box
+                crop = mask[y0:y1, x0:x1]
+                if self.config.refine_object_masks:
+                    crop = refine_object_mask(field.flow, crop, (lab[y0:y1, x0:x1] > 0) & ~crop)
                 res = adadfrc_pair(
                     field.flow,
-                    mask[y0:y1, x0:x1],
+                    crop,
                     field.reliable,
                     grid=self.config.grid,
                     min_cells=self.config.min_cells,
@@ -200,9 +212,7 @@ class _Pipeline:
                 )
                 out.append(ObjectPairScore(oid, f0.index, f1.index, s, res))
                 if self.keep_flows and s == 1.0:
-                    flows.append(
-                        ObjectFlow(oid, f0.index, f1.index, field.box, field.flow, field.reliable, mask[y0:y1, x0:x1])
-                    )
+                    flows.append(ObjectFlow(oid, f0.index, f1.index, field.box, field.flow, field.reliable, crop))
         self.timer.add("objects", start)
         return out, flows
 

@@ -227,6 +227,13 @@ class PoseConfig:
     """Least likelihood-ratio statistic for adopting a fitted focal scale in the essential model."""
     max_focal_ratio: float = 1.6
     """Bound on the focal scale (and on its inverse)."""
+    fit_zoom: bool = False
+    """Let the rotation-only model zoom: the second frame's focal length is the first's times a
+    free factor (``x1 ~ K_z R K^-1 x0``), so a rotating and zooming camera, whose images a
+    homography relates exactly, is not read as a forward translation. Off in every preset: on real
+    footage a camera backing down a room read as a zoom (see the README)."""
+    max_zoom: float = 3.0
+    """Bound on the zoom factor between the two frames (and on its inverse)."""
     trim: float = 0.0
     """Share of the sorted triangulated distances dropped at each end before the mean (a symmetric
     trim biases the mean of the skewed distances of a multi-depth scene; ``scale_fence_iqr`` is the
@@ -259,6 +266,8 @@ class PoseConfig:
             raise ValueError("pixel thresholds must be positive")
         if not (0 < self.rot_share <= 1 and 0 <= self.min_inlier_share <= 1):
             raise ValueError("rot_share must be in (0, 1] and min_inlier_share in [0, 1]")
+        if self.max_zoom < 1:
+            raise ValueError(f"max_zoom must be at least 1, got {self.max_zoom}")
         if not (self.focal_sigma > 0 and self.max_focal_ratio >= 1 and self.focal_min_gain >= 0):
             raise ValueError("focal_sigma must be positive, max_focal_ratio >= 1, focal_min_gain >= 0")
         if self.ransac_iters < 1 or self.rot_hypotheses < 1 or not 0 < self.confidence < 1:

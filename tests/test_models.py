@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from geocon_core import geometry
+from geocon_core.features import gross_mismatches
 from geocon_core.geometry import (
     fundamental_from_pose,
     homography_from_plane,
@@ -137,3 +138,32 @@ def test_segment_inlier_stats_equals_the_per_pair_rule_bit_for_bit():
                 assert np.isnan(ge[i])
             else:
                 assert ge[i] == ge_i, (tau, i)
+
+
+def test_gross_mismatches_are_the_matchers_errors_only():
+    """Two surfaces at different depths seen by a translating camera (a depth edge down the
+    middle), one of them also breathing by up to 4 px, plus 25 matches paired with the wrong
+    partner (repeated structure: the match of a point 150+ px away). The rule flags exactly the
+    25 wrong pairings: parallax across the edge and the smooth warp move whole neighbourhoods."""
+    rng = np.random.default_rng(3)
+    n = 400
+    u = np.column_stack([rng.uniform(40, 984, n), rng.uniform(40, 536, n)])
+    depth = np.where(u[:, 0] < 512, 3.0, 6.0)
+    X = np.column_stack([(u - K[:2, 2]) / K[0, 0] * depth[:, None], depth])
+    T = make_pose(rotation_xyz(1, 0, 0), (0.12, 0.02, 0.0))
+    x1, x2 = project(np.eye(4), X), project(T, X)
+    far = x1[:, 0] >= 512
+    x2[far] += 4.0 * np.sin(x1[far] / 180.0)  # smooth breathing of the far surface
+    x2 = x2 + rng.normal(0, 0.3, x2.shape)
+    gap = np.abs((x2 - x1)[~far, 0].mean() - (x2 - x1)[far, 0].mean())
+    assert gap > 15  # the parallax step across the edge is real
+    bad = rng.choice(n, 25, replace=False)
+    for i in bad:
+        d = np.linalg.norm(x1 - x1[i], axis=1)
+        x2[i] = x2[int(np.flatnonzero(d > 150)[0])]
+    diag = float(np.hypot(1024, 576))
+    flagged = gross_mismatches(x1, x2, 0.04 * diag)
+    truth = np.zeros(n, bool)
+    truth[bad] = True
+    np.testing.assert_array_equal(flagged, truth)
+    assert not gross_mismatches(x1[:9], x2[:9], 1.0).any()  # too few matches to judge

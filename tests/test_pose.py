@@ -137,7 +137,7 @@ def rotations() -> list[dict]:
         est = {60.0: backend.estimate(x0, x1, scene.K)}
         for fov in FOVS:
             est[fov] = backend.estimate(x0, x1, default_intrinsics((0, 0, W, H), fov))
-        cases.append(dict(seed=seed, rot=rotation_angle_deg(T_0T[:3, :3]), est=est))
+        cases.append(dict(seed=seed, rot=rotation_angle_deg(T_0T[:3, :3]), est=est, x0=x0, x1=x1, K=scene.K))
     print("\npure rotation (C2 layout): rotation angle and t_inf (true K, fov 48, fov 72)")
     for c in cases:
         e = c["est"][60.0]
@@ -206,6 +206,58 @@ def test_wrong_field_of_view_keeps_clear_decisions(sweep, rotations):
             )
             checked += 1
     assert checked >= 2 * (len(MOTIONS) * 4 + 4)
+
+
+ZOOMS = (1.12, 0.88)
+
+
+@pytest.fixture(scope="module")
+def zooms() -> list[dict]:
+    """A rotating camera that also zooms (C2 layout): the last frame is rendered with its focal
+    lengths times ``zoom`` about the principal point, so ``x1 ~ K_z R K^-1 x0`` exactly; no
+    translation."""
+    cases = []
+    for i, zoom in enumerate(ZOOMS):
+        scene = build_scene("C2", seed=i, width=W, height=H, num_frames=2)
+        Kz = scene.K.copy()
+        Kz[0, 0] *= zoom
+        Kz[1, 1] *= zoom
+        last = dataclasses.replace(scene, K=Kz)
+        x0, x1 = sift_matches(noisy(render_frame(scene, 0).rgb, 4000 + i), noisy(render_frame(last, 1).rgb, 5000 + i))
+        cases.append(dict(zoom=zoom, x0=x0, x1=x1, K=scene.K))
+    return cases
+
+
+def test_zoom_is_a_focal_change_not_a_translation(zooms):
+    """With ``fit_zoom`` the rotation-only model takes a zooming, rotating camera (t_inf 0, gate
+    H) and recovers the zoom; without it (the paper's model) the zoom reads as a forward move."""
+    for c in zooms:
+        e = ClassicalPose(fit_zoom=True).estimate(c["x0"], c["x1"], c["K"], seed=0)
+        assert e.pose_present and e.method == "rotation", f"zoom {c['zoom']}: {e.method} {e.reason}"
+        assert e.zoom == pytest.approx(c["zoom"], rel=0.01)
+        assert gate(e.t_inf) == "H" and e.t_inf < 0.005
+        assert e.note is not None and f"x{c['zoom']:.2f}" in e.note
+        fixed = ClassicalPose().estimate(c["x0"], c["x1"], c["K"], seed=0)
+        assert fixed.method != "rotation" and gate(fixed.t_inf) == "F", (
+            f"zoom {c['zoom']}: without fit_zoom expected a translation, got {fixed.method} t_inf {fixed.t_inf}"
+        )
+
+
+def test_fit_zoom_keeps_translation_decisions(sweep, rotations):
+    """Free zoom does not swallow real parallax: on the translation sweep and the pure rotations
+    (true K) the hysteresis label is the same as without zoom, and t_inf stays within the sweep's
+    tolerance where the truth is clear."""
+    backend = ClassicalPose(fit_zoom=True)
+    for c in sweep:
+        e = backend.estimate(c["x0"], c["x1"], c["K"], seed=0)
+        assert e.pose_present
+        if c["truth"] == 0.0 or c["truth"] >= 0.08:
+            assert gate(e.t_inf) == gate(c["truth"]), f"{c['motion']} t={c['truth']:.3f}: {e.method} {e.t_inf:.4f}"
+        if c["truth"] >= 0.05:
+            assert e.method == "essential" and abs(e.t_inf - c["truth"]) <= 0.3 * c["truth"]
+    for c in rotations:
+        e = backend.estimate(c["x0"], c["x1"], c["K"], seed=0)
+        assert e.method == "rotation" and e.t_inf < 0.005 and e.zoom == pytest.approx(1.0, abs=0.005)
 
 
 def test_default_intrinsics():

@@ -37,6 +37,8 @@ class PoseEstimate:
     focal_scale: focal scale adopted by self-calibration (1.0 = K as given); an addition to
         the minimal interface, defaulted so that older records still load.
     note: which evidence decided, in words, when it is not the first-last pair (a chain).
+    zoom: focal length of the last frame over the first's fitted by the rotation-only model
+        (``PoseConfig.fit_zoom``; for a chain, the product over its hops); 1.0 without zoom.
     """
 
     pose_present: bool
@@ -51,6 +53,7 @@ class PoseEstimate:
     focal_px: float
     focal_scale: float = 1.0
     note: str | None = None
+    zoom: float = 1.0
 
     def __post_init__(self) -> None:
         if self.method not in POSE_METHODS:
@@ -87,6 +90,7 @@ class PoseEstimate:
             "focal_px": float(self.focal_px),
             "focal_scale": float(self.focal_scale),
             "note": self.note,
+            "zoom": float(self.zoom),
         }
 
     @classmethod

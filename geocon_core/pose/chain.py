@@ -27,7 +27,10 @@ import numpy as np
 from ..geometry import rotation_angle_deg
 from .base import PoseEstimate
 
-__all__ = ["chain_hops", "compose_chain"]
+__all__ = ["chain_hops", "compose_chain", "ZOOM_NOTE_LOG"]
+
+ZOOM_NOTE_LOG = 0.05
+"""A zoom whose log exceeds this (about 5 %) is named in the pose's note."""
 
 
 def chain_hops(n: int, hop: int) -> list[tuple[int, int]]:
@@ -85,6 +88,9 @@ def compose_chain(
         + f" spanning {spanned} of {n - 1} frame steps"
     )
     ests = [e for _, e in present]
+    zoom = float(np.prod([e.zoom for e in ests]))
+    if abs(np.log(zoom)) >= ZOOM_NOTE_LOG:
+        note += f"; the camera zooms x{zoom:.2f} (a focal change, not a translation)"
     return PoseEstimate(
         pose_present=True,
         t_inf=t_inf,
@@ -97,4 +103,5 @@ def compose_chain(
         parallax_px=None,
         focal_px=first_last.focal_px,
         note=note,
+        zoom=zoom,
     )

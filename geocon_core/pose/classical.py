@@ -12,8 +12,11 @@
        bounded by ``max_focal_ratio``): the images of a rotating camera are related by
        ``K R K^-1`` for the *true* K only: with a field of view 20 % off, 12-18 degree
        rotations left 1.6-3.8 px of median residual and read as translation (t_inf up to
-       0.12, i.e. F); with the focal scale free the residual is back at the noise (0.2 px). The
-       per-match transfer error of this model is the *rotation-compensated parallax*.
+       0.12, i.e. F); with the focal scale free the residual is back at the noise (0.2 px).
+       With ``fit_zoom`` (off by default) the second frame's focal length is the first's times
+       a free zoom factor, ``x1 ~ K_z R K^-1 x0``; the RANSAC then also draws, per sample, the
+       zoom the two matches' distance ratio implies. The per-match transfer error of this model
+       is the *rotation-compensated parallax*.
     2. *Essential matrix*: OpenCV USAC (MAGSAC++ scoring, uniform sampling, inner local
        optimisation, seeded with ``randomGeneratorState = seed``, single-threaded, so the same
        input gives bit-identical results) on normalised camera coordinates with an inlier
@@ -92,6 +95,7 @@ from ..geometry import (
 from ..models import usac_params
 from ..stage_configs import PoseConfig
 from .base import PoseEstimate, check_inputs, failure, focal_of
+from .chain import ZOOM_NOTE_LOG
 from .lsq import kabsch_batch, levenberg_marquardt, polish_essential, rotation_transfer
 
 __all__ = ["ClassicalPose"]
@@ -101,6 +105,7 @@ __all__ = ["ClassicalPose"]
 class _RotationFit:
     R: np.ndarray  # X1 = R X0 (camera-1 from camera-0 coordinates)
     focal_scale: float
+    zoom: float  # focal length of the second frame over the first's (1 without fit_zoom)
     residual: np.ndarray  # (N,) pixel transfer error of every match (rotation-compensated parallax)
     inliers: np.ndarray  # (N,) bool
 
@@ -167,6 +172,7 @@ class ClassicalPose:
         )
 
         if explained and rot.inliers.sum() >= need:
+            zoomed = abs(math.log(rot.zoom)) >= ZOOM_NOTE_LOG
             return PoseEstimate(
                 pose_present=True,
                 t_inf=parallax / f,
@@ -179,6 +185,8 @@ class ClassicalPose:
                 parallax_px=parallax,
                 focal_px=f,
                 focal_scale=rot.focal_scale,
+                zoom=rot.zoom,
+                note=f"rotation with a zoom x{rot.zoom:.2f} (a focal change, not a translation)" if zoomed else None,
             )
 
         def fail(reason: str, n_inl: int) -> PoseEstimate:
@@ -221,56 +229,74 @@ class ClassicalPose:
         n = len(x0)
         Kinv = np.linalg.inv(K)
         r0 = np.c_[x0, np.ones(n)] @ Kinv.T
-        r1 = np.c_[x1, np.ones(n)] @ Kinv.T
         r0 /= np.linalg.norm(r0, axis=1, keepdims=True)
-        r1 /= np.linalg.norm(r1, axis=1, keepdims=True)
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 2])
         m = self.config.rot_hypotheses
         i = rng.integers(0, n, size=m)
         j = (i + rng.integers(1, n, size=m)) % n  # a second, different match
-        Rs = kabsch_batch(np.stack([r0[i], r0[j]], axis=1), np.stack([r1[i], r1[j]], axis=1))
+        zooms = np.ones(m)
+        if self.config.fit_zoom:
+            # each sample also proposes a zoom: the ratio of its two points' distances in the
+            # two frames (a rotation keeps it near 1, a focal change scales it)
+            d0 = np.linalg.norm(x0[i] - x0[j], axis=1)
+            d1 = np.linalg.norm(x1[i] - x1[j], axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z = np.where(d0 > 1.0, d1 / d0, 1.0)
+            z = np.clip(np.nan_to_num(z, nan=1.0), 1 / self.config.max_zoom, self.config.max_zoom)
+            i, j, zooms = np.r_[i, i], np.r_[j, j], np.r_[zooms, z]
+        rays1 = _zoomed_rays(x1[np.r_[i, j]], K, np.r_[zooms, zooms])
+        k = len(i)
+        Rs = kabsch_batch(np.stack([r0[i], r0[j]], axis=1), np.stack([rays1[:k], rays1[k:]], axis=1))
         # score the hypotheses on at most 1000 matches (memory stays bounded)
         sub = np.sort(rng.choice(n, size=min(n, 1000), replace=False))
         p = np.einsum("mab,nb->mna", Rs, r0[sub]) @ K.T
+        p[..., :2] = (p[..., :2] - K[:2, 2] * p[..., 2:3]) * zooms[:, None, None] + K[:2, 2] * p[..., 2:3]
         proj = p[..., :2] / p[..., 2:3]
         err = np.linalg.norm(proj - x1[sub][None], axis=2)
         err[~np.isfinite(err) | (p[..., 2] <= 0)] = np.inf
         best = int(np.argmax((err <= self.config.rot_ransac_px).sum(axis=1)))
-        R, s = Rs[best], 1.0
-        res = np.linalg.norm(rotation_transfer(K, R, s, x0) - x1, axis=1)
+        R, s, zoom = Rs[best], 1.0, float(zooms[best])
+        res = np.linalg.norm(rotation_transfer(K, R, s, x0, zoom) - x1, axis=1)
         inl = res <= self.config.rot_ransac_px
         for _ in range(4):
             if inl.sum() < 3:
                 break
-            R, s = self._refine_rotation(x0[inl], x1[inl], K, R, s)
-            res = np.linalg.norm(rotation_transfer(K, R, s, x0) - x1, axis=1)
+            R, s, zoom = self._refine_rotation(x0[inl], x1[inl], K, R, s, zoom)
+            res = np.linalg.norm(rotation_transfer(K, R, s, x0, zoom) - x1, axis=1)
             new = res <= self.config.rot_ransac_px
             if np.array_equal(new, inl):
                 break
             inl = new
-        return _RotationFit(R=R, focal_scale=s, residual=res, inliers=inl)
+        return _RotationFit(R=R, focal_scale=s, zoom=zoom, residual=res, inliers=inl)
 
     def _refine_rotation(
-        self, x0: np.ndarray, x1: np.ndarray, K: np.ndarray, R: np.ndarray, s: float
-    ) -> tuple[np.ndarray, float]:
-        """Levenberg-Marquardt on (rotation increment, log focal scale) minimising the pixel
-        transfer error, with the weak prior on the focal scale."""
-        fit_s = self.config.fit_focal
-        bound = math.log(self.config.max_focal_ratio)
+        self, x0: np.ndarray, x1: np.ndarray, K: np.ndarray, R: np.ndarray, s: float, zoom: float
+    ) -> tuple[np.ndarray, float, float]:
+        """Levenberg-Marquardt on (rotation increment, log focal scale, log zoom) minimising the
+        pixel transfer error, with the weak prior on the focal scale; the focal scale and the
+        zoom are free only with ``fit_focal`` / ``fit_zoom``."""
+        fit_s, fit_z = self.config.fit_focal, self.config.fit_zoom
+        bound, zbound = math.log(self.config.max_focal_ratio), math.log(self.config.max_zoom)
 
-        def resid(Rc: np.ndarray, lsc: float) -> np.ndarray:
-            r = (rotation_transfer(K, Rc, math.exp(lsc), x0) - x1).ravel()
+        def resid(Rc: np.ndarray, lsc: float, lz: float) -> np.ndarray:
+            r = (rotation_transfer(K, Rc, math.exp(lsc), x0, math.exp(lz)) - x1).ravel()
             if fit_s:  # prior log s ~ N(0, focal_sigma^2), weighted like one match with 0.5 px residual
                 r = np.append(r, 0.5 * lsc / self.config.focal_sigma)
             return r
 
-        def apply(Rc: np.ndarray, lsc: float, step: np.ndarray) -> tuple[np.ndarray, float]:
-            lsn = float(np.clip(lsc + step[3], -bound, bound)) if fit_s else lsc
-            return rotation_from_axis_angle(step[:3]) @ Rc, lsn
+        def apply(Rc: np.ndarray, lsc: float, lz: float, step: np.ndarray) -> tuple[np.ndarray, float, float]:
+            k = 3
+            if fit_s:
+                lsc = float(np.clip(lsc + step[k], -bound, bound))
+                k += 1
+            if fit_z:
+                lz = float(np.clip(lz + step[k], -zbound, zbound))
+            return rotation_from_axis_angle(step[:3]) @ Rc, lsc, lz
 
-        R, ls = levenberg_marquardt(resid, apply, (R, math.log(s)), 4 if fit_s else 3, h=1e-6)
+        npar = 3 + int(fit_s) + int(fit_z)
+        R, ls, lz = levenberg_marquardt(resid, apply, (R, math.log(s), math.log(zoom)), npar, h=1e-6)
         U, _, Vt = np.linalg.svd(R)
-        return U @ Vt, math.exp(ls)
+        return U @ Vt, math.exp(ls), math.exp(lz)
 
     # ---- essential-matrix model
 
@@ -354,6 +380,13 @@ class ClassicalPose:
         w = area_weights(xy, extent, self.config.scale_area_grid)
         m = float(np.sum(w * d) / np.sum(w)) if len(d) and np.sum(w) > 0 else math.nan
         return m if math.isfinite(m) and m > 0 else None
+
+
+def _zoomed_rays(x: np.ndarray, K: np.ndarray, zoom: np.ndarray) -> np.ndarray:
+    """Unit rays (N, 3) of pixels x (N, 2) seen with the focal lengths of K times ``zoom`` (N,)."""
+    c = (x - K[:2, 2]) / zoom[:, None] + K[:2, 2]
+    r = np.c_[c, np.ones(len(x))] @ np.linalg.inv(K).T
+    return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
 def _log_fence(d: np.ndarray, k: float) -> np.ndarray:

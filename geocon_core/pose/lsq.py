@@ -22,12 +22,16 @@ def kabsch_batch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return (U * D[:, None, :]) @ Vt
 
 
-def rotation_transfer(K: np.ndarray, R: np.ndarray, s: float, x0: np.ndarray) -> np.ndarray:
-    """Pixels of x0 mapped by ``K_s R K_s^-1`` (focal lengths of K scaled by s)."""
+def rotation_transfer(K: np.ndarray, R: np.ndarray, s: float, x0: np.ndarray, zoom: float = 1.0) -> np.ndarray:
+    """Pixels of x0 mapped by ``K_sz R K_s^-1`` (focal lengths of K scaled by s in the first
+    frame and by ``s * zoom`` in the second: a rotating camera that also zooms)."""
     Ks = K.copy()
     Ks[0, :2] *= s
     Ks[1, 1] *= s
-    H = Ks @ R @ np.linalg.inv(Ks)
+    Kz = Ks.copy()
+    Kz[0, :2] *= zoom
+    Kz[1, 1] *= zoom
+    H = Kz @ R @ np.linalg.inv(Ks)
     y = np.c_[x0, np.ones(len(x0))] @ H.T
     with np.errstate(divide="ignore", invalid="ignore"):
         out = y[:, :2] / y[:, 2:3]

@@ -110,6 +110,8 @@ def worst_pair_note(rec: ClipRecord) -> str | None:
     note = f"pair ({pair.t0}, {pair.t1}), gap {pair.gap}: IR {ir:.3f} of {pair.n_matches} matches"
     if len(out):
         note += f"; {len(out)} outliers {out.min():.1f}-{out.max():.1f} px off the {model} model"
+    if pair.n_gross:
+        note += f" ({pair.n_gross} gross mismatches dropped before the fit)"
     return note
 
 
