@@ -144,10 +144,13 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
         f"{bg.other.family}: IR {fmt(bg.other.ir, '.3f')}   GE {fmt(bg.other.ge, '.2f')} px (best-of, not the score)",
     )
     reasons = ", ".join(f"{k} {v}" for k, v in bg.chosen.invalid_reasons.items()) or "none"
-    table.add_row(
-        "coverage",
-        f"{bg.valid_pairs}/{bg.total_pairs} pair-scales valid; {record.video.num_frames} frames; invalid: {reasons}",
-    )
+    frames = record.video.num_frames
+    coverage = f"{bg.valid_pairs}/{bg.total_pairs} pair-scales valid; {frames} frames; invalid: {reasons}"
+    gross = sum(p.n_gross for p in record.pairs)
+    if gross:
+        kept = sum(p.n_matches for p in record.pairs)
+        coverage += f"; {gross} of {gross + kept} matches dropped as gross mismatches (repeated structure)"
+    table.add_row("coverage", coverage)
     table.add_row("verdict", _verdict_row(record))
     if record.category is not None:
         table.add_row("category", f"{record.category.label}: {record.category.rule}")
