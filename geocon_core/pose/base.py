@@ -10,9 +10,21 @@ import numpy as np
 
 from ..geometry import intrinsics_from_fov
 
-__all__ = ["POSE_METHODS", "PoseEstimate", "PoseBackend", "default_intrinsics", "failure", "focal_of", "check_inputs"]
+__all__ = [
+    "POSE_METHODS",
+    "ZOOM_NOTE_LOG",
+    "PoseEstimate",
+    "PoseBackend",
+    "default_intrinsics",
+    "failure",
+    "focal_of",
+    "check_inputs",
+]
 
 POSE_METHODS = ("essential", "rotation", "chain", "log", "none")
+
+ZOOM_NOTE_LOG = 0.05
+"""A fitted zoom whose log exceeds this (about 5 %) is named in the pose's note."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,12 +25,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..geometry import rotation_angle_deg
-from .base import PoseEstimate
+from .base import ZOOM_NOTE_LOG, PoseEstimate
 
-__all__ = ["chain_hops", "compose_chain", "ZOOM_NOTE_LOG"]
-
-ZOOM_NOTE_LOG = 0.05
-"""A zoom whose log exceeds this (about 5 %) is named in the pose's note."""
+__all__ = ["chain_hops", "compose_chain"]
 
 
 def chain_hops(n: int, hop: int) -> list[tuple[int, int]]:

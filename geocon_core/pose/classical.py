@@ -94,8 +94,7 @@ from ..geometry import (
 )
 from ..models import usac_params
 from ..stage_configs import PoseConfig
-from .base import PoseEstimate, check_inputs, failure, focal_of
-from .chain import ZOOM_NOTE_LOG
+from .base import ZOOM_NOTE_LOG, PoseEstimate, check_inputs, failure, focal_of
 from .lsq import kabsch_batch, levenberg_marquardt, polish_essential, rotation_transfer
 
 __all__ = ["ClassicalPose"]
@@ -235,7 +234,8 @@ class ClassicalPose:
         i = rng.integers(0, n, size=m)
         j = (i + rng.integers(1, n, size=m)) % n  # a second, different match
         zooms = np.ones(m)
-        if self.config.fit_zoom:
+        fit_zoom = self.config.fit_zoom
+        if fit_zoom:
             # each sample also proposes a zoom: the ratio of its two points' distances in the
             # two frames (a rotation keeps it near 1, a focal change scales it)
             d0 = np.linalg.norm(x0[i] - x0[j], axis=1)
@@ -244,13 +244,19 @@ class ClassicalPose:
                 z = np.where(d0 > 1.0, d1 / d0, 1.0)
             z = np.clip(np.nan_to_num(z, nan=1.0), 1 / self.config.max_zoom, self.config.max_zoom)
             i, j, zooms = np.r_[i, i], np.r_[j, j], np.r_[zooms, z]
-        rays1 = _zoomed_rays(x1[np.r_[i, j]], K, np.r_[zooms, zooms])
+        # image-1 rays of each sample, seen without its zoom (unzoomed about the principal point)
+        x1s = x1[np.r_[i, j]]
+        if fit_zoom:
+            x1s = (x1s - K[:2, 2]) / np.r_[zooms, zooms][:, None] + K[:2, 2]
+        rays1 = np.c_[x1s, np.ones(len(x1s))] @ Kinv.T
+        rays1 /= np.linalg.norm(rays1, axis=1, keepdims=True)
         k = len(i)
         Rs = kabsch_batch(np.stack([r0[i], r0[j]], axis=1), np.stack([rays1[:k], rays1[k:]], axis=1))
         # score the hypotheses on at most 1000 matches (memory stays bounded)
         sub = np.sort(rng.choice(n, size=min(n, 1000), replace=False))
         p = np.einsum("mab,nb->mna", Rs, r0[sub]) @ K.T
-        p[..., :2] = (p[..., :2] - K[:2, 2] * p[..., 2:3]) * zooms[:, None, None] + K[:2, 2] * p[..., 2:3]
+        if fit_zoom:  # zoom each hypothesis' projection about the principal point
+            p[..., :2] = (p[..., :2] - K[:2, 2] * p[..., 2:3]) * zooms[:, None, None] + K[:2, 2] * p[..., 2:3]
         proj = p[..., :2] / p[..., 2:3]
         err = np.linalg.norm(proj - x1[sub][None], axis=2)
         err[~np.isfinite(err) | (p[..., 2] <= 0)] = np.inf
@@ -380,13 +386,6 @@ class ClassicalPose:
         w = area_weights(xy, extent, self.config.scale_area_grid)
         m = float(np.sum(w * d) / np.sum(w)) if len(d) and np.sum(w) > 0 else math.nan
         return m if math.isfinite(m) and m > 0 else None
-
-
-def _zoomed_rays(x: np.ndarray, K: np.ndarray, zoom: np.ndarray) -> np.ndarray:
-    """Unit rays (N, 3) of pixels x (N, 2) seen with the focal lengths of K times ``zoom`` (N,)."""
-    c = (x - K[:2, 2]) / zoom[:, None] + K[:2, 2]
-    r = np.c_[c, np.ones(len(x))] @ np.linalg.inv(K).T
-    return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
 def _log_fence(d: np.ndarray, k: float) -> np.ndarray:
