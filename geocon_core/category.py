@@ -3,9 +3,11 @@
 The rule, in order (the first that fires wins):
 
 1. **C6 stress** when the geometry cannot be measured well: no first-last pose, fewer than
-   ``min_valid_share`` of the judgeable background (pair, scale) entries valid (not counting
-   pairs across duplicated frames or cuts, or scales too small to score), fewer than ``min_matches``
-   background correspondences per valid pair at the largest scale (low texture), or a
+   ``min_valid_share`` of the judgeable adjacent pairs (the smallest frame gap, not across
+   duplicated frames or cuts) with a valid background fit at the largest scale (longer gaps and
+   smaller scales are left out: a fast camera's pairs 8 frames apart share few matches, and a
+   small clip's half-size image has few features, which says nothing of the scene), fewer than
+   ``min_matches`` background correspondences per valid pair at the largest scale (low texture), or a
    translating camera whose background IR stays below ``stress_ir`` (thin structures and
    occlusions defeat every single model).
 2. **Static camera** when the gate is H, the median background motion between adjacent frames
@@ -85,10 +87,15 @@ def categorize(
 
 def categorize_record(record: ClipRecord, object_frames: list[int]) -> Category:
     """:func:`categorize` with its inputs measured from a scored record: the gate and first-last
-    pose, the background's valid share and IR, and over the valid gap-1 pairs of the largest scale
-    the median displacement of the H inliers (``background_motion_px``) and the median number of
+    pose, the background IR, the share of the judgeable adjacent pairs of the largest scale whose
+    fit of the chosen family is valid, and over the valid gap-1 pairs of the largest scale the
+    median displacement of the H inliers (``background_motion_px``) and the median number of
     matches; ``object_frames`` is the number of frames each object was seen."""
     s_max = max(record.config.scales)
+    base = min(record.config.gaps)
+    adjacent = [p for p in record.pairs if p.gap == base and p.scale == s_max and p.skip is None]
+    fits = [p.fit(record.background.model) for p in adjacent]
+    valid = sum(1 for fit in fits if fit is not None and fit.valid)
     motions, matches = [], []
     for p in record.pairs:
         if p.gap != 1 or p.scale != s_max or p.skip is not None or p.h is None or not p.h.valid:
@@ -98,14 +105,13 @@ def categorize_record(record: ClipRecord, object_frames: list[int]) -> Category:
         motions.append(float(np.median(np.linalg.norm(arr["x2"][inl] - arr["x1"][inl], axis=1))))
         matches.append(p.n_matches)
     bg = record.background
-    judgeable = sum(1 for p in record.pairs if p.skip is None)  # not across duplicates, cuts, tiny scales
     return categorize(
         gate_model=record.gate.model,
         pose_present=record.gate.pose_present,
         t_inf=record.gate.t_inf,
         rotation_deg=record.gate.pose.rotation_deg,
         background_motion_px=float(np.median(motions)) if motions else None,
-        valid_share=bg.valid_pairs / judgeable if judgeable else 0.0,
+        valid_share=valid / len(adjacent) if adjacent else 0.0,
         median_matches=float(np.median(matches)) if matches else None,
         background_ir=bg.ir,
         object_frames=object_frames,

@@ -116,6 +116,12 @@ class ScoreConfig:
     affine motion explains better than the background's (:func:`~geocon_core.rigidity.refine_object_mask`):
     a motion mask that spills over the object's edge would read as deformation. False (the paper)
     scores the masks as given."""
+    object_gap: int = 1
+    """AdaDFRC scores each object on the pair ``(t, t + object_gap)``, with the flow composed from
+    the consecutive frames' flows (:func:`~geocon_core.flow.chained_flow`) over the box of the
+    object's masks in those frames. 1 (the paper) scores adjacent frames; a deformation that
+    oscillates over many frames changes a few tenths of a pixel per frame, under the flow's
+    noise, and grows with the gap while the noise of a rigid object grows far less."""
     mask_jump_window: int = 3
     """Frames on each side of a track's frame that set its expected mask area."""
     ransac_iters: int = 2000
@@ -178,6 +184,8 @@ class ScoreConfig:
                 "max_mask_jump must be >= 0 and mask_jump_window >= 1, "
                 f"got {self.max_mask_jump}, {self.mask_jump_window}"
             )
+        if self.object_gap < 1:
+            raise ValueError(f"object_gap must be at least 1, got {self.object_gap}")
         if self.min_object_pairs < 1:
             raise ValueError(f"min_object_pairs must be at least 1, got {self.min_object_pairs}")
         if self.min_inliers < 1:
@@ -234,8 +242,9 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "as deformation), and each object's mask keeps only the pixels its own motion explains better "
         "than the background's (a mask that spills over the edge reads as deformation too); matches "
         "that disagree with all their neighbours by more than 4% of the image diagonal (repeated "
-        "structure) are dropped before the background fits; the default of `geocon score` and "
-        "`geocon bench`",
+        "structure) are dropped before the background fits; AdaDFRC scores object pairs 4 frames apart "
+        "(flow composed hop by hop), where a slow deformation exceeds the flow's noise; the default of "
+        "`geocon score` and `geocon bench`",
         ScoreConfig(
             preset="audit",
             working_size=(1920, 1080),
@@ -247,6 +256,7 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             max_mask_jump=0.25,
             gross_match_share=0.04,
             refine_object_masks=True,
+            object_gap=4,
         ),
     ),
 }

@@ -21,6 +21,9 @@ the field is cropped back to the box, so small objects are cheap; the margin giv
 coarse-to-fine search context and room for pixels that move out of the box. ``box=None`` is
 the whole frame.
 
+:func:`chained_flow` composes the flows of consecutive frames into the flow over several frames
+(object rigidity on frames ``object_gap`` apart).
+
 A backend may also offer ``compute_both(gray0, gray1, box)``, the forward field and the
 backward field (``gray1 -> gray0``, on ``gray1``'s pixels) from the same two flow runs;
 :class:`DisFlow` does, and the motion segmentation uses it when present (else it calls
@@ -49,7 +52,7 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass, replace
-from typing import Any, Protocol
+from typing import Any, Protocol, Sequence
 
 import cv2
 import numpy as np
@@ -64,6 +67,7 @@ __all__ = [
     "DIS_PRESETS",
     "make_flow_backend",
     "forward_backward",
+    "chained_flow",
 ]
 
 Box = tuple[int, int, int, int]
@@ -221,6 +225,33 @@ class DisFlow:
                 )
             )
         return out[0], out[1]
+
+
+def chained_flow(backend: FlowBackend, grays: Sequence[np.ndarray], box: Box | None = None) -> FlowField:
+    """Forward flow ``grays[0] -> grays[-1]`` over ``box``, composed from the flows of the
+    consecutive frames (each computed over the same box): a pixel follows hop k's flow from where
+    the previous hops took it (bilinear sampling), so a displacement of many pixels over several
+    frames is tracked in steps the flow's search range covers. A pixel is reliable when every hop
+    is reliable where it passes and it stays inside the box; ``fb_error`` is the sum of the hops'
+    errors along the path. Two frames give ``backend.compute`` itself."""
+    if len(grays) < 2:
+        raise ValueError(f"chained_flow needs at least two frames, got {len(grays)}")
+    first = backend.compute(grays[0], grays[1], box)
+    if len(grays) == 2:
+        return first
+    flow, reliable, err = first.flow.copy(), first.reliable.copy(), first.fb_error.copy()
+    h, w = reliable.shape
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    for g0, g1 in zip(grays[1:-1], grays[2:], strict=True):
+        hop = backend.compute(g0, g1, first.box)
+        mx, my = gx + flow[..., 0], gy + flow[..., 1]
+        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+        flow += cv2.remap(hop.flow, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        hop_ok = cv2.remap(hop.reliable.astype(np.uint8), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        hop_err = cv2.remap(hop.fb_error, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
+        reliable &= inside & (hop_ok > 0)
+        err = np.where(inside, err + hop_err, np.float32(np.inf)).astype(np.float32)
+    return FlowField(first.box, flow, reliable, err)
 
 
 FLOW_BACKENDS: dict[str, type] = {"dis": DisFlow}

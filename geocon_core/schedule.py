@@ -14,18 +14,19 @@ scorer's stages, or fakes in tests). For each frame ``t`` it
    - for each gap ``g``, the pair ``(t - g, t)``: :meth:`Stages.score_pair` on the worker pool, or
      :meth:`Stages.skip_pair` at once when ``skip_reason(t - g, t)`` names a reason (cut,
      duplicate);
-   - with labels, the objects of ``t - 1`` on the pair ``(t - 1, t)`` (:meth:`Stages.score_objects`);
+   - with labels, the objects of ``t - g`` on the pair ``(t - g, t)``, ``g`` the object gap, given
+     the frames ``t - g .. t`` and their labels (:meth:`Stages.score_objects`);
    - for each pose window ``(s, t)`` ending at ``t``, its pose (:meth:`Stages.pose`), and at the
      last frame the first-last pose, which also receives frame 0;
    - evicts what no later work needs, tells the mask stage it may drop ``t - 1``
      (:meth:`Stages.release`), and reports ``progress(t + 1, n)``.
 
 Guarantees: ``on_frame(frame, labels, flows)`` is called exactly once per frame, in frame order,
-on the calling thread, with the object flows of the pair ``(t, t + 1)`` (empty when there are
+on the calling thread, with the object flows of the pair ``(t, t + g)`` (empty when there are
 none); the features of frame ``k`` are kept while a pair may still need them
 (``k >= t - max(gaps)``), while a pose window starting at ``k`` has not ended, and for frame 0
-until the first-last pose; decoded frames and labels are kept for two frames (and frame 0 until
-the first-last pose). Results are
+until the first-last pose; decoded frames and labels are kept for ``g + 1`` frames (and frame 0
+until the first-last pose). Results are
 returned in submission order (pairs by frame then gap, skipped pairs separately); every random
 choice belongs to the stages, which seed it from the pair's identity, so the outcome does not
 depend on thread timing.
@@ -76,7 +77,7 @@ class Stages(Protocol):
     def skip_pair(self, t0: int, t1: int, gap: int, reason: str) -> list[Any]: ...
 
     def score_objects(
-        self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None
+        self, frames: Sequence[Frame], labels: Sequence[np.ndarray], skip: str | None
     ) -> tuple[list[Any], Sequence[Any]]: ...
 
     def pose(self, a: Future, b: Future, t0: int, t1: int, first: Frame | None) -> Any: ...
@@ -108,7 +109,8 @@ class _Pending:
 class StreamSchedule:
     """Runs the :class:`Stages` over a clip of ``num_frames`` frames (see the module docstring).
     ``windows`` are the pose windows to estimate besides the first-last pose; ``skip_reason(t0,
-    t1)`` says why a pair must not be scored (None to score it)."""
+    t1)`` says why a pair must not be scored (None to score it); ``object_gap`` is the gap of the
+    object pairs."""
 
     stages: Stages
     pool: Executor
@@ -119,6 +121,7 @@ class StreamSchedule:
     workers: int
     on_frame: Callable[[Frame, np.ndarray | None, tuple], None] | None = None
     progress: Callable[[int, int], None] | None = None
+    object_gap: int = 1
     features: dict[int, Future] = field(default_factory=dict)
     """Features of the frames still needed (frame index -> future), for inspection."""
 
@@ -170,17 +173,23 @@ class StreamSchedule:
         self.features[t] = self.pool.submit(stages.extract, frame, labels)
         self._inflight.append(self.features[t])
         self._submit_pairs(t)
-        if labels is not None and t >= 1 and (t - 1) in self._labels:
-            skip = self.skip_reason(t - 1, t)
-            self._objects.append(
-                self.pool.submit(stages.score_objects, self._frames[t - 1], frame, self._labels[t - 1], skip)
-            )
-            if self._pending and self._pending[-1].frame.index == t - 1:
-                self._pending[-1].objects = self._objects[-1]  # frame t-1 is complete once its flows are
+        g = self.object_gap
         if self.on_frame is not None:
-            if self._pending:
-                self._pending[-1].ready = True
             self._pending.append(_Pending(frame, labels))
+        if labels is not None and t >= g and all(k in self._labels for k in range(t - g, t + 1)):
+            span = range(t - g, t + 1)
+            skip = self.skip_reason(t - g, t)
+            self._objects.append(
+                self.pool.submit(
+                    stages.score_objects, [self._frames[k] for k in span], [self._labels[k] for k in span], skip
+                )
+            )
+            for p in self._pending:
+                if p.frame.index == t - g:
+                    p.objects = self._objects[-1]  # frame t-g is complete once its flows are
+        if self.on_frame is not None:
+            for p in self._pending:
+                p.ready = p.ready or p.frame.index <= t - g
             self._emit(final=False)
         for w in self._ends.get(t, []):
             self._windows.append((w, self.pool.submit(stages.pose, self.features[w[0]], self.features[t], *w, None)))
@@ -218,21 +227,23 @@ class StreamSchedule:
     def _evict(self, t: int) -> None:
         for k in [k for k in self.features if not self._needed(k, t)]:
             del self.features[k]
-        for k in [k for k in self._frames if k < t - 1 and k != 0]:  # frame 0 serves the first-last pose
+        keep = t - self.object_gap
+        for k in [k for k in self._frames if k < keep and k != 0]:  # frame 0 serves the first-last pose
             del self._frames[k]
-        for k in [k for k in self._labels if k < t - 1]:
+        for k in [k for k in self._labels if k < keep]:
             del self._labels[k]
 
     def _emit(self, final: bool) -> None:
         """Hand finished frames to ``on_frame`` in order. Before the end, a frame waits for its
-        object flows unless more than ``2 * workers + 2`` frames are waiting."""
+        object flows unless more than ``2 * workers + g + 1`` frames are waiting."""
         if self.on_frame is None:
             return
         pending = self._pending
         while pending and (final or pending[0].ready):
             head = pending[0]
             fut = head.objects
-            if not final and fut is not None and not fut.done() and len(pending) <= 2 * self.workers + 2:
+            room = 2 * self.workers + self.object_gap + 1
+            if not final and fut is not None and not fut.done() and len(pending) <= room:
                 break
             pending.popleft()
             flows = () if fut is None else tuple(fut.result()[1])

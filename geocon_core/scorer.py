@@ -22,7 +22,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -31,7 +31,7 @@ from .assemble import add_objects, assemble_record, software_versions
 from .config import ScoreConfig
 from .diagnostics import FrameDiagnostics, ObjectFlow
 from .features import FeatureSet, Matcher, gross_mismatches, make_matcher, scaled_inputs
-from .flow import FlowBackend, make_flow_backend
+from .flow import FlowBackend, chained_flow, make_flow_backend
 from .geometry import scale_intrinsics, two_view_cloud
 from .masks import MaskSource, make_mask_source
 from .models import FAMILIES, PairFits
@@ -176,28 +176,34 @@ class _Pipeline:
         return [PairFits(t0, t1, gap, s, reason, empty, empty, None, None) for s in scales or self.config.scales]
 
     def score_objects(
-        self, f0: Frame, f1: Frame, labels0: np.ndarray, skip: str | None
+        self, frames: Sequence[Frame], labels: Sequence[np.ndarray], skip: str | None
     ) -> tuple[list[ObjectPairScore], list[ObjectFlow]]:
-        """AdaDFRC of every object of frame t0 on the pair (t0, t1), at every scale, and the flow
-        slices at scale 1 (kept only when diagnostics are streamed)."""
+        """AdaDFRC of every object of ``frames[0]`` (frame t0) on the pair (t0, t1) of the first and
+        last of ``frames`` (consecutive frames, ``object_gap + 1`` of them, with their labels), at
+        every scale, and the flow slices at scale 1 (kept only when diagnostics are streamed). Over
+        more than one hop the flow is composed over the consecutive frames
+        (:func:`~geocon_core.flow.chained_flow`) on the box of the object's masks in all of them."""
         start = time.perf_counter()
         out: list[ObjectPairScore] = []
         flows: list[ObjectFlow] = []
-        ids = [int(i) for i in np.unique(labels0) if i]
+        f0, f1 = frames[0], frames[-1]
+        ids = [int(i) for i in np.unique(labels[0]) if i]
         for s in self.config.scales:
-            g0, g1, lab = _scaled_pair(f0.gray, f1.gray, labels0, s)
+            grays = [_scaled(f.gray, s, cv2.INTER_AREA) for f in frames]
+            labs = [_scaled(lab, s, cv2.INTER_NEAREST) for lab in labels]
+            lab = labs[0]
             for oid in ids:
                 if skip is not None:
                     out.append(ObjectPairScore(oid, f0.index, f1.index, s, None, skip))
                     continue
                 mask = lab == oid
-                ys, xs = np.nonzero(mask)
-                if len(xs) == 0:
+                if not mask.any():
                     out.append(ObjectPairScore(oid, f0.index, f1.index, s, None, "empty_mask"))
                     continue
-                box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
                 assert self.flow is not None, "objects are scored only with a flow backend"
-                field = self.flow.compute(g0, g1, box)
+                # one hop: the object's box in t0 (the paper's crop, whose margin covers the motion)
+                box = _union_box([mask] + [m == oid for m in labs[1:] if len(labs) > 2])
+                field = chained_flow(self.flow, grays, box)
                 x0, y0, x1, y1 = field.box
                 crop = mask[y0:y1, x0:x1]
                 if self.config.refine_object_masks:
@@ -228,17 +234,19 @@ class _Pipeline:
         return est, _cloud(est, self.K_pose, x0, x1, first.rgb, self.s_max)
 
 
-def _scaled_pair(g0: np.ndarray, g1: np.ndarray, labels: np.ndarray, s: float):
-    """Two grey frames and the first one's labels at scale ``s`` (area / nearest resampling)."""
+def _scaled(img: np.ndarray, s: float, interpolation: int) -> np.ndarray:
+    """``img`` at scale ``s`` (area resampling for grey frames, nearest for labels)."""
     if s == 1.0:
-        return g0, g1, labels
-    h, w = g0.shape
-    size = (max(1, round(w * s)), max(1, round(h * s)))
-    return (
-        cv2.resize(g0, size, interpolation=cv2.INTER_AREA),
-        cv2.resize(g1, size, interpolation=cv2.INTER_AREA),
-        cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST),
-    )
+        return img
+    h, w = img.shape[:2]
+    return cv2.resize(img, (max(1, round(w * s)), max(1, round(h * s))), interpolation=interpolation)
+
+
+def _union_box(masks: Sequence[np.ndarray]) -> tuple[int, int, int, int]:
+    """The end-exclusive box (x0, y0, x1, y1) of every pixel set in any of ``masks`` (the first
+    is not empty)."""
+    ys, xs = np.nonzero(np.logical_or.reduce(masks))
+    return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
 
 
 def _cloud(
@@ -325,9 +333,10 @@ def score_clip(
     pose_windows += [h for h in hops if h not in pose_windows]
     emit = None if on_frame is None else partial(stages.emit, on_frame)
     workers = workers or min(2, os.cpu_count() or 1)
+    object_gap = min(cfg.object_gap, max(1, n - 1))  # a clip shorter than the gap: its first and last frame
     with ThreadPoolExecutor(max_workers=workers) as pool:
         schedule = StreamSchedule(
-            stages, pool, n, cfg.gaps, pose_windows, info.pair_skip_reason, workers, emit, progress
+            stages, pool, n, cfg.gaps, pose_windows, info.pair_skip_reason, workers, emit, progress, object_gap
         )
         out = schedule.run(_timed(iter_frames(info), timer))
     pose, cloud = out.first_last
@@ -338,6 +347,12 @@ def score_clip(
     scored = sorted(out.pairs, key=lambda r: (r.gap, r.t0, r.scale))
     objects = sorted(out.objects, key=lambda r: r.key)
     record = assemble_record(str(path), info, cfg, K, backend.name, pose, timeline, windows, scored)
+    if object_gap < cfg.object_gap and mask_source is not None:
+        record = replace(
+            record,
+            warnings=record.warnings
+            + (f"objects scored on frames {object_gap} apart: the clip has {n} frames, fewer than object_gap + 1",),
+        )
     return add_objects(
         replace(record, cloud=cloud),
         objects,

@@ -292,7 +292,8 @@ class CategoryConfig:
     stress_ir: float = 0.8
     """A translating camera whose background IR stays below this is C6."""
     min_valid_share: float = 0.5
-    """A smaller share of valid background (pair, scale) entries makes the clip C6."""
+    """A smaller share of judgeable adjacent pairs with a valid background fit at the largest scale
+    makes the clip C6."""
 
 
 @dataclass(frozen=True)

@@ -257,7 +257,10 @@ def render_plots(plots: Plots, view: ClipView | None, v: ClipVerdict | None, th:
                 for o in objects
             ],
         )
-        plots.objects.title = f"AdaDFRC D_t (px²), {len(objects)} of {len(rec.objects)} objects by AdaP90"
+        plots.objects.title = (
+            f"AdaDFRC D_t (px², frames t -> t+{rec.config.object_gap}), "
+            f"{len(objects)} of {len(rec.objects)} objects by AdaP90"
+        )
     else:
         plots.objects.data = (x, np.full(n, np.nan))
         plots.objects.series = (uplot.Series(label="frame"), uplot.Series(label="no objects"))

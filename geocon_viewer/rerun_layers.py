@@ -186,7 +186,10 @@ class RecordLayers:
                     vectors=ARROW_GAIN * pred,
                     colors=(255, 255, 255, 255),
                     radii=0.8,
-                    labels=f"object {e.object_id}: affine prediction x{ARROW_GAIN:g}; D_t {e.d_t:.3g} px^2",
+                    labels=(
+                        f"object {e.object_id}: affine prediction x{ARROW_GAIN:g} of frames {e.t0} -> {e.t1}; "
+                        f"D_t {e.d_t:.3g} px^2"
+                    ),
                     show_labels=False,
                     draw_order=5.1,
                 ),

@@ -74,7 +74,7 @@ __all__ = [
 @dataclass(frozen=True, eq=False)
 class AuditFrame:
     """One frame as the recording shows it: (H, W, 3) uint8 RGB, object labels (H, W) uint16 or
-    None, and the objects' flow-hue slices on the pair (t, t+1)."""
+    None, and the objects' flow-hue slices on the pair (t, t + g), g the config's ``object_gap``."""
 
     index: int
     rgb: np.ndarray

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.flow import FLOW_BACKENDS, DisFlow, FlowField, make_flow_backend
+from geocon_core.flow import FLOW_BACKENDS, DisFlow, FlowField, chained_flow, make_flow_backend
 from geocon_core.synth.textures import procedural_texture
 
 from .conftest import SHARED_DATA, read_video
@@ -76,6 +76,46 @@ def test_affine_warp_is_recovered() -> None:
     assert np.median(err) < 0.15
     assert np.median(err[rel]) < 0.15
     assert rel.mean() > 0.85
+
+
+def test_chained_flow_composes_consecutive_hops() -> None:
+    """A patch rotating and drifting 7 px per frame: over four frames the composed flow is the
+    composed affine motion (28 px and more), inside an object-sized box; a pixel whose path leaves
+    the box before the last hop is unreliable."""
+    g0 = _texture(3)
+    c = np.array([W / 2, H / 2])
+    a = np.radians(2.0)
+    A = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    step = np.vstack([np.hstack([A, (c - A @ c + np.array([7.0, 2.0]))[:, None]]), [0, 0, 1]])
+    grays, total = [g0], np.eye(3)
+    for _ in range(4):
+        total = step @ total
+        grays.append(_warp(g0, total[:2]))
+    box = (120, 80, 220, 150)
+    field = chained_flow(DisFlow(), grays, box)
+    x0, y0, x1, y1 = box
+    assert field.box == box and field.flow.shape == (y1 - y0, x1 - x0, 2)
+    truth = _true_flow(total[:2], H, W)[y0:y1, x0:x1]
+    assert np.abs(truth).max() > 28.0
+    err = np.linalg.norm(field.flow - truth, axis=2)
+    print(f"chained: median error {np.median(err[field.reliable]):.3f} px, reliable {field.reliable.mean():.1%}")
+    gy, gx = np.mgrid[0 : y1 - y0, 0 : x1 - x0]
+    dx, dy = gx + truth[..., 0], gy + truth[..., 1]
+    stays = (dx >= 2) & (dx <= x1 - x0 - 3) & (dy >= 2) & (dy <= y1 - y0 - 3)
+    assert field.reliable[stays].mean() > 0.9
+    before_last = _true_flow((np.linalg.inv(step) @ total)[:2], H, W)[y0:y1, x0:x1]  # three hops in
+    bx, by = gx + before_last[..., 0], gy + before_last[..., 1]
+    left = (bx < -1) | (bx > x1 - x0) | (by < -1) | (by > y1 - y0)
+    assert left.any() and not field.reliable[left].any()  # no hop's flow is known outside the box
+    assert np.median(err[field.reliable]) < 0.1 * 4  # each hop's error adds up (about 0.06 px a hop)
+    direct = DisFlow().compute(grays[0], grays[-1], box)  # one jump: beyond DIS's search in a crop
+    assert np.median(np.linalg.norm(direct.flow - truth, axis=2)) > 5.0
+    assert np.all(np.isfinite(field.fb_error[field.reliable]))
+    one = chained_flow(DisFlow(), grays[:2], box)  # one hop is the backend's own field
+    hop = DisFlow().compute(grays[0], grays[1], box)
+    assert np.array_equal(one.flow, hop.flow) and np.array_equal(one.reliable, hop.reliable)
+    with pytest.raises(ValueError, match="at least two"):
+        chained_flow(DisFlow(), grays[:1], box)
 
 
 def test_occluded_region_is_unreliable() -> None:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from geocon_core.category import categorize_record
 from geocon_core.config import ScoreConfig, preset
 from geocon_core.record import read_record, write_record
 from geocon_core.scorer import score_clip
@@ -76,6 +78,37 @@ def test_elastic_object_scores_much_higher_and_monotonically(synth):
     assert all(e[2] < disc[2] / 5 for e in elastic)
 
 
+def test_object_gap_scores_deformation_over_several_frames(synth):
+    """Ground-truth masks: an elastic disc that oscillates over 16 frames changes by at most 0.39
+    of its amplitude between adjacent frames, near the flow's noise, and by up to 1.41 of it over
+    4 frames (flow composed hop by hop), while the rigid objects stay under a pixel or two."""
+
+    def scores(cid, gap):
+        gt = load_ground_truth(synth / f"{cid}.gt.json")
+        cfg = FAST.with_(object_gap=gap, scales=(1.0,))
+        rec = score_clip(synth / gt.video_path, cfg, masks=synth / gt.masks_path)
+        assert {e.t1 - e.t0 for e in rec.object_entries} == {gap}
+        assert max(e.t0 for e in rec.object_entries) == SIZE["num_frames"] - 1 - gap
+        return {o.object_id: o.adadfrc for o in rec.objects}
+
+    rigid1, elastic1 = scores("c4_objects", 1), scores("c4_objects__elastic-s8", 1)
+    rigid4, elastic4 = scores("c4_objects", 4), scores("c4_objects__elastic-s8", 4)
+    middle4 = scores("c4_objects__elastic-s4", 4)
+    print(f"gap 1: rigid {rigid1}, elastic {elastic1}; gap 4: rigid {rigid4}, 4 px {middle4}, 8 px {elastic4}")
+    assert max(rigid4.values()) < 2.0 and elastic4[2] < 1.0  # rigid objects, and the elastic clip's card
+    assert max(rigid4.values()) < middle4[1] < elastic4[1]  # object 1 (the disc) is the elastic one
+    ratio1, ratio4 = elastic1[1] / max(rigid1.values()), elastic4[1] / max(rigid4.values())
+    assert ratio4 >= 5.0 and ratio4 > 2 * ratio1, (ratio1, ratio4)
+
+
+def test_object_gap_longer_than_the_clip_is_shortened_and_said(tmp_path):
+    write_clip(ClipPlan("C4"), tmp_path, seed=5, width=320, height=180, num_frames=4)
+    gt = load_ground_truth(tmp_path / "c4_objects.gt.json")
+    rec = score_clip(tmp_path / gt.video_path, FAST.with_(object_gap=8), masks=tmp_path / gt.masks_path)
+    assert {(e.t0, e.t1) for e in rec.object_entries} == {(0, 3)}
+    assert any("frames 3 apart" in w and "4 frames" in w for w in rec.warnings), rec.warnings
+
+
 def test_clips_without_objects_report_none(synth, scored_clip):
     for cid in ("c1_static", "c2_rotation", "c3_translation"):
         rec = scored_clip(synth / f"{cid}.mp4", FAST)
@@ -102,6 +135,29 @@ def test_categories_of_the_synthetic_families(synth, c4, scored_clip):
     for cid, label in (("c1_static", "C1"), ("c2_rotation", "C2"), ("c3_translation", "C3"), ("c5_complex", "C5")):
         rec = scored_clip(synth / f"{cid}.mp4", FAST)
         assert rec.category.label == label, (cid, rec.category)
+
+
+def test_stress_category_reads_the_adjacent_pairs_at_full_scale(synth, scored_clip):
+    """A fast camera empties its long-gap pairs and a small clip its half-size pairs: neither is
+    a stress scene. Only failing adjacent pairs at full scale make it C6."""
+    rec = scored_clip(synth / "c2_rotation.mp4", FAST.with_(gaps=(1, 4), masks="none"))
+
+    def failing(keep) -> list:
+        out = []
+        for p in rec.pairs:
+            if p.skip is None and not keep(p):
+                p = replace(p, h=replace(p.h, valid=False), f=replace(p.f, valid=False))
+            out.append(p)
+        return out
+
+    objects = [o.frames for o in rec.objects]
+    assert categorize_record(rec, objects).label == "C2"
+    far_and_small = replace(rec, pairs=tuple(failing(lambda p: p.gap == 1 and p.scale == 1.0)))
+    category = categorize_record(far_and_small, objects)
+    assert category.label == "C2" and category.inputs["valid_share"] == 1.0
+    adjacent = replace(rec, pairs=tuple(failing(lambda p: p.gap != 1 or p.scale != 1.0)))
+    category = categorize_record(adjacent, objects)
+    assert category.label == "C6" and category.rule.startswith("stress: fewer than half"), category
 
 
 def test_external_masks_and_json_objects(synth, tmp_path):

@@ -64,9 +64,11 @@ class FakeStages:
     def skip_pair(self, t0, t1, gap, reason):
         return [("skip", t0, t1, gap, reason)]
 
-    def score_objects(self, f0, f1, labels0, skip):
+    def score_objects(self, frames, labels, skip):
         self._sleep()
-        return [("objects", f0.index, f1.index, skip)], [f"flow {f0.index}"]
+        idx = [f.index for f in frames]
+        assert idx == list(range(idx[0], idx[-1] + 1)) and len(labels) == len(frames), "consecutive frames, labelled"
+        return [("objects", idx[0], idx[-1], skip)], [f"flow {idx[0]}"]
 
     def pose(self, a, b, t0, t1, first):
         assert (a.result(), b.result()) == (t0, t1)
@@ -87,12 +89,19 @@ def _run(stages, n=20, gaps=(1, 2, 4), windows=((0, 8), (4, 12), (8, 16)), cut=N
 
 
 @pytest.mark.parametrize("masks", [True, False])
-def test_every_frame_is_emitted_once_in_order_with_its_flows(masks):
+@pytest.mark.parametrize("object_gap", [1, 4])
+def test_every_frame_is_emitted_once_in_order_with_its_flows(masks, object_gap):
     emitted = []
-    _, out = _run(FakeStages(masks=masks), on_frame=lambda f, labels, flows: emitted.append((f.index, flows)))
+    _, out = _run(
+        FakeStages(masks=masks),
+        on_frame=lambda f, labels, flows: emitted.append((f.index, flows)),
+        object_gap=object_gap,
+    )
     assert [t for t, _ in emitted] == list(range(20))
     if masks:
-        assert [flows for _, flows in emitted] == [(f"flow {t}",) for t in range(19)] + [()]
+        last = 20 - object_gap
+        assert [flows for _, flows in emitted] == [(f"flow {t}",) for t in range(last)] + [()] * object_gap
+        assert [(o[1], o[2]) for o in out.objects] == [(t, t + object_gap) for t in range(last)]
     else:
         assert all(flows == () for _, flows in emitted)
 

@@ -106,7 +106,8 @@ def _object_rows(table: Table, record: ClipRecord) -> None:
     share = max(record.masked_share) if record.masked_share else 0.0
     table.add_row(
         "objects",
-        f"{len(record.objects)} from {record.masks_source} masks (masked share up to {share:.1%} of the content)",
+        f"{len(record.objects)} from {record.masks_source} masks (masked share up to {share:.1%} of the content); "
+        f"AdaDFRC on frame pairs (t, t+{record.config.object_gap}), frames below are t",
     )
     # Long-lived objects first; a clip with dozens of short motion blobs keeps a readable table.
     shown = sorted(record.objects, key=lambda o: (-o.frames, o.object_id))[:MAX_OBJECT_ROWS]
