@@ -448,9 +448,10 @@ def object_summaries(
     jump_window: int = 3,
     max_jump: float = 0.0,
 ) -> list[ObjectSummary]:
-    """Per object (in id order): frames seen, mean masked share (``object_share[t][id]``, a share
-    of the content area), and per scale ``S`` (mean ``D_t``), mean W2 and AdaP90
-    (:func:`object_scores`) over its valid pairs; the headline values are those of the largest
+    """Per object (in id order): frames seen (with a mask in ``object_share``, or starting a
+    scored pair), mean masked share over them (``object_share[t][id]``, a share of the content
+    area), and per scale ``S`` (mean ``D_t``), mean W2 and AdaP90 (:func:`object_scores`) over
+    its valid pairs; the headline values are those of the largest
     scale, None when it has fewer than ``min_pairs`` valid pairs there (the coverage rule,
     ``ScoreConfig.min_object_pairs``). With ``max_jump > 0``, pairs whose mask jumps in area
     (:func:`mask_jumps`) are left out and counted as skipped (``mask_jump``)."""
@@ -458,8 +459,10 @@ def object_summaries(
     s_max = max(scales)
     for oid in sorted({e.object_id for e in entries}):
         mine = [e for e in entries if e.object_id == oid]
-        frames = sorted({e.t0 for e in mine})
-        areas = {t: object_share[t][oid] for t in frames if oid in object_share.get(t, {})}
+        starts = sorted({e.t0 for e in mine})
+        # frames seen: with the object's mask, including the last ones, which start no pair
+        frames = sorted(set(starts) | {t for t, shares in object_share.items() if oid in shares})
+        areas = {t: object_share[t][oid] for t in starts if oid in object_share.get(t, {})}
         jumps = mask_jumps(areas, window=jump_window, max_jump=max_jump)
         per_scale = [_scale_summary(mine, s, jumps) for s in scales]
         head = next(p for p in per_scale if p.scale == s_max)

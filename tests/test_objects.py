@@ -89,6 +89,8 @@ def test_object_gap_scores_deformation_over_several_frames(synth):
         rec = score_clip(synth / gt.video_path, cfg, masks=synth / gt.masks_path)
         assert {e.t1 - e.t0 for e in rec.object_entries} == {gap}
         assert max(e.t0 for e in rec.object_entries) == SIZE["num_frames"] - 1 - gap
+        seen = gt.masked_share > 0  # the last frames start no pair but are still frames seen
+        assert max(o.last_frame for o in rec.objects) == int(np.flatnonzero(seen)[-1])
         return {o.object_id: o.adadfrc for o in rec.objects}
 
     rigid1, elastic1 = scores("c4_objects", 1), scores("c4_objects__elastic-s8", 1)
