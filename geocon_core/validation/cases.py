@@ -60,12 +60,15 @@ ANNOTATIONS_PATH = Path(__file__).resolve().parents[2] / "assets" / "validation"
 class QuickSettings:
     heights: tuple[int, ...] = (256, 720)
     codecs: tuple[str, ...] = ("png", "crf28")
-    frames: int = 12
+    frames: int = 24
     max_frames: int = 16
 
 
 QUICK = QuickSettings()
-"""What ``--quick`` reduces the grid to (a smoke run)."""
+"""What ``--quick`` reduces the grid to (a smoke run). Synthetic clips keep 24 frames: a mover is
+tracked once the segmentation has seen it for several frames and AdaDFRC scores frames
+``object_gap`` apart, so 12-frame clips left the object rows without meaning (no mover tracked
+for most of its frames)."""
 
 
 def width_for(height: int) -> int:

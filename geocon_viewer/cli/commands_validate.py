@@ -72,7 +72,7 @@ def validate(
     quick: Annotated[
         bool,
         typer.Option(
-            "--quick", help="A smoke run: heights 256,720, codecs png,crf28, 12 frames, real clips cut to 16."
+            "--quick", help="A smoke run: heights 256,720, codecs png,crf28, 24 frames, real clips cut to 16."
         ),
     ] = False,
     heights: Annotated[Optional[str], typer.Option(help="Comma-separated synthetic heights, px.")] = None,
