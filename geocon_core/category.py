@@ -88,17 +88,17 @@ def categorize(
 def categorize_record(record: ClipRecord, object_frames: list[int]) -> Category:
     """:func:`categorize` with its inputs measured from a scored record: the gate and first-last
     pose, the background IR, the share of the judgeable adjacent pairs of the largest scale whose
-    fit of the chosen family is valid, and over the valid gap-1 pairs of the largest scale the
-    median displacement of the H inliers (``background_motion_px``) and the median number of
-    matches; ``object_frames`` is the number of frames each object was seen."""
+    fit of the chosen family is valid, and over those whose H fit is valid the median displacement
+    of the H inliers (``background_motion_px``) and the median number of matches;
+    ``object_frames`` is the number of frames each object was seen."""
     s_max = max(record.config.scales)
     base = min(record.config.gaps)
     adjacent = [p for p in record.pairs if p.gap == base and p.scale == s_max and p.skip is None]
     fits = [p.fit(record.background.model) for p in adjacent]
     valid = sum(1 for fit in fits if fit is not None and fit.valid)
     motions, matches = [], []
-    for p in record.pairs:
-        if p.gap != 1 or p.scale != s_max or p.skip is not None or p.h is None or not p.h.valid:
+    for p in adjacent:
+        if p.h is None or not p.h.valid:
             continue
         arr = record.matches.pair(p.index)
         inl = arr["h_inl"]

@@ -188,21 +188,23 @@ class _Pipeline:
         flows: list[ObjectFlow] = []
         f0, f1 = frames[0], frames[-1]
         ids = [int(i) for i in np.unique(labels[0]) if i]
+        if skip is not None or not ids:
+            out = [ObjectPairScore(oid, f0.index, f1.index, s, None, skip) for s in self.config.scales for oid in ids]
+            self.timer.add("objects", start)
+            return out, flows
         for s in self.config.scales:
             grays = [_scaled(f.gray, s, cv2.INTER_AREA) for f in frames]
             labs = [_scaled(lab, s, cv2.INTER_NEAREST) for lab in labels]
             lab = labs[0]
             for oid in ids:
-                if skip is not None:
-                    out.append(ObjectPairScore(oid, f0.index, f1.index, s, None, skip))
-                    continue
                 mask = lab == oid
                 if not mask.any():
                     out.append(ObjectPairScore(oid, f0.index, f1.index, s, None, "empty_mask"))
                     continue
                 assert self.flow is not None, "objects are scored only with a flow backend"
-                # one hop: the object's box in t0 (the paper's crop, whose margin covers the motion)
-                box = _union_box([mask] + [m == oid for m in labs[1:] if len(labs) > 2])
+                # over one hop the object's box in t0 (the paper's crop, whose margin covers the
+                # motion); over several, the box of its masks in all the frames
+                box = _union_box([mask] if len(labs) == 2 else [m == oid for m in labs])
                 field = chained_flow(self.flow, grays, box)
                 x0, y0, x1, y1 = field.box
                 crop = mask[y0:y1, x0:x1]
