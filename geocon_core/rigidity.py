@@ -35,8 +35,8 @@ Decisions, made exact:
   scored; a result is flagged ``"degenerate_fit"`` only when the fit or score is not finite.
 - **Scores.** ``D_t = sum w ||v_pred - v||^2 / sum w``. ``w2`` is the exact discrete optimal transport
   cost ``min_pi sum pi_ab ||pred_a - obs_b||^2 / sum w`` over couplings with both marginals ``w``:
-  an assignment problem (``scipy.optimize.linear_sum_assignment``) when all weights are equal, a
-  transportation LP solved by HiGHS (``scipy.optimize.linprog``, dual simplex) otherwise. The identity coupling is
+  solved by POT's network simplex (``ot.emd2``, exact; on the 5-64 cells of a grid it agrees with a
+  general LP solver (HiGHS) to 1e-15 relative and is about 15x faster). The identity coupling is
   feasible, so ``w2 <= D_t`` mathematically; the reported value is clipped into ``[0, D_t]`` to
   remove solver round-off (at the ~1e-9 relative level).
 - **Object scores.** ``S`` is the mean of the valid ``D_t`` of a track and ``AdaP90`` their 0.9
@@ -59,6 +59,7 @@ __all__ = [
     "adadfrc_pair",
     "weighted_affine_fit",
     "refine_object_mask",
+    "mask_interior",
     "weighted_mse",
     "w2_cost",
     "object_scores",
@@ -68,10 +69,9 @@ __all__ = [
     "MASK_JUMP",
 ]
 
-# HiGHS dual simplex without presolve (about 1.6x faster on these small dense transportation
-# problems, same optimum), tight tolerances: marginals are normalised to sum 1 and costs to max 1.
-_HIGHS_METHOD = "highs-ds"
-_HIGHS_OPTIONS = {"presolve": False, "primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
+_EMD_MAX_ITER = 1_000_000
+"""Network-simplex iteration cap of ``ot.emd2``; a 64-cell problem needs a few hundred, and a
+result that hits the cap raises instead of being used."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,9 +186,8 @@ def w2_cost(predicted: np.ndarray, observed: np.ndarray, weights: np.ndarray) ->
     """Exact squared Wasserstein-2 cost between ``{(pred_a, w_a)}`` and ``{(obs_b, w_b)}`` in R^2.
 
     ``min_pi sum_ab pi_ab ||pred_a - obs_b||^2 / sum w`` over couplings ``pi >= 0`` with row and
-    column sums ``w``. Equal weights: an assignment problem (``linear_sum_assignment``, exact);
-    otherwise a transportation LP (HiGHS). The result is clipped into ``[0, weighted_mse]`` (the
-    identity coupling is feasible, so this only removes solver round-off).
+    column sums ``w``, solved exactly by POT's network simplex (``ot.emd2``). The result is clipped
+    into ``[0, weighted_mse]`` (the identity coupling is feasible, so this only removes round-off).
     """
     p, o, w = _cell_arrays(predicted, observed, weights, ("predicted", "observed"))
     keep = w > 0
@@ -200,35 +199,18 @@ def w2_cost(predicted: np.ndarray, observed: np.ndarray, weights: np.ndarray) ->
         return identity
     if identity == 0.0 or len(w) == 1:
         return identity
-    if np.all(w == w[0]):
-        from scipy.optimize import linear_sum_assignment
-
-        rows, cols = linear_sum_assignment(cost)
-        value = float(cost[rows, cols].sum() / len(w))
-    else:
-        value = _transport_lp(cost, w / total)
+    value = _transport(cost, w / total)
     return min(max(value, 0.0), identity)
 
 
-def _transport_lp(cost: np.ndarray, marginal: np.ndarray) -> float:
+def _transport(cost: np.ndarray, marginal: np.ndarray) -> float:
     """Optimal transport value with equal row and column marginals (summing to 1)."""
-    from scipy.optimize import linprog
-    from scipy.sparse import csr_matrix
+    import ot  # POT: imported where used (about 1 s on first import)
 
-    c = len(marginal)
-    cmax = float(cost.max())
-    if cmax <= 0:
-        return 0.0
-    flat = np.arange(c * c)
-    rows = np.concatenate([flat // c, c + flat % c])
-    a_eq = csr_matrix((np.ones(2 * c * c), (rows, np.concatenate([flat, flat]))), shape=(2 * c, c * c))
-    b_eq = np.concatenate([marginal, marginal])
-    res = linprog(
-        (cost / cmax).ravel(), A_eq=a_eq, b_eq=b_eq, bounds=(0, None), method=_HIGHS_METHOD, options=_HIGHS_OPTIONS
-    )
-    if res.status != 0 or res.x is None:  # a feasible, bounded LP: should never happen
-        raise RuntimeError(f"optimal transport LP failed: {res.message}")
-    return float(cost.ravel() @ np.clip(res.x, 0.0, None))
+    value, log = ot.emd2(marginal, marginal, np.ascontiguousarray(cost), numItermax=_EMD_MAX_ITER, log=True)
+    if log.get("result_code") != 1:  # 1: optimal; anything else (iteration cap, unbounded) is a bug
+        raise RuntimeError(f"optimal transport failed: {log.get('warning')}")
+    return float(value)
 
 
 def refine_object_mask(
@@ -267,6 +249,20 @@ def refine_object_mask(
     out = np.zeros_like(mask)
     out[ys[keep], xs[keep]] = True
     return out
+
+
+def mask_interior(mask: np.ndarray, margin: int) -> np.ndarray:
+    """The pixels of ``mask`` (H, W bool) farther than ``margin`` pixels from its edge: those
+    whose disc of radius ``margin`` lies inside the mask (pixels outside the array count as
+    outside the mask). ``margin = 0`` returns the mask."""
+    m = np.asarray(mask, dtype=bool)
+    if margin <= 0 or not m.any():
+        return m.copy()
+    import cv2
+
+    size = 2 * int(margin) + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    return cv2.erode(m.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
 
 
 def adadfrc_pair(

@@ -39,7 +39,7 @@ from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, 
 from .pose.chain import chain_hops, compose_chain
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .record import ClipRecord, PointCloud
-from .rigidity import ObjectPairScore, adadfrc_pair, refine_object_mask
+from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, refine_object_mask
 from .schedule import StreamSchedule, gate_windows
 
 __all__ = ["score_clip", "software_versions"]
@@ -210,17 +210,21 @@ class _Pipeline:
                 crop = mask[y0:y1, x0:x1]
                 if self.config.refine_object_masks:
                     crop = refine_object_mask(field.flow, crop, (lab[y0:y1, x0:x1] > 0) & ~crop)
+                reliable = field.reliable
+                if self.config.object_edge_px:
+                    inner = mask_interior(crop, self.config.object_edge_px)
+                    reliable = inner if reliable is None else reliable & inner
                 res = adadfrc_pair(
                     field.flow,
                     crop,
-                    field.reliable,
+                    reliable,
                     grid=self.config.grid,
                     min_cells=self.config.min_cells,
                     origin=(float(x0), float(y0)),
                 )
                 out.append(ObjectPairScore(oid, f0.index, f1.index, s, res))
                 if self.keep_flows and s == 1.0:
-                    flows.append(ObjectFlow(oid, f0.index, f1.index, field.box, field.flow, field.reliable, crop))
+                    flows.append(ObjectFlow(oid, f0.index, f1.index, field.box, field.flow, reliable, crop))
         self.timer.add("objects", start)
         return out, flows
 

@@ -103,6 +103,29 @@ def test_object_gap_scores_deformation_over_several_frames(synth):
     assert ratio4 >= 5.0 and ratio4 > 2 * ratio1, (ratio1, ratio4)
 
 
+def test_object_edge_margin_keeps_the_rim_of_a_rigid_object_out(synth):
+    """Ground-truth masks, frames 4 apart: the flow mixes an object's motion with the background's
+    within about a patch of the edge, so a rigid object's rim reads as deformation. Leaving out
+    the pixels within ``object_edge_px`` of the edge lowers the rigid objects' scores and keeps
+    most of the elastic disc's, which deforms inside as well."""
+
+    def scores(cid, edge):
+        gt = load_ground_truth(synth / f"{cid}.gt.json")
+        cfg = FAST.with_(object_gap=4, scales=(1.0,), object_edge_px=edge)
+        return {
+            o.object_id: o.adadfrc for o in score_clip(synth / gt.video_path, cfg, masks=synth / gt.masks_path).objects
+        }
+
+    edge = preset("audit").object_edge_px
+    assert edge > 0
+    rigid0, rigid = scores("c4_objects", 0), scores("c4_objects", edge)
+    middle0, middle = scores("c4_objects__elastic-s4", 0), scores("c4_objects__elastic-s4", edge)
+    print(f"rigid {rigid0} -> {rigid}; 4 px elastic {middle0} -> {middle}")
+    assert all(rigid[k] < 0.5 * rigid0[k] for k in rigid0), (rigid0, rigid)
+    assert middle[1] > 0.5 * middle0[1]
+    assert middle[1] / max(rigid.values()) > 1.4 * middle0[1] / max(rigid0.values())
+
+
 def test_object_gap_longer_than_the_clip_is_shortened_and_said(tmp_path):
     write_clip(ClipPlan("C4"), tmp_path, seed=5, width=320, height=180, num_frames=4)
     gt = load_ground_truth(tmp_path / "c4_objects.gt.json")

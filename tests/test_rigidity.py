@@ -7,6 +7,7 @@ import itertools
 import math
 import time
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -20,6 +21,7 @@ from geocon_core.rigidity import (
     CellVectors,
     RigidityResult,
     adadfrc_pair,
+    mask_interior,
     mask_jumps,
     object_scores,
     object_summaries,
@@ -644,3 +646,39 @@ def test_refinement_leaves_a_mask_it_cannot_judge():
     full = np.ones_like(spilled)
     assert np.array_equal(refine_object_mask(flow, full, np.zeros_like(full)), full)
     assert np.array_equal(refine_object_mask(flow, spilled, ~spilled), spilled)
+
+
+# ---------------------------------------------------------------- edge margin
+
+
+def test_mask_interior_is_the_erosion_by_a_disc():
+    mask = np.zeros((40, 50), bool)
+    mask[5:26, 10:31] = True  # a 21 x 21 square
+    inner = mask_interior(mask, 3)
+    expect = np.zeros_like(mask)
+    expect[8:23, 13:28] = True  # every pixel whose disc of radius 3 fits: a 15 x 15 square
+    assert np.array_equal(inner, expect)
+    assert np.array_equal(mask_interior(mask, 0), mask)
+    edge = np.zeros((10, 10), bool)
+    edge[:, :4] = True  # touching the array's border: outside the array is outside the mask
+    assert np.flatnonzero(mask_interior(edge, 1).any(axis=0)).tolist() == [1, 2]
+
+
+def test_edge_margin_removes_flow_mixed_across_the_edge():
+    """A rigid object moving by an exact affine field over a still background; the flow is then
+    averaged over a 9 x 9 box, as a patch-based flow mixes both sides of an occluding edge. The
+    rim reads as deformation; 4 px in (the box's reach), the averaged field is the affine one
+    again (a box average of an affine field is that field) and AdaDFRC is zero."""
+    h = w = 64
+    mask = np.zeros((h, w), bool)
+    mask[12:52, 12:52] = True
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    a = np.deg2rad(3.0)
+    fx = (np.cos(a) - 1) * (xx - 32) - np.sin(a) * (yy - 32) + 6.0
+    fy = np.sin(a) * (xx - 32) + (np.cos(a) - 1) * (yy - 32) - 2.0
+    flow = np.stack([np.where(mask, fx, 0.0), np.where(mask, fy, 0.0)], axis=-1).astype(np.float32)
+    mixed = cv2.blur(flow, (9, 9), borderType=cv2.BORDER_REPLICATE)
+    rim = adadfrc_pair(mixed, mask, None, grid=8)
+    inner = adadfrc_pair(mixed, mask, mask_interior(mask, 4), grid=8)
+    assert rim.d_t > 0.5
+    assert inner.d_t == pytest.approx(0.0, abs=1e-6)
