@@ -7,9 +7,10 @@
 
 Renders a C4 clip (static camera, two moving objects) once into a cache folder, then scores
 it in a fresh process per measurement, without and with mask-first separation (built-in
-motion segmentation, flow and AdaDFRC-W2), and prints frames per second end to end, seconds
-per stage (summed over the worker threads, so they can exceed the wall time) and the peak
-resident memory. With ``--rrd`` it scores the clip (paper preset, motion masks) without and with
+motion segmentation, flow and AdaDFRC-W2), and prints frames per second end to end, the CPU
+utilisation of the scoring ((user + system CPU time) / (wall time x cores)), seconds per stage
+(summed over the worker threads, so they can exceed the wall time) and the peak resident
+memory. With ``--rrd`` it scores the clip (paper preset, motion masks) without and with
 the Rerun recording streamed while scoring, and prints the recording's size and the time it adds.
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -48,11 +50,14 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
         from geocon_viewer.rerun_log import RrdSink
 
         sink = RrdSink(rrd)
+    u0 = resource.getrusage(resource.RUSAGE_SELF)
     t0 = time.perf_counter()
     record = score_clip(path, preset(preset_name).with_(masks=masks, matcher=matcher), timings=timings, on_frame=sink)
     if sink is not None:
         sink.finish(record)
     wall = time.perf_counter() - t0
+    u1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (u1.ru_utime - u0.ru_utime) + (u1.ru_stime - u0.ru_stime)
     n = record.video.num_frames
     return {
         "preset": preset_name,
@@ -61,6 +66,7 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
         "frames": n,
         "wall_s": round(wall, 2),
         "fps": round(n / wall, 2),
+        "cpu_share": round(cpu / (wall * (os.cpu_count() or 1)), 3),
         "stages_s": {k: round(v, 2) for k, v in sorted(timings.items())},
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         "ir": record.background.ir,
@@ -118,6 +124,7 @@ def main() -> None:
                 print(
                     f"{args.size} x {r['frames']} frames, {r['preset']:6} {args.matcher} masks={masks:6} "
                     f"({r['objects']} objects): {r['fps']:6.2f} frames/s  wall {r['wall_s']:6.1f} s  "
+                    f"CPU {100 * r['cpu_share']:3.0f}% of {os.cpu_count()} cores  "
                     f"peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
                     flush=True,
                 )
