@@ -32,7 +32,10 @@ def rotation_transfer(K: np.ndarray, R: np.ndarray, s: float, x0: np.ndarray, zo
     Kz[0, :2] *= zoom
     Kz[1, 1] *= zoom
     H = Kz @ R @ np.linalg.inv(Ks)
-    y = np.c_[x0, np.ones(len(x0))] @ H.T
+    h0 = np.empty((len(x0), 3))
+    h0[:, :2] = x0
+    h0[:, 2] = 1.0
+    y = h0 @ H.T
     with np.errstate(divide="ignore", invalid="ignore"):
         out = y[:, :2] / y[:, 2:3]
     bad = ~(np.isfinite(out).all(axis=1) & (y[:, 2] > 0))
@@ -95,10 +98,13 @@ def polish_essential(
     bound = math.log(max_ratio)
 
     def basis(tv: np.ndarray) -> np.ndarray:
-        a = np.array([1.0, 0.0, 0.0]) if abs(tv[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        b1 = np.cross(tv, a)
+        # two unit vectors orthogonal to tv: tv x a (a the first axis tv is not near) and
+        # tv x b1, written out (numpy.cross costs ~60 us per 3-vector call, most of this loop)
+        x, y, z = (float(v) for v in tv)
+        b1 = np.array([0.0, z, -y]) if abs(x) < 0.9 else np.array([-z, 0.0, x])
         b1 /= np.linalg.norm(b1)
-        return np.stack([b1, np.cross(tv, b1)], axis=1)
+        u, v, w = b1
+        return np.array([[u, y * w - z * v], [v, z * u - x * w], [w, x * v - y * u]])
 
     def data(Rc: np.ndarray, tc: np.ndarray, ls: float) -> np.ndarray:
         sc = math.exp(ls)
