@@ -99,17 +99,22 @@ class Colmap:
         return names.get(int(geo.config), str(geo.config))
 
 
-def colmap_speed(colmap: Colmap, path: Path) -> tuple[float, dict[str, int]]:
-    """Frames per second (decode, SIFT, matching and two-view geometry of every adjacent pair) and
-    the count of each configuration."""
+def colmap_speed(colmap: Colmap, path: Path) -> tuple[float, dict[str, int], str]:
+    """Frames per second (decode, SIFT, matching and two-view geometry of every adjacent pair), the
+    count of each configuration and the seconds of each step."""
     start = time.perf_counter()
     greys = grey_frames(path)
+    decoded = time.perf_counter()
     feats = [colmap.features(g) for g in greys]
+    extracted = time.perf_counter()
     configs: dict[str, int] = {}
     for a, b in zip(feats, feats[1:], strict=False):
         c = colmap.geometry(a, b, greys[0].shape)
         configs[c] = configs.get(c, 0) + 1
-    return len(greys) / (time.perf_counter() - start), configs
+    end = time.perf_counter()
+    steps = f"decode {decoded - start:.1f} s, SIFT {extracted - decoded:.1f} s, "
+    steps += f"match + geometry {end - extracted:.1f} s"
+    return len(greys) / (end - start), configs, steps
 
 
 def colmap_regime(colmap: Colmap, path: Path) -> str:
@@ -148,8 +153,8 @@ def main() -> None:
     print(f"{'clip':<22} {'tool':<16} {'frames/s':>9} {'GeoCon / pycolmap':>18}  note")
     for family, what in (("C4", "still camera, 2 movers"), ("C3", "lateral truck")):
         path, _ = render(family, args.size, args.frames)
-        peer_fps, configs = colmap_speed(colmap, path)
-        print(f"{what:<22} {'pycolmap':<16} {peer_fps:9.2f} {'':>18}  adjacent pairs: {configs}", flush=True)
+        peer_fps, configs, steps = colmap_speed(colmap, path)
+        print(f"{what:<22} {'pycolmap':<16} {peer_fps:9.2f} {'':>18}  {steps}; adjacent pairs: {configs}", flush=True)
         for name in presets:
             fps, label, _ = geocon_run(path, name)
             print(f"{what:<22} {'GeoCon ' + name:<16} {fps:9.2f} {fps / peer_fps:17.1f}x  gate {label}", flush=True)
