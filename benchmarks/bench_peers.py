@@ -26,31 +26,24 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+from bench_score import clip  # the same rendered clips (this folder is on sys.path when run)
 
-CACHE = Path(tempfile.gettempdir()) / "geocon-bench"
 H_CONFIGS = {"PLANAR", "PANORAMIC", "PLANAR_OR_PANORAMIC"}
 F_CONFIGS = {"CALIBRATED", "UNCALIBRATED"}
 THREADS = 2
 
 
 def render(family: str, size: str, frames: int) -> tuple[Path, str]:
-    """(clip path, expected gate label) of a rendered clip, cached under the temp folder."""
-    from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
+    """(clip path, expected gate label) of a rendered clip (``bench_score.py``'s cache)."""
+    from geocon_core.synth import load_ground_truth
 
-    w, h = (int(v) for v in size.split("x"))
-    folder = CACHE / f"peers-{family}-{size}-{frames}"
-    gts = sorted(folder.glob("*.gt.json"))
-    if not gts:
-        write_clip(ClipPlan(family), folder, width=w, height=h, num_frames=frames)
-        gts = sorted(folder.glob("*.gt.json"))
-    gt = load_ground_truth(gts[0])
-    return folder / gt.video_path, gt.expected_gate
+    path = clip(frames, size, family)
+    return path, load_ground_truth(next(path.parent.glob("*.gt.json"))).expected_gate
 
 
 def grey_frames(path: Path) -> list[np.ndarray]:

@@ -29,15 +29,17 @@ from pathlib import Path
 CACHE = Path(tempfile.gettempdir()) / "geocon-bench"
 
 
-def clip(frames: int, size: str) -> Path:
-    from geocon_core.synth import ClipPlan, write_clip
+def clip(frames: int, size: str, family: str = "C4") -> Path:
+    """The rendered clip of ``family`` (its ``.gt.json`` beside it), cached under the temp folder."""
+    from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
 
     w, h = (int(v) for v in size.split("x"))
-    folder = CACHE / f"{size}-{frames}"
-    path = folder / "c4_objects.mp4"
-    if not path.exists():
-        write_clip(ClipPlan("C4"), folder, width=w, height=h, num_frames=frames)
-    return path
+    folder = CACHE / (f"{size}-{frames}" if family == "C4" else f"{family}-{size}-{frames}")
+    gts = sorted(folder.glob("*.gt.json"))
+    if not gts:
+        write_clip(ClipPlan(family), folder, width=w, height=h, num_frames=frames)
+        gts = sorted(folder.glob("*.gt.json"))
+    return folder / load_ground_truth(gts[0]).video_path
 
 
 def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "-") -> dict:

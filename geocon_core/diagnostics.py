@@ -11,9 +11,9 @@ the numbers themselves live in the :class:`~geocon_core.record.ClipRecord`.
 
 - ``labels-NNNNN.png``: (H, W) uint16 object ids of frame N (0 = background), only for frames
   with at least one object;
-- ``flow-NNNNN-III.png``: the flow-direction hue slice of object III on the pair (N, N+1) inside
-  its box (RGBA: hue = direction, brightness = magnitude up to ``max_magnitude``, alpha = reliable
-  object pixels);
+- ``flow-NNNNN-III.png``: the flow-direction hue slice of object III on the pair it is scored on,
+  (N, N + ``object_gap``), inside its box (RGBA: hue = direction, brightness = magnitude up to
+  ``max_magnitude``, alpha = reliable object pixels);
 - ``index.json``: format ``geocon-overlays/1``; per frame the masked share, the labels file and
   the flow slices with their boxes (x0, y0, x1, y1, working pixels, half-open).
 
@@ -53,8 +53,8 @@ class ObjectFlow:
     """Optical flow of one object from frame ``t0`` to ``t1`` at the working resolution.
 
     box: (x0, y0, x1, y1) working pixels, half-open; flow: (h, w, 2) float32 pixels inside the
-    box; reliable: (h, w) bool forward-backward consistent pixels; mask: (h, w) bool object
-    pixels at ``t0``.
+    box; reliable: (h, w) bool pixels AdaDFRC may use (forward-backward consistent, and farther
+    than ``object_edge_px`` from the mask's edge); mask: (h, w) bool object pixels at ``t0``.
     """
 
     object_id: int

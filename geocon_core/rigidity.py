@@ -38,7 +38,7 @@ Decisions, made exact:
   solved by POT's network simplex (``ot.emd2``, exact; on the 5-64 cells of a grid it agrees with a
   general LP solver (HiGHS) to 1e-15 relative and is about 15x faster). The identity coupling is
   feasible, so ``w2 <= D_t`` mathematically; the reported value is clipped into ``[0, D_t]`` to
-  remove solver round-off (at the ~1e-9 relative level).
+  remove round-off.
 - **Object scores.** ``S`` is the mean of the valid ``D_t`` of a track and ``AdaP90`` their 0.9
   quantile with numpy's default (``"linear"``, type 7) interpolation.
 """
@@ -49,6 +49,7 @@ import math
 from dataclasses import dataclass
 from typing import Collection, Sequence
 
+import cv2
 import numpy as np
 
 from .record import ObjectEntry, ObjectScaleSummary, ObjectSummary
@@ -256,10 +257,8 @@ def mask_interior(mask: np.ndarray, margin: int) -> np.ndarray:
     whose disc of radius ``margin`` lies inside the mask (pixels outside the array count as
     outside the mask). ``margin = 0`` returns the mask."""
     m = np.asarray(mask, dtype=bool)
-    if margin <= 0 or not m.any():
+    if margin <= 0:
         return m.copy()
-    import cv2
-
     size = 2 * int(margin) + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     return cv2.erode(m.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0

@@ -210,10 +210,7 @@ class _Pipeline:
                 crop = mask[y0:y1, x0:x1]
                 if self.config.refine_object_masks:
                     crop = refine_object_mask(field.flow, crop, (lab[y0:y1, x0:x1] > 0) & ~crop)
-                reliable = field.reliable
-                if self.config.object_edge_px:
-                    inner = mask_interior(crop, self.config.object_edge_px)
-                    reliable = inner if reliable is None else reliable & inner
+                reliable = field.reliable & mask_interior(crop, self.config.object_edge_px)
                 res = adadfrc_pair(
                     field.flow,
                     crop,
