@@ -131,7 +131,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=120, help="frames of each speed clip (default 120)")
     ap.add_argument("--size", default="1024x720")
-    ap.add_argument("--presets", default="paper,audit", help="GeoCon presets, comma-separated")
+    ap.add_argument("--presets", default="paper,fast", help="GeoCon presets, comma-separated")
     ap.add_argument("--no-regime", action="store_true", help="skip the regime check on C1-C6")
     args = ap.parse_args()
     try:

@@ -1,8 +1,9 @@
 """Scoring speed and memory on synthetic clips.
 
     .venv/bin/python benchmarks/bench_score.py [--frames 120] [--size 1024x720] [--preset paper]
+    .venv/bin/python benchmarks/bench_score.py --preset fast --repeats 5  # best of 5 runs
     .venv/bin/python benchmarks/bench_score.py --memory      # 120 vs 480 frames
-    .venv/bin/python benchmarks/bench_score.py --matcher klt # a faster matcher
+    .venv/bin/python benchmarks/bench_score.py --matcher klt # another matcher than the preset's
     .venv/bin/python benchmarks/bench_score.py --rrd         # cost and size of the Rerun recording
 
 Renders a C4 clip (static camera, two moving objects) once into a cache folder, then scores
@@ -54,7 +55,10 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
         sink = RrdSink(rrd)
     u0 = resource.getrusage(resource.RUSAGE_SELF)
     t0 = time.perf_counter()
-    record = score_clip(path, preset(preset_name).with_(masks=masks, matcher=matcher), timings=timings, on_frame=sink)
+    cfg = preset(preset_name).with_(masks=masks)
+    if matcher != "-":
+        cfg = cfg.with_(matcher=matcher)
+    record = score_clip(path, cfg, timings=timings, on_frame=sink)
     if sink is not None:
         sink.finish(record)
     wall = time.perf_counter() - t0
@@ -63,6 +67,7 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
     n = record.video.num_frames
     return {
         "preset": preset_name,
+        "matcher": cfg.matcher,
         "masks": masks,
         "objects": len(record.objects),
         "frames": n,
@@ -92,7 +97,9 @@ def rrd_overhead(path: Path, preset_name: str, matcher: str, repeats: int = 2) -
     a = min(plain, key=lambda r: r["wall_s"])
     b = min(recorded, key=lambda r: r["wall_s"])
     extra = b["wall_s"] / a["wall_s"] - 1.0
-    print(f"{path.parent.name}: {a['frames']} frames, {preset_name} {matcher} masks=motion ({a['objects']} objects)")
+    print(
+        f"{path.parent.name}: {a['frames']} frames, {preset_name} {a['matcher']} masks=motion ({a['objects']} objects)"
+    )
     print(f"  scoring alone      {a['wall_s']:7.1f} s  ({a['fps']:.2f} frames/s, peak RSS {a['peak_rss_mib']:.0f} MiB)")
     print(f"  scoring + .rrd     {b['wall_s']:7.1f} s  ({b['fps']:.2f} frames/s, peak RSS {b['peak_rss_mib']:.0f} MiB)")
     print(f"  recording adds     {100 * extra:+.1f} % time; .rrd {b['rrd_mb']:.1f} MB (targets: <= 30 %, <= 15 MB)")
@@ -102,9 +109,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--size", default="1024x720")
-    ap.add_argument("--preset", default=None, help="paper or strict (default: both)")
+    ap.add_argument("--preset", default=None, help="paper, strict, audit or fast (default: paper, strict, fast)")
+    ap.add_argument("--repeats", type=int, default=1, help="runs per measurement; the fastest is shown")
     ap.add_argument("--memory", action="store_true", help="compare peak memory at 120 and 480 frames")
-    ap.add_argument("--matcher", default="sift")
+    ap.add_argument("--matcher", default="-", help="replaces the preset's matcher (sift, orb, klt, klt_tracks)")
     ap.add_argument(
         "--rrd", action="store_true", help="time and size of the Rerun recording (paper preset, motion masks)"
     )
@@ -116,16 +124,18 @@ def main() -> None:
     if args.rrd:
         rrd_overhead(clip(args.frames, args.size), args.preset or "paper", args.matcher)
         return
-    presets = [args.preset] if args.preset else ["paper", "strict"]
+    presets = [args.preset] if args.preset else ["paper", "strict", "fast"]
     lengths = [120, 480] if args.memory else [args.frames]
     for n in lengths:
         path = clip(n, args.size)
         for name in presets:
             for masks in ("none", "motion"):
-                r = _child(path, name, masks, args.matcher, "-")
+                runs = [_child(path, name, masks, args.matcher, "-") for _ in range(max(1, args.repeats))]
+                r = min(runs, key=lambda run: run["wall_s"])
+                spread = f" (of {len(runs)}: {min(x['fps'] for x in runs):.2f}-{r['fps']:.2f})" if len(runs) > 1 else ""
                 print(
-                    f"{args.size} x {r['frames']} frames, {r['preset']:6} {args.matcher} masks={masks:6} "
-                    f"({r['objects']} objects): {r['fps']:6.2f} frames/s  wall {r['wall_s']:6.1f} s  "
+                    f"{args.size} x {r['frames']} frames, {r['preset']:6} {r['matcher']} masks={masks:6} "
+                    f"({r['objects']} objects): {r['fps']:6.2f} frames/s{spread}  wall {r['wall_s']:6.1f} s  "
                     f"CPU {100 * r['cpu_share']:3.0f}% of {os.cpu_count()} cores  "
                     f"peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
                     flush=True,

@@ -1,4 +1,4 @@
-"""Correspondences between frames: SIFT (default), ORB and KLT behind one small interface.
+"""Correspondences between frames: SIFT (default), ORB, KLT and KLT tracks behind one small interface.
 
 Features are extracted once per frame and scale (:meth:`Matcher.extract`) and reused by every
 pair that shares the frame (:meth:`Matcher.match`). Coordinates are pixels of the scaled
@@ -7,8 +7,9 @@ working frame (pixel centres at integers).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Collection, Protocol
 
 import cv2
 import numpy as np
@@ -19,6 +20,7 @@ __all__ = [
     "SiftMatcher",
     "OrbMatcher",
     "KltMatcher",
+    "KltTrackMatcher",
     "MATCHERS",
     "make_matcher",
     "scaled_inputs",
@@ -36,9 +38,12 @@ class FeatureSet:
     """Features of one frame at one scale.
 
     xy: (N, 2) float32 pixel coordinates at this scale.
-    desc: (N, D) descriptors (float32 for SIFT, uint8 for ORB) or None (KLT).
+    desc: (N, D) descriptors (float32 for SIFT, uint8 for ORB), None (KLT) or the track ids
+    (N,) int64 (KLT tracks kept alive across frames).
     image: (h, w) uint8 grey image at this scale (kept by KLT only, else None).
     mask: (h, w) bool usable pixels at this scale (content minus masked objects, eroded).
+    anchor: SIFT features of the same frame, for the pairs tracks cannot serve (KLT tracks'
+    first and last frame), else None.
     """
 
     frame: int
@@ -47,6 +52,7 @@ class FeatureSet:
     desc: np.ndarray | None
     image: np.ndarray | None
     mask: np.ndarray
+    anchor: FeatureSet | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -138,7 +144,7 @@ def gross_mismatches(x1: np.ndarray, x2: np.ndarray, max_px: float, neighbours: 
 class _DescriptorMatcher:
     name = "descriptor"
 
-    def __init__(self, *, max_features: int = 2000, ratio: float = 0.8) -> None:
+    def __init__(self, *, max_features: int = 2000, ratio: float = 0.8, **_: object) -> None:
         self.max_features = max_features
         self.ratio = ratio
 
@@ -199,14 +205,30 @@ class OrbMatcher(_DescriptorMatcher):
         return ham * ham
 
 
-def _pyramid_lk(prev: np.ndarray, nxt: np.ndarray, pts: np.ndarray) -> tuple[Any, Any]:
+_LK_WIN = (21, 21)
+_LK_LEVELS = 4
+_NO_IDS = np.zeros(0, np.int64)
+_NO_XY = np.zeros((0, 2), np.float32)
+
+
+def _pyramid_lk(
+    prev: np.ndarray, nxt: np.ndarray, pts: np.ndarray, win: int = _LK_WIN[0], levels: int = _LK_LEVELS
+) -> tuple[Any, Any]:
     """Pyramidal Lucas-Kanade tracks of ``pts`` (N, 1, 2) from ``prev`` to ``nxt``: (points, status)."""
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
     # nextPts=None (let OpenCV allocate) is valid, but missing from OpenCV's type stubs
     p, st, _ = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
-        prev, nxt, pts, None, winSize=(21, 21), maxLevel=4, criteria=criteria
+        prev, nxt, pts, None, winSize=(win, win), maxLevel=levels, criteria=criteria
     )
     return p, st
+
+
+def _corners(gray: np.ndarray, mask: np.ndarray, n: int, min_distance: int) -> np.ndarray:
+    """Up to ``n`` Shi-Tomasi corners (n, 2) float32 inside ``mask`` (uint8, 0 = excluded)."""
+    if n <= 0:
+        return _NO_XY
+    pts = cv2.goodFeaturesToTrack(gray, n, 0.005, min_distance, mask=mask, blockSize=7)
+    return _NO_XY if pts is None else pts.reshape(-1, 2).astype(np.float32)
 
 
 class KltMatcher:
@@ -220,9 +242,7 @@ class KltMatcher:
         self.fb_px = fb_px
 
     def extract(self, gray: np.ndarray, mask: np.ndarray, frame: int, scale: float) -> FeatureSet:
-        n = max(64, round(self.max_features * scale))
-        pts = cv2.goodFeaturesToTrack(gray, n, 0.005, 5, mask=mask.astype(np.uint8) * 255, blockSize=7)
-        xy = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
+        xy = _corners(gray, mask.astype(np.uint8) * 255, max(64, round(self.max_features * scale)), 5)
         return FeatureSet(frame=frame, scale=scale, xy=xy, desc=None, image=gray, mask=mask)
 
     def match(self, a: FeatureSet, b: FeatureSet) -> tuple[np.ndarray, np.ndarray]:
@@ -238,13 +258,140 @@ class KltMatcher:
         return a.xy[ok].astype(np.float64), p1[ok].astype(np.float64)
 
 
-MATCHERS: dict[str, Callable[..., Matcher]] = {"sift": SiftMatcher, "orb": OrbMatcher, "klt": KltMatcher}
+@dataclass
+class _Tracks:
+    """The live tracks of one scale: after ``frame``, ids (N,) and positions (N, 2) float32, and
+    the frame's grey image (None after a failure)."""
+
+    frame: int
+    ids: np.ndarray
+    xy: np.ndarray
+    image: np.ndarray | None
+    next_id: int
 
 
-def make_matcher(name: str, *, max_features: int = 2000, ratio: float = 0.8) -> Matcher:
-    """Build a matcher by name; an unknown name lists the valid ones."""
+class KltTrackMatcher:
+    """KLT tracks kept alive across frames (``klt_tracks``): each frame's features are the
+    tracks that reached it, so a pair ``(t0, t1)`` matches the tracks alive in both (they were
+    followed through every frame between) and no pair tracks again.
+
+    For each frame, in frame order: the previous frame's tracks are followed with pyramidal
+    Lucas-Kanade and kept when tracking back lands within ``fb_px`` of where they were and they
+    land inside the frame's usable mask (content minus objects); Shi-Tomasi corners are detected
+    again only when fewer than ``redetect_share`` of ``max_features * scale`` tracks are left,
+    and only at least ``min_distance`` px from every live track.
+
+    :meth:`extract` must see the frames 0, 1, 2, ... of a scale once each: a call for frame t > 0
+    waits until frame t - 1 is done (so workers cannot reorder them; the scorer submits them in
+    order) and raises after ``wait_s`` seconds without it. A frame that is not the next one
+    (frame 0 again, or after a frame that failed) starts the tracks afresh.
+
+    The ``anchors`` (the scorer passes the first and the last frame) are also extracted with
+    SIFT (``max_features * scale``, Lowe's ``ratio``), and a pair of two anchors is matched by
+    SIFT: after a long camera move few tracks live from the first frame to the last, and those
+    that do crowd into the part of the view both share, which weakens the gate's pose."""
+
+    name = "klt_tracks"
+
+    def __init__(
+        self,
+        *,
+        max_features: int = 2000,
+        fb_px: float = 0.5,
+        redetect_share: float = 0.9,
+        min_distance: int = 5,
+        win: int = 15,
+        levels: int = 3,
+        ratio: float = 0.8,
+        anchors: Collection[int] = (),
+        wait_s: float = 120.0,
+        **_: object,
+    ) -> None:
+        self.win, self.levels = win, levels
+        self.anchors = frozenset(anchors)
+        self._sift = SiftMatcher(max_features=max_features, ratio=ratio)
+        self.max_features, self.fb_px = max_features, fb_px
+        self.redetect_share, self.min_distance, self.wait_s = redetect_share, min_distance, wait_s
+        self._tracks: dict[float, _Tracks] = {}
+        self._claimed: set[float] = set()
+        self._turn = threading.Condition()
+
+    def extract(self, gray: np.ndarray, mask: np.ndarray, frame: int, scale: float) -> FeatureSet:
+        with self._turn:
+            if not self._turn.wait_for(lambda: self._ready(frame, scale), timeout=self.wait_s):
+                raise RuntimeError(
+                    f"klt_tracks: frame {frame} (scale {scale}) waited {self.wait_s:.0f} s for frame {frame - 1}, "
+                    "which never came; frames must be extracted as 0, 1, 2, ..."
+                )
+            self._claimed.add(scale)
+            state = self._tracks.get(scale)
+        # a failed frame leaves no tracks, so the next frame starts afresh instead of waiting
+        new = _Tracks(frame, _NO_IDS, _NO_XY, None, state.next_id if state else 0)
+        try:
+            new = self._advance(state, gray, mask, frame, scale)
+        finally:
+            with self._turn:
+                self._tracks[scale] = new
+                self._claimed.discard(scale)
+                self._turn.notify_all()
+        anchor = self._sift.extract(gray, mask, frame, scale) if frame in self.anchors else None
+        return FeatureSet(frame=frame, scale=scale, xy=new.xy, desc=new.ids, image=None, mask=mask, anchor=anchor)
+
+    def _ready(self, frame: int, scale: float) -> bool:
+        """Whether frame ``frame`` may be tracked now: nobody tracks its scale, and it is frame 0
+        or the scale's last frame is not before ``frame - 1`` (an earlier frame restarts the tracks)."""
+        state = self._tracks.get(scale)
+        return scale not in self._claimed and (frame == 0 or (state is not None and state.frame >= frame - 1))
+
+    def _advance(self, state: _Tracks | None, gray: np.ndarray, mask: np.ndarray, frame: int, scale: float) -> _Tracks:
+        if gray.ndim != 2 or gray.dtype != np.uint8 or gray.size == 0 or mask.shape != gray.shape:
+            raise ValueError(
+                f"klt_tracks needs a non-empty (h, w) uint8 image and a mask of its shape, got "
+                f"{gray.dtype} {gray.shape} and {mask.shape}"
+            )
+        prev = None if state is None or state.frame != frame - 1 or len(state.ids) == 0 else state.image
+        if state is None or prev is None or prev.shape != gray.shape:
+            ids, xy = _NO_IDS, _NO_XY
+            next_id = 0 if state is None else state.next_id
+        else:
+            p1, st1 = _pyramid_lk(prev, gray, state.xy.reshape(-1, 1, 2), self.win, self.levels)
+            p0b, st2 = _pyramid_lk(gray, prev, p1, self.win, self.levels)
+            p1, p0b = p1.reshape(-1, 2), p0b.reshape(-1, 2)
+            ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(p0b - state.xy, axis=1) <= self.fb_px)
+            ok &= _inside(mask, p1)
+            ids, xy, next_id = state.ids[ok], p1[ok].astype(np.float32), state.next_id
+        n = max(64, round(self.max_features * scale))
+        if len(ids) < self.redetect_share * n:
+            free = mask.astype(np.uint8) * 255
+            for x, y in np.round(xy).astype(int):
+                cv2.circle(free, (int(x), int(y)), self.min_distance, 0, -1)
+            new = _corners(gray, free, n - len(ids), self.min_distance)
+            ids = np.concatenate([ids, np.arange(next_id, next_id + len(new), dtype=np.int64)])
+            xy = np.concatenate([xy, new])
+            next_id += len(new)
+        return _Tracks(frame, ids, xy, gray, next_id)
+
+    def match(self, a: FeatureSet, b: FeatureSet) -> tuple[np.ndarray, np.ndarray]:
+        if a.anchor is not None and b.anchor is not None:
+            return self._sift.match(a.anchor, b.anchor)
+        assert a.desc is not None and b.desc is not None, "klt_tracks features carry their track ids"
+        _, ia, ib = np.intersect1d(a.desc, b.desc, assume_unique=True, return_indices=True)
+        return a.xy[ia].astype(np.float64), b.xy[ib].astype(np.float64)
+
+
+MATCHERS: dict[str, Callable[..., Matcher]] = {
+    "sift": SiftMatcher,
+    "orb": OrbMatcher,
+    "klt": KltMatcher,
+    "klt_tracks": KltTrackMatcher,
+}
+
+
+def make_matcher(name: str, *, max_features: int = 2000, ratio: float = 0.8, anchors: Collection[int] = ()) -> Matcher:
+    """Build a matcher by name; an unknown name lists the valid ones. ``anchors``: the frames
+    whose pair the gate's first-last pose compares (used by ``klt_tracks``)."""
     try:
         factory = MATCHERS[name]
     except KeyError:
         raise ValueError(f"unknown matcher {name!r}; valid: {', '.join(MATCHERS)}") from None
-    return factory(max_features=max_features, ratio=ratio)
+    return factory(max_features=max_features, ratio=ratio, anchors=anchors)

@@ -5,8 +5,9 @@ is kept in memory meanwhile.
 scorer's stages, or fakes in tests). For each frame ``t`` it
 
 1. gives the frame to the mask stage (:meth:`Stages.push`) as soon as it is decoded;
-2. once the mask stage has seen ``lookahead`` frames past ``t`` (or the clip ended), takes the
-   final labels of ``t`` (:meth:`Stages.labels`; None without masks), then, in this order:
+2. once the mask stage has seen ``lookahead`` frames past ``t`` (or the clip ended), asks for the
+   final labels of ``t`` (:meth:`Stages.labels`; None without masks), and once they are there and
+   the next frame's are asked for, in this order:
 
    - waits while more than ``workers`` feature extractions are in flight, or ``2 * workers``
      pair fits (bounded read-ahead: memory stays flat however fast frames decode);
@@ -21,6 +22,15 @@ scorer's stages, or fakes in tests). For each frame ``t`` it
    - evicts what no later work needs, tells the mask stage it may drop ``t - 1``
      (:meth:`Stages.release`), and reports ``progress(t + 1, n)``.
 
+The mask stage is sequential (each frame's segmentation continues the last one's tracks), so it
+runs on a thread of its own, the *mask lane*, in submission order: push, labels, release and
+finish never overlap one another, and the lane segments frame ``t + 1`` while the calling thread
+decodes and submits the work of frame ``t`` (the newest labels asked for stay in flight). An error
+of the lane is raised on the calling thread at the next frame.
+
+Pair fits and poses need the features of two frames; they are handed to the pool only once both
+are extracted, so a worker never sits blocked on another task while work is waiting.
+
 Guarantees: ``on_frame(frame, labels, flows)`` is called exactly once per frame, in frame order,
 on the calling thread, with the object flows of the pair ``(t, t + g)`` (empty when there are
 none); the features of frame ``k`` are kept while a pair may still need them
@@ -34,8 +44,9 @@ depend on thread timing.
 
 from __future__ import annotations
 
+import threading
 from collections import deque
-from concurrent.futures import Executor, Future
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Protocol, Sequence
 
@@ -55,9 +66,10 @@ def gate_windows(n: int, window: int, stride: int) -> list[tuple[int, int]]:
 
 
 class Stages(Protocol):
-    """The work the schedule drives. ``push``, ``labels``, ``release`` and ``finish`` run on the
-    calling thread; the others run on the worker pool and receive the features of a frame as the
-    :class:`~concurrent.futures.Future` returned by its ``extract``."""
+    """The work the schedule drives. ``push``, ``labels``, ``release`` and ``finish`` run one at a
+    time, in order, on the mask lane (a thread of their own); the others run on the worker pool and
+    receive the features of a frame as the :class:`~concurrent.futures.Future` returned by its
+    ``extract``, which the schedule submits in frame order."""
 
     lookahead: int
     """How many frames past ``t`` the mask stage must have seen before ``labels(t)`` is final."""
@@ -139,20 +151,31 @@ class StreamSchedule:
         for w in self.windows:
             self._ends.setdefault(w[1], []).append(w)
         self._max_gap = max(self.gaps)
+        self._lane_jobs: deque[Future] = deque()
+        self._next_t = 0
 
     def run(self, frames: Iterable[Frame]) -> ScheduleResult:
         """Consume ``frames`` (in order) and return every stage's results once all have finished."""
-        stages, n, next_t = self.stages, self.num_frames, 0
-        for frame in frames:
-            self._frames[frame.index] = frame
-            stages.push(frame)
-            while next_t <= frame.index - stages.lookahead:
-                self._step(next_t)
-                next_t += 1
-        stages.finish()
-        while next_t < n:
-            self._step(next_t)
-            next_t += 1
+        stages, n = self.stages, self.num_frames
+        asked = 0  # frames whose labels are asked of the mask lane
+        labels: deque[Future] = deque()  # labels(t) of the frames not yet stepped, in order
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="geocon-masks") as lane:
+            self._lane = lane
+            for frame in frames:
+                self._frames[frame.index] = frame
+                self._lane_jobs.append(lane.submit(stages.push, frame))
+                while asked <= frame.index - stages.lookahead:
+                    labels.append(lane.submit(stages.labels, asked))
+                    asked += 1
+                # the newest labels stay in flight: the lane segments the next frame while this
+                # thread decodes and submits
+                while len(labels) > 1:
+                    self._step(self._next_t, labels.popleft())
+            self._lane_jobs.append(lane.submit(stages.finish))
+            labels.extend(lane.submit(stages.labels, t) for t in range(asked, n))
+            while labels:
+                self._step(self._next_t, labels.popleft())
+        self._check_lane(wait=True)
         self._emit(final=True)
         assert self._first_last is not None, "the clip had no frame"
         return ScheduleResult(
@@ -162,11 +185,49 @@ class StreamSchedule:
             objects=[r for f in self._objects for r in f.result()[0]],
         )
 
+    def _after(self, deps: Sequence[Future], fn: Callable[..., Any], *args: Any) -> Future:
+        """A future of ``fn(*args)``, submitted to the pool once every future of ``deps`` is done:
+        a task that waited for its features on a worker would hold the worker idle."""
+        if not deps:
+            return self.pool.submit(fn, *args)
+        out: Future = Future()
+        remaining = [len(deps)]
+        lock = threading.Lock()
+
+        def relay(inner: Future) -> None:
+            error = inner.exception()
+            if error is None:
+                out.set_result(inner.result())
+            else:
+                out.set_exception(error)
+
+        def start(_: Future) -> None:
+            with lock:
+                remaining[0] -= 1
+                if remaining[0]:
+                    return
+            try:
+                self.pool.submit(fn, *args).add_done_callback(relay)
+            except RuntimeError as error:  # the pool shut down after an error elsewhere
+                out.set_exception(error)
+
+        for dep in deps:
+            dep.add_done_callback(start)
+        return out
+
+    def _check_lane(self, wait: bool = False) -> None:
+        """Raise the first error of the mask lane's pushes and releases (those done, or all)."""
+        jobs = self._lane_jobs
+        while jobs and (wait or jobs[0].done()):
+            jobs.popleft().result()
+
     # --- one frame ---------------------------------------------------------------------------
-    def _step(self, t: int) -> None:
-        """Everything that needs frame t and its labels; runs once labels(t) are final."""
+    def _step(self, t: int, asked: Future) -> None:
+        """Everything that needs frame t and its labels (``asked``: the lane's labels(t))."""
         frame, stages = self._frames[t], self.stages
-        labels = stages.labels(t)
+        self._check_lane()
+        labels = asked.result()
+        self._next_t = t + 1
         if labels is not None:
             self._labels[t] = labels
         self._wait_for_room()
@@ -192,11 +253,13 @@ class StreamSchedule:
                 p.ready = p.ready or p.frame.index <= t - g
             self._emit(final=False)
         for w in self._ends.get(t, []):
-            self._windows.append((w, self.pool.submit(stages.pose, self.features[w[0]], self.features[t], *w, None)))
+            a, b = self.features[w[0]], self.features[t]
+            self._windows.append((w, self._after((a, b), stages.pose, a, b, *w, None)))
         if t == self.num_frames - 1:
-            self._first_last = self.pool.submit(stages.pose, self.features[0], self.features[t], 0, t, self._frames[0])
+            a, b = self.features[0], self.features[t]
+            self._first_last = self._after((a, b), stages.pose, a, b, 0, t, self._frames[0])
         self._evict(t)
-        stages.release(t - 1)
+        self._lane_jobs.append(self._lane.submit(stages.release, t - 1))
         if self.progress is not None:
             self.progress(t + 1, self.num_frames)
 
@@ -216,9 +279,8 @@ class StreamSchedule:
             if reason is not None:
                 self._skipped.extend(self.stages.skip_pair(t0, t, gap, reason))
             else:
-                self._pairs.append(
-                    self.pool.submit(self.stages.score_pair, self.features[t0], self.features[t], t0, t, gap)
-                )
+                a, b = self.features[t0], self.features[t]
+                self._pairs.append(self._after((a, b), self.stages.score_pair, a, b, t0, t, gap))
 
     def _needed(self, k: int, t: int) -> bool:
         """Whether the features of frame k are still needed after step t."""

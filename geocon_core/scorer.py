@@ -3,8 +3,9 @@
 The scorer streams frames: features of a frame are extracted once per scale and kept only
 while a pair, the first-last pose or a gate window still needs them, so memory does not grow
 with clip length beyond the per-match arrays of the record itself. Work runs on a small thread
-pool (OpenCV releases the GIL); every random choice is seeded from the config seed and the
-pair's identity, so results do not depend on scheduling.
+pool (OpenCV releases the GIL) beside the mask lane, and no worker waits for another task's
+result: pair fits and poses are submitted once their features are ready. Every random choice is
+seeded from the config seed and the pair's identity, so results do not depend on scheduling.
 
 :func:`score_clip` composes the stages: the clip is probed, the stages of :class:`_Pipeline`
 (masks, features, pair fits, object rigidity, poses) run under the streaming schedule of
@@ -14,8 +15,10 @@ through the verdict rules of :mod:`geocon_core.verdict`.
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
+import sys
 import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -94,7 +97,7 @@ class _Pipeline:
         self.masked_share = np.zeros(info.num_frames)
         self.object_share: dict[int, dict[int, float]] = {}
 
-    # --- masks (calling thread) ----------------------------------------------------------------
+    # --- masks (the mask lane) -----------------------------------------------------------------
     def push(self, frame: Frame) -> None:
         if self.mask_source is not None:
             start = time.perf_counter()
@@ -127,9 +130,9 @@ class _Pipeline:
     # --- work on the pool ----------------------------------------------------------------------
     def extract(self, frame: Frame, labels: np.ndarray | None) -> dict[float, FeatureSet]:
         """Features of frame t inside ``B_t`` = content minus object masks, at every scale."""
-        start = time.perf_counter()
         mask = frame.content if labels is None else frame.content & (labels == 0)
         out = {}
+        start = time.perf_counter()
         for s in self.active:
             g, m = scaled_inputs(frame.gray, mask, s)
             out[s] = self.matcher.extract(g, m, frame.index, s)
@@ -283,6 +286,15 @@ def _mask_source(cfg: ScoreConfig, info: ClipInfo, masks: str | Path | None, flo
     return None
 
 
+def _import_aside(module: str) -> None:
+    """Start importing ``module`` on a side thread. POT takes about a second to import (it loads
+    much of SciPy); imported where first used, on a worker in the middle of the clip, it stalls
+    the other threads, while during the probe pass, which decodes with the GIL released, one core
+    is idle. A later ``import`` of the module simply waits for this one."""
+    if module not in sys.modules:
+        threading.Thread(target=importlib.import_module, args=(module,), name=f"import-{module}", daemon=True).start()
+
+
 def _timed(frames: Iterator[Frame], timer: _Timer) -> Iterator[Frame]:
     """``frames``, with the time spent decoding each added to the timer."""
     while True:
@@ -316,10 +328,13 @@ def score_clip(
     if masks is not None:
         cfg = cfg.with_(masks="external")
     timer = _Timer(timings)
+    if cfg.masks != "none":
+        _import_aside("ot")  # AdaDFRC's transport solver
     start = time.perf_counter()
     info = probe_clip(path, cfg)
     timer.add("probe", start)
-    matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio)
+    n = info.num_frames
+    matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio, anchors=(0, n - 1))
     backend: PoseBackend = (
         load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
     )
@@ -329,7 +344,6 @@ def score_clip(
     mask_source = _mask_source(cfg, info, masks, flow)
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
     stages = _Pipeline(info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None)
-    n = info.num_frames
     windows = gate_windows(n, cfg.gate_window, cfg.gate_stride)
     hops = [] if pose_log is not None or cfg.chain_hop == 0 else chain_hops(n, cfg.chain_hop)
     pose_windows = [] if pose_log is not None else [w for w in windows if w != (0, n - 1)]

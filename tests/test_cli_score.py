@@ -80,8 +80,8 @@ def test_one_frame_is_unusable(tmp_path):
 
 
 def test_unknown_names_list_the_valid_ones(clip):
-    res = runner.invoke(app, ["score", str(clip), "--preset", "fast"])
-    assert res.exit_code == 2 and "valid: paper, strict" in res.output
+    res = runner.invoke(app, ["score", str(clip), "--preset", "quick"])
+    assert res.exit_code == 2 and "valid: paper, strict, audit, fast" in res.output
     res = runner.invoke(app, ["score", str(clip), "--matcher", "surf"])
     assert res.exit_code == 2 and "valid: sift, orb, klt" in res.output
 

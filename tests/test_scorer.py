@@ -18,7 +18,7 @@ from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
 
 from .conftest import SHARED_DATA
 
-FAST = ScoreConfig(scales=(0.5, 1.0))
+TWO_SCALES = ScoreConfig(scales=(0.5, 1.0))
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +31,7 @@ def clips(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def scored(clips) -> dict:
-    return {cid: score_clip(clips / f"{cid}.mp4", FAST) for cid in ("c1_static", "c2_rotation", "c3_translation")}
+    return {cid: score_clip(clips / f"{cid}.mp4", TWO_SCALES) for cid in ("c1_static", "c2_rotation", "c3_translation")}
 
 
 @pytest.mark.parametrize("cid", ["c1_static", "c2_rotation"])
@@ -57,6 +57,17 @@ def test_translation_gates_f(scored, clips):
     assert rec.background.tau_f_px > 5
 
 
+@pytest.mark.parametrize("cid", ["c1_static", "c2_rotation", "c3_translation"])
+def test_fast_preset_keeps_the_gate_and_the_verdict(scored, clips, cid):
+    gt = load_ground_truth(clips / f"{cid}.gt.json")
+    rec, ref = score_clip(clips / f"{cid}.mp4", preset("fast")), scored[cid]
+    assert rec.gate.label == ref.gate.label == gt.expected_gate
+    assert abs(rec.gate.t_inf - gt.t_inf) <= max(0.01, 0.3 * gt.t_inf)
+    assert rec.background.consistent is ref.background.consistent is True
+    # one scale, on the 512x360 canvas (the 640x360 clip downscaled), every pair valid
+    assert rec.video.working_size == (512, 288) and rec.background.valid_pairs == 19
+
+
 @pytest.mark.slow
 def test_breathing_raises_ge_and_strict_gaps_expose_it(clips):
     """A 3 px rubber-sheet breathing (24-frame period): GE at least doubles under the paper
@@ -76,14 +87,14 @@ def test_breathing_raises_ge_and_strict_gaps_expose_it(clips):
 @pytest.mark.parametrize("fov", [48.0, 72.0])
 def test_gate_decisions_survive_a_wrong_field_of_view(clips, scored, fov):
     for cid in ("c2_rotation", "c3_translation"):
-        rec = score_clip(clips / f"{cid}.mp4", FAST.with_(scales=(1.0,), fov_x_deg=fov))
+        rec = score_clip(clips / f"{cid}.mp4", TWO_SCALES.with_(scales=(1.0,), fov_x_deg=fov))
         assert rec.gate.label == scored[cid].gate.label, (cid, fov, rec.gate.t_inf)
 
 
 def test_record_round_trips_and_rescoring_is_byte_identical(clips, scored, tmp_path):
     rec = scored["c3_translation"]
     write_record(rec, tmp_path / "a")
-    again = score_clip(clips / "c3_translation.mp4", FAST)
+    again = score_clip(clips / "c3_translation.mp4", TWO_SCALES)
     write_record(again, tmp_path / "b")
     for name in ("record.json", "matches.npz"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
