@@ -204,7 +204,7 @@ def score(
     no_masks: Annotated[
         bool, typer.Option("--no-masks", help="Do not separate moving objects (score the whole content as background).")
     ] = False,
-    matcher: Annotated[Optional[str], typer.Option(help="Correspondences: sift (default), orb, klt.")] = None,
+    matcher: Annotated[Optional[str], typer.Option(help="Correspondences: sift, orb, klt, klt_tracks.")] = None,
     fov: Annotated[
         Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60).")
     ] = None,
