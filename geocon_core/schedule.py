@@ -193,6 +193,10 @@ class StreamSchedule:
         out: Future = Future()
         remaining = [len(deps)]
         lock = threading.Lock()
+        # the task's inputs include the futures whose callback this closure becomes, a reference
+        # cycle that only the cyclic collector would free, holding each frame's features long
+        # after use; the closure lets go of them once it has submitted the task
+        job: list[Any] = [fn, args]
 
         def relay(inner: Future) -> None:
             error = inner.exception()
@@ -206,8 +210,10 @@ class StreamSchedule:
                 remaining[0] -= 1
                 if remaining[0]:
                     return
+                task, task_args = job
+                job.clear()
             try:
-                self.pool.submit(fn, *args).add_done_callback(relay)
+                self.pool.submit(task, *task_args).add_done_callback(relay)
             except RuntimeError as error:  # the pool shut down after an error elsewhere
                 out.set_exception(error)
 
