@@ -158,3 +158,38 @@ def test_gate_windows_cover_the_clip():
     assert gate_windows(10, 16, 8) == [(0, 9)]
     assert gate_windows(17, 16, 8) == [(0, 16)]
     assert gate_windows(40, 16, 8) == [(0, 16), (8, 24), (16, 32)]
+
+
+def test_an_error_in_a_stage_reaches_the_caller_without_hanging():
+    class Failing(FakeStages):
+        def extract(self, frame, labels):
+            if frame.index == 5:
+                raise ValueError("frame 5 is unreadable")
+            return super().extract(frame, labels)
+
+    class FailingLane(FakeStages):
+        def push(self, frame) -> None:
+            if frame.index == 7:
+                raise ValueError("segmentation failed at frame 7")
+            super().push(frame)
+
+    with pytest.raises(ValueError, match="frame 5 is unreadable"):
+        _run(Failing())
+    with pytest.raises(ValueError, match="segmentation failed at frame 7"):
+        _run(FailingLane(lookahead=2))
+
+
+def test_pair_fits_and_poses_start_only_once_their_features_exist():
+    class Strict(FakeStages):
+        def score_pair(self, a, b, t0, t1, gap):
+            assert a.done() and b.done(), "a pair was handed to a worker before its features"
+            return super().score_pair(a, b, t0, t1, gap)
+
+        def pose(self, a, b, t0, t1, first):
+            assert a.done() and b.done(), "a pose was handed to a worker before its features"
+            return super().pose(a, b, t0, t1, first)
+
+    stages = Strict()
+    _, out = _run(stages, workers=3)
+    assert len(stages.scored_pairs) == sum(20 - g for g in (1, 2, 4))
+    assert out.first_last == ("pose", 0, 19, 0)
