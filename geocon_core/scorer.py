@@ -292,7 +292,15 @@ def _import_aside(module: str) -> None:
     the other threads, while during the probe pass, which decodes with the GIL released, one core
     is idle. A later ``import`` of the module simply waits for this one."""
     if module not in sys.modules:
-        threading.Thread(target=importlib.import_module, args=(module,), name=f"import-{module}", daemon=True).start()
+        threading.Thread(target=_import_quietly, args=(module,), name=f"import-{module}", daemon=True).start()
+
+
+def _import_quietly(module: str) -> None:
+    """Import ``module``; a failure is left to the import where the module is used, which says why."""
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        pass
 
 
 def _timed(frames: Iterator[Frame], timer: _Timer) -> Iterator[Frame]:
