@@ -205,15 +205,13 @@ class OrbMatcher(_DescriptorMatcher):
         return ham * ham
 
 
-_LK_WIN = (21, 21)
-_LK_LEVELS = 4
+_LK_WIN_LEVELS = (21, 4)
+"""Window side (px) and pyramid levels of the pairwise KLT matcher's Lucas-Kanade."""
 _NO_IDS = np.zeros(0, np.int64)
 _NO_XY = np.zeros((0, 2), np.float32)
 
 
-def _pyramid_lk(
-    prev: np.ndarray, nxt: np.ndarray, pts: np.ndarray, win: int = _LK_WIN[0], levels: int = _LK_LEVELS
-) -> tuple[Any, Any]:
+def _pyramid_lk(prev: np.ndarray, nxt: np.ndarray, pts: np.ndarray, win: int, levels: int) -> tuple[Any, Any]:
     """Pyramidal Lucas-Kanade tracks of ``pts`` (N, 1, 2) from ``prev`` to ``nxt``: (points, status)."""
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
     # nextPts=None (let OpenCV allocate) is valid, but missing from OpenCV's type stubs
@@ -221,6 +219,18 @@ def _pyramid_lk(
         prev, nxt, pts, None, winSize=(win, win), maxLevel=levels, criteria=criteria
     )
     return p, st
+
+
+def _lk_forward_backward(
+    prev: np.ndarray, nxt: np.ndarray, xy: np.ndarray, mask: np.ndarray, fb_px: float, win: int, levels: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the points ``xy`` (N, 2) of ``prev`` land in ``nxt`` (N, 2) float32, and which of them
+    to keep (N,) bool: tracked both ways, back within ``fb_px`` of the start, inside ``mask`` of ``nxt``."""
+    p1, st1 = _pyramid_lk(prev, nxt, xy.reshape(-1, 1, 2), win, levels)
+    p0b, st2 = _pyramid_lk(nxt, prev, p1, win, levels)
+    p1, p0b = p1.reshape(-1, 2), p0b.reshape(-1, 2)
+    ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(p0b - xy, axis=1) <= fb_px)
+    return p1, ok & _inside(mask, p1)
 
 
 def _corners(gray: np.ndarray, mask: np.ndarray, n: int, min_distance: int) -> np.ndarray:
@@ -249,12 +259,7 @@ class KltMatcher:
         if len(a) == 0:
             return np.zeros((0, 2)), np.zeros((0, 2))
         assert a.image is not None and b.image is not None, "KLT features keep their image"
-        p0 = a.xy.reshape(-1, 1, 2)
-        p1, st1 = _pyramid_lk(a.image, b.image, p0)
-        p0b, st2 = _pyramid_lk(b.image, a.image, p1)
-        p1, p0b = p1.reshape(-1, 2), p0b.reshape(-1, 2)
-        ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(p0b - a.xy, axis=1) <= self.fb_px)
-        ok &= _inside(b.mask, p1)
+        p1, ok = _lk_forward_backward(a.image, b.image, a.xy, b.mask, self.fb_px, *_LK_WIN_LEVELS)
         return a.xy[ok].astype(np.float64), p1[ok].astype(np.float64)
 
 
@@ -349,17 +354,11 @@ class KltTrackMatcher:
                 f"klt_tracks needs a non-empty (h, w) uint8 image and a mask of its shape, got "
                 f"{gray.dtype} {gray.shape} and {mask.shape}"
             )
-        prev = None if state is None or state.frame != frame - 1 or len(state.ids) == 0 else state.image
-        if state is None or prev is None or prev.shape != gray.shape:
-            ids, xy = _NO_IDS, _NO_XY
-            next_id = 0 if state is None else state.next_id
-        else:
-            p1, st1 = _pyramid_lk(prev, gray, state.xy.reshape(-1, 1, 2), self.win, self.levels)
-            p0b, st2 = _pyramid_lk(gray, prev, p1, self.win, self.levels)
-            p1, p0b = p1.reshape(-1, 2), p0b.reshape(-1, 2)
-            ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(p0b - state.xy, axis=1) <= self.fb_px)
-            ok &= _inside(mask, p1)
-            ids, xy, next_id = state.ids[ok], p1[ok].astype(np.float32), state.next_id
+        ids, xy, next_id = _NO_IDS, _NO_XY, 0 if state is None else state.next_id
+        prev = None if state is None or state.frame != frame - 1 or not len(state.ids) else state.image
+        if state is not None and prev is not None and prev.shape == gray.shape:
+            p1, ok = _lk_forward_backward(prev, gray, state.xy, mask, self.fb_px, self.win, self.levels)
+            ids, xy = state.ids[ok], p1[ok].astype(np.float32)
         n = max(64, round(self.max_features * scale))
         if len(ids) < self.redetect_share * n:
             free = mask.astype(np.uint8) * 255

@@ -152,12 +152,11 @@ class StreamSchedule:
             self._ends.setdefault(w[1], []).append(w)
         self._max_gap = max(self.gaps)
         self._lane_jobs: deque[Future] = deque()
-        self._next_t = 0
 
     def run(self, frames: Iterable[Frame]) -> ScheduleResult:
         """Consume ``frames`` (in order) and return every stage's results once all have finished."""
         stages, n = self.stages, self.num_frames
-        asked = 0  # frames whose labels are asked of the mask lane
+        asked = stepped = 0  # frames whose labels are asked of the mask lane; frames stepped
         labels: deque[Future] = deque()  # labels(t) of the frames not yet stepped, in order
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="geocon-masks") as lane:
             self._lane = lane
@@ -170,11 +169,13 @@ class StreamSchedule:
                 # the newest labels stay in flight: the lane segments the next frame while this
                 # thread decodes and submits
                 while len(labels) > 1:
-                    self._step(self._next_t, labels.popleft())
+                    self._step(stepped, labels.popleft())
+                    stepped += 1
             self._lane_jobs.append(lane.submit(stages.finish))
             labels.extend(lane.submit(stages.labels, t) for t in range(asked, n))
             while labels:
-                self._step(self._next_t, labels.popleft())
+                self._step(stepped, labels.popleft())
+                stepped += 1
         self._check_lane(wait=True)
         self._emit(final=True)
         assert self._first_last is not None, "the clip had no frame"
@@ -233,7 +234,6 @@ class StreamSchedule:
         frame, stages = self._frames[t], self.stages
         self._check_lane()
         labels = asked.result()
-        self._next_t = t + 1
         if labels is not None:
             self._labels[t] = labels
         self._wait_for_room()
