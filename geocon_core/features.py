@@ -7,6 +7,7 @@ working frame (pixel centres at integers).
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 from typing import Any, Callable, Collection, Protocol
@@ -186,6 +187,47 @@ class SiftMatcher(_DescriptorMatcher):
         d2 += (a * a).sum(1)[:, None]
         d2 += (b * b).sum(1)[None, :]
         return d2
+
+
+class SiftOctaveMatcher(SiftMatcher):
+    """SIFT run once per frame, at the largest scale; the features of a coarser scale ``2**-k``
+    are the keypoints the full-size pass found in its octaves ``>= k - 1`` (the octaves a pass on
+    the downscaled image would also have, OpenCV doubling its input first), their coordinates
+    scaled, kept inside that scale's mask, the ``max_features * scale`` strongest. Descriptors are
+    reused as they are (SIFT describes a keypoint in its own octave's image)."""
+
+    name = "sift_octaves"
+
+    def extract_scales(self, inputs: dict[float, tuple[np.ndarray, np.ndarray]], frame: int) -> dict[float, FeatureSet]:
+        """Features at every scale of ``inputs`` (scale -> (grey, usable mask) at that scale)."""
+        top = max(inputs)
+        coarse = {s: math.log2(top / s) for s in inputs if s != top}
+        if top != 1.0 or any(abs(k - round(k)) > 1e-9 for k in coarse.values()):
+            return {s: self.extract(g, m, frame, s) for s, (g, m) in inputs.items()}
+        gray, mask = inputs[top]
+        kps, desc = cv2.SIFT_create().detectAndCompute(gray, mask.astype(np.uint8) * 255)  # type: ignore[attr-defined]
+        if desc is None or len(kps) == 0:
+            return {
+                s: FeatureSet(frame, s, np.zeros((0, 2), np.float32), np.zeros((0, 0), np.float32), None, m)
+                for s, (_, m) in inputs.items()
+            }
+        xy = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+        response = np.array([k.response for k in kps], np.float64)
+        octave = np.array([k.octave & 255 for k in kps], np.int64)
+        octave[octave > 127] -= 256
+        order = np.argsort(-response, kind="stable")
+        out = {}
+        for s, (_, m) in inputs.items():
+            k = 0 if s == top else round(coarse[s])
+            sel = order[octave[order] >= k - 1] if k else order
+            xs = xy[sel] * np.float32(s / top) if k else xy[sel]
+            if k:
+                ok = _inside(m, xs)
+                sel, xs = sel[ok], xs[ok]
+            n = max(64, round(self.max_features * s))
+            sel, xs = sel[:n], xs[:n]
+            out[s] = FeatureSet(frame=frame, scale=s, xy=np.ascontiguousarray(xs), desc=desc[sel], image=None, mask=m)
+        return out
 
 
 class OrbMatcher(_DescriptorMatcher):
@@ -380,6 +422,7 @@ class KltTrackMatcher:
 
 MATCHERS: dict[str, Callable[..., Matcher]] = {
     "sift": SiftMatcher,
+    "sift_octaves": SiftOctaveMatcher,
     "orb": OrbMatcher,
     "klt": KltMatcher,
     "klt_tracks": KltTrackMatcher,

@@ -83,7 +83,7 @@ def test_unknown_names_list_the_valid_ones(clip):
     res = runner.invoke(app, ["score", str(clip), "--preset", "quick"])
     assert res.exit_code == 2 and "valid: paper, strict, audit, fast" in res.output
     res = runner.invoke(app, ["score", str(clip), "--matcher", "surf"])
-    assert res.exit_code == 2 and "valid: sift, orb, klt" in res.output
+    assert res.exit_code == 2 and "valid: sift, sift_octaves, orb, klt" in res.output
 
 
 def test_presets_are_listed():
