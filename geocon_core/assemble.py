@@ -166,7 +166,7 @@ def assemble_record(
     verdict = family_verdict(
         fam["H"], fam["F"], t_inf=pose.t_inf, pose_present=pose.pose_present, thresholds=thresholds, tau_t=cfg.tau_t
     )
-    warnings: list[str] = []
+    warnings: list[str] = list(info.warnings)  # frames lost to a damaged file, from the reader
     if not pose.pose_present:
         warnings.append(f"the first-last pose could not be recovered ({pose.reason}); the clip is gated F")
     elif pose.method == "chain":

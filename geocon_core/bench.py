@@ -13,6 +13,7 @@ import json
 import multiprocessing
 import os
 import shutil
+import socket
 import time
 import traceback
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -29,12 +30,16 @@ from .layout import (
     RRD_NAME,
     STATUS_FORMAT,
     clip_dir,
+    lock_path,
     manifest_path,
     read_manifest,
     read_status,
     write_manifest,
     write_status,
 )
+from .lockfile import FolderLock, LockHeld
+from .paths import OutPathError, check_out_dir
+from .procs import die_with_parent
 from .record import ClipRecord
 from .tables import write_tables
 from .verdict import is_flagged
@@ -52,7 +57,8 @@ MAX_CRASHES = 2
 
 
 class BenchError(ValueError):
-    """A results folder that cannot be used for this run (one sentence)."""
+    """A results folder that cannot be used for this run (one sentence): a path that cannot be a
+    folder, another configuration, another run writing into it."""
 
 
 @dataclass(frozen=True)
@@ -89,27 +95,37 @@ def score_to_folder(
     progress: Callable[[int, int], None] | None = None,
     sinks: list[Callable[[Path], Any]] = (),  # type: ignore[assignment]
 ):
-    """Score ``clip`` and write its record and overlays into ``out_dir``. ``sinks`` are factories
-    called with the first frame's arrival (so unusable input leaves no files behind); each made
-    sink receives every frame, and ``finish(record)`` once the record is written."""
+    """Score ``clip`` and write its record and overlays into ``out_dir``, all at once
+    (:func:`~geocon_core.staging.staged_record`: a failed or killed run leaves the previous record
+    in ``out_dir`` as it was). ``sinks`` are factories called with the first frame's arrival and
+    the staging folder; each made sink receives every frame, ``finish(record)`` once the record is
+    in place, and ``abort()`` (where it has one) when scoring fails."""
     from .diagnostics import OverlayWriter
     from .record import write_record
     from .scorer import score_clip
+    from .staging import staged_record
 
     made: list = []
 
     def on_frame(fd) -> None:
         if not made:
-            made.append(OverlayWriter(out_dir))
-            made.extend(factory(out_dir) for factory in sinks)
+            made.append(OverlayWriter(stage))
+            made.extend(factory(stage) for factory in sinks)
         for sink in made:
             sink(fd)
 
-    record = score_clip(clip, cfg, pose_log=pose_log, masks=masks, on_frame=on_frame, progress=progress)
-    made[0].close()
-    write_record(record, out_dir)
-    for sink in made[1:]:
-        sink.finish(record)
+    try:
+        with staged_record(out_dir) as stage:
+            record = score_clip(clip, cfg, pose_log=pose_log, masks=masks, on_frame=on_frame, progress=progress)
+            made[0].close()
+            write_record(record, stage)
+        for sink in made[1:]:
+            sink.finish(record)
+    except BaseException:
+        for sink in made[1:]:
+            if hasattr(sink, "abort"):
+                sink.abort()
+        raise
     return record
 
 
@@ -142,9 +158,11 @@ def _score_one(
         "meta": entry.meta,
         "video": str(entry.video),
         "rrd": None,
+        "warnings": [],
     }
     try:
         record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
+        status["warnings"] = list(record.warnings)
         if renderer is not None and _flagged(record, EXPECTED_MODEL.get(entry.category)):
             renderer(out, out / RRD_NAME)
             status["rrd"] = RRD_NAME
@@ -205,31 +223,51 @@ def run_bench(
     ``rrd_renderer`` (a module-level function, called as ``f(record_dir, rrd_path)``) writes a Rerun
     recording for flagged clips (:func:`geocon_core.verdict.is_flagged`). ``on_start(to_score, skipped)``
     is called once; ``on_clip(status, done, total, failed)`` after each clip. Raises
-    :class:`~geocon_core.dataset.DatasetError` or :class:`BenchError` before scoring anything."""
+    :class:`~geocon_core.dataset.DatasetError` or :class:`BenchError` before scoring anything:
+    ``results`` is checked (:func:`geocon_core.paths.check_out_dir`) before the dataset is read, and
+    held with a lock file (:func:`geocon_core.layout.lock_path`) for the whole run, so a second run
+    into the same folder is refused naming the first one's PID (a lock of a dead run is taken over).
+    The worker processes exit when this process dies (:func:`geocon_core.procs.die_with_parent`)."""
     cfg = config or ScoreConfig()
     if workers < 1:
         raise BenchError(f"--workers must be at least 1, got {workers}")
     data, out = Path(dataset), Path(results)
+    try:
+        check_out_dir(out)
+    except OutPathError as exc:
+        raise BenchError(str(exc)) from None
     entries = load_dataset(data)
-    _prepare_results(out, data, cfg)
-    start = time.perf_counter()
-    todo, failed_before = _unfinished(entries, out, retry_failed)
-    skipped = len(entries) - len(todo)
-    if on_start is not None:
-        on_start(len(todo), skipped)
-    done, failed = skipped, failed_before
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BenchError(f"--out {out} cannot be created ({exc.strerror})") from None
+    lock = FolderLock(lock_path(out))
+    try:
+        lock.acquire()
+    except LockHeld as held:
+        raise BenchError(_busy(out, held)) from None
+    try:
+        _prepare_results(out, data, cfg)
+        start = time.perf_counter()
+        todo, failed_before = _unfinished(entries, out, retry_failed)
+        skipped = len(entries) - len(todo)
+        if on_start is not None:
+            on_start(len(todo), skipped)
+        done, failed = skipped, failed_before
 
-    def finished(status: dict[str, Any]) -> None:
-        nonlocal done, failed
-        done += 1
-        failed += status["status"] == "failed"
-        if on_clip is not None:
-            on_clip(status, done, len(entries), failed)
+        def finished(status: dict[str, Any]) -> None:
+            nonlocal done, failed
+            done += 1
+            failed += status["status"] == "failed"
+            if on_clip is not None:
+                on_clip(status, done, len(entries), failed)
 
-    _score_all(todo, out, cfg, workers, rrd_renderer, finished)
-    paths: tuple[Path, ...] = ()
-    if tables:
-        paths = write_tables(out)
+        _score_all(todo, out, cfg, workers, rrd_renderer, finished)
+        paths: tuple[Path, ...] = ()
+        if tables:
+            paths = write_tables(out)
+    finally:
+        lock.release()
     return BenchSummary(
         results=out,
         total=len(entries),
@@ -239,6 +277,14 @@ def run_bench(
         seconds=time.perf_counter() - start,
         tables=paths,
     )
+
+
+def _busy(out: Path, held: LockHeld) -> str:
+    """The sentence for a results folder that another run holds."""
+    who = "another process" if held.pid is None else f"PID {held.pid}"
+    if held.host is not None and held.host != socket.gethostname():
+        who += f" on {held.host}"
+    return f"--out {out} is in use by another `geocon bench` run ({who}); wait for it to finish or choose another --out"
 
 
 def _unfinished(entries: list[ClipEntry], out: Path, retry_failed: bool) -> tuple[list[ClipEntry], int]:
@@ -270,7 +316,12 @@ def _score_all(
     ctx = multiprocessing.get_context("spawn")
     while queue:
         limit = 1 if crashes else workers  # after a worker died, suspects run alone
-        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
+        pool = ProcessPoolExecutor(
+            max_workers=min(limit, len(queue)),
+            mp_context=ctx,
+            initializer=die_with_parent,  # workers exit when this process dies, kill -9 included
+            initargs=(os.getpid(),),
+        )
         inflight: dict[Future[dict[str, Any]], ClipEntry] = {}
         broken = False
         try:

@@ -26,8 +26,12 @@ SUB_CONFIGS: dict[str, type] = {
 }
 """The nested sub-configurations of :class:`ScoreConfig` by field name."""
 
-__all__ = ["ScoreConfig", "PRESETS", "DEFAULT_PRESET", "preset", "config_hash", "config_items"]
+__all__ = ["ScoreConfig", "PRESETS", "DEFAULT_PRESET", "FOV_RANGE_DEG", "preset", "config_hash", "config_items"]
 __all__ += [sub.__name__ for sub in SUB_CONFIGS.values()]
+
+FOV_RANGE_DEG = (10.0, 150.0)
+"""Fields of view (horizontal, degrees) a config accepts: from a long telephoto to a wide
+action camera; outside it the pinhole model the scorer assumes does not describe the clip."""
 
 
 @dataclass(frozen=True)
@@ -140,7 +144,8 @@ class ScoreConfig:
     """Pose backend by name (:func:`geocon_core.pose.make_pose_backend`); its settings are :attr:`pose`."""
     fov_x_deg: float = 60.0
     """Horizontal field of view (degrees) assumed when intrinsics are unknown (principal point at the
-    centre of the content)."""
+    centre of the content); :data:`FOV_RANGE_DEG` bounds it (a pinhole camera near 180 degrees has
+    a focal length near zero, and every residual in pixels loses its meaning)."""
     tau_t: float = 0.04
     """Binary translation gate: F when ``t_inf`` exceeds this (unit mean scene distance)."""
     tau_t_low: float = 0.03
@@ -208,6 +213,12 @@ class ScoreConfig:
             raise ValueError("gross_match_share must be in [0, 1) and gross_match_neighbours at least 3")
         if min(self.working_size) < 32:
             raise ValueError(f"working_size too small: {self.working_size}")
+        lo, hi = FOV_RANGE_DEG
+        if not lo <= self.fov_x_deg <= hi:
+            raise ValueError(
+                f"the field of view (fov_x_deg, --fov) must be between {lo:g} and {hi:g} degrees, "
+                f"got {self.fov_x_deg:g}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able nested dict (tuples become lists); :meth:`from_dict` inverts it exactly."""

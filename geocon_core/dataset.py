@@ -66,11 +66,15 @@ _CLIP_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+=-]{0,199}$")
 
 
 class DatasetError(ValueError):
-    """A dataset that cannot be benchmarked; ``problems`` lists every problem, one line each."""
+    """A dataset that cannot be benchmarked; ``problems`` lists every problem, one line each (the
+    message is that line when there is one, else a count followed by the list)."""
 
     def __init__(self, root: Path, problems: list[str]) -> None:
         self.problems = problems
-        head = f"{root}: {len(problems)} problem{'s' if len(problems) != 1 else ''} in the dataset"
+        if len(problems) == 1:
+            super().__init__(f"the dataset cannot be benchmarked: {problems[0]}")
+            return
+        head = f"{root}: {len(problems)} problems in the dataset"
         super().__init__(head + ":\n" + "\n".join(f"  - {p}" for p in problems))
 
 

@@ -1,7 +1,10 @@
 """Decoding the frames of a clip file or image folder, one at a time, as (h, w, 3) uint8 BGR.
 
 Used by :mod:`geocon_core.reader`; every failure is a :class:`ClipError` whose message is one
-sentence that names the file.
+sentence that names the file. Damage that still leaves frames to score is not an error but is
+reported, so that the reader can warn: :func:`container_frame_count` (what the container promises),
+:attr:`CaptureFrames.error` (a decoder error that ended the stream) and :func:`gif_cut` (a GIF
+that stops before its trailer).
 """
 
 from __future__ import annotations
@@ -9,13 +12,29 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import cv2
 import numpy as np
 
-__all__ = ["ClipError", "ClipKind", "DEFAULT_FPS", "IMAGE_SUFFIXES", "resolve_clip", "image_frames", "open_video"]
+__all__ = [
+    "CaptureFrames",
+    "ClipError",
+    "ClipKind",
+    "DEFAULT_FPS",
+    "FrameCount",
+    "GifCut",
+    "IMAGE_SUFFIXES",
+    "SHORTFALL_EXACT",
+    "SHORTFALL_ESTIMATED",
+    "container_frame_count",
+    "gif_cut",
+    "image_frames",
+    "open_video",
+    "resolve_clip",
+]
 
 ClipKind = Literal["video", "gif", "images"]
 
@@ -24,6 +43,13 @@ IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg"})
 
 DEFAULT_FPS = 24.0
 """Frame rate for image folders and for containers that report none."""
+SHORTFALL_EXACT = 0.05
+"""Share of an exact frame count (:attr:`FrameCount.exact`) that may fail to decode without a
+warning; a shortfall of one frame is never warned about. Warning-only: it changes no score."""
+SHORTFALL_ESTIMATED = 1 / 3
+"""Share of a duration-based estimate (a container without a frame count: webm, mkv) that may fail
+to decode without a warning: the estimate is duration x average frame rate, which a variable
+frame rate overstates (a VFR mkv estimated at 32 frames holds 24). Warning-only."""
 _VIDEO_MAGIC = (b"GIF87a", b"GIF89a", b"RIFF", b"\x1aE\xdf\xa3", b"OggS", b"FLV")
 _MP4_BOXES = (b"ftyp", b"moov", b"mdat", b"free", b"wide", b"skip", b"pnot")
 
@@ -31,6 +57,36 @@ _MP4_BOXES = (b"ftyp", b"moov", b"mdat", b"free", b"wide", b"skip", b"pnot")
 class ClipError(ValueError):
     """Unusable input. ``str(err)`` is one sentence that names the file, e.g.
     ``"clip.mp4: no such file"`` or ``"one.png: has 1 frame; at least 2 are needed"``."""
+
+
+@dataclass(frozen=True)
+class FrameCount:
+    """How many frames a container says its first video stream holds."""
+
+    frames: int
+    """The promised frame count (>= 1)."""
+    exact: bool
+    """True: counted in the container's index (mp4/mov ``stts``, avi header, a GIF scan), capped by
+    the stream's duration x frame rate (an mp4 edit list hides frames the index still counts).
+    False: estimated as duration x average frame rate (no count stored: webm, mkv)."""
+
+    def falls_short(self, decoded: int) -> bool:
+        """True if ``decoded`` frames are clearly fewer than promised: short by at least 2 frames
+        and by more than :data:`SHORTFALL_EXACT` (exact counts) or :data:`SHORTFALL_ESTIMATED`
+        (estimates) of the promise."""
+        share = SHORTFALL_EXACT if self.exact else SHORTFALL_ESTIMATED
+        return self.frames - decoded >= 2 and decoded < self.frames * (1.0 - share)
+
+
+@dataclass(frozen=True)
+class GifCut:
+    """Where a GIF's block structure stops before its trailer block (``;``)."""
+
+    complete: int
+    """Images stored whole before the cut."""
+    partial: bool
+    """True if the cut falls inside image :attr:`complete` (0-based): a frame is lost for sure;
+    False if it falls between blocks (frames may be missing, or only the trailer)."""
 
 
 def resolve_clip(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
@@ -79,11 +135,15 @@ def _imread(path: Path) -> np.ndarray | None:
 
 
 def image_frames(files: list[Path], name: str) -> Iterator[np.ndarray]:
-    """(h, w, 3) uint8 BGR frames of an image folder, one file at a time."""
-    for f in files:
+    """(h, w, 3) uint8 BGR frames of an image folder, one file at a time.
+
+    A file that does not decode (corrupt or cut short) raises :class:`ClipError` naming it rather
+    than being skipped: a skipped frame would silently join its neighbours into one pair, scored
+    as one frame apart when two apart, and the folder's frame count would not reveal the loss."""
+    for t, f in enumerate(files):
         bgr = _imread(f)
         if bgr is None:
-            raise ClipError(f"{f}: cannot be decoded as an image (frame of {name})")
+            raise ClipError(f"{f}: cannot be decoded as an image (frame {t} of {name})")
         yield bgr
 
 
@@ -102,7 +162,7 @@ def _open_capture(name: str) -> cv2.VideoCapture:
     return cap
 
 
-def open_video(name: str) -> tuple[float, Iterator[np.ndarray]]:
+def open_video(name: str) -> tuple[float, "CaptureFrames"]:
     """The frame rate of the video or GIF ``name`` (:data:`DEFAULT_FPS` when the container reports
     none) and an iterator over its (h, w, 3) uint8 BGR frames until the decoder stops."""
     cap = _open_capture(name)
@@ -111,26 +171,107 @@ def open_video(name: str) -> tuple[float, Iterator[np.ndarray]]:
     except cv2.error:
         fps = 0.0
     fps = fps if math.isfinite(fps) and 0.0 < fps < 1000.0 else DEFAULT_FPS
-    return fps, _read_capture(cap, name)
+    return fps, CaptureFrames(cap, name)
 
 
-def _read_capture(cap: cv2.VideoCapture, name: str) -> Iterator[np.ndarray]:
-    """(h, w, 3) uint8 BGR frames of an opened capture; releases it when done."""
-    t = 0
+class CaptureFrames(Iterator[np.ndarray]):
+    """(h, w, 3) uint8 BGR frames of an opened capture until the decoder stops; releases the
+    capture when exhausted or closed. A decoder error before the first frame raises
+    :class:`ClipError`; one after it ends the frames and is kept in :attr:`error`."""
+
+    def __init__(self, cap: cv2.VideoCapture, name: str) -> None:
+        self._cap: cv2.VideoCapture | None = cap
+        self._name = name
+        self.decoded = 0
+        """Frames yielded so far."""
+        self.error: str | None = None
+        """The decoder's message if an error ended the stream after :attr:`decoded` frames."""
+
+    def __next__(self) -> np.ndarray:
+        if self._cap is None:
+            raise StopIteration
+        try:
+            ok, frame = self._cap.read()
+        except cv2.error as err:
+            self.close()
+            if self.decoded == 0:
+                raise ClipError(f"{self._name}: unreadable bytes ({_cv_reason(err)})") from None
+            self.error = _cv_reason(err)
+            raise StopIteration from None
+        if not ok or frame is None:
+            self.close()
+            raise StopIteration
+        self.decoded += 1
+        return _as_bgr(frame)
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def __del__(self) -> None:
+        self.close()
+
+
+def container_frame_count(name: str) -> FrameCount | None:
+    """What the container of the video or GIF ``name`` promises about its first video stream's
+    frame count (see :class:`FrameCount`), read from its header and index without decoding; None
+    when it states neither a count nor a duration and frame rate, or cannot be parsed."""
+    import av  # a core dependency; loaded only when a clip is probed
+
     try:
-        while True:
-            try:
-                ok, frame = cap.read()
-            except cv2.error as err:
-                if t == 0:
-                    raise ClipError(f"{name}: unreadable bytes ({_cv_reason(err)})") from None
-                return  # a decode error after some frames ends the clip, like a truncated file
-            if not ok or frame is None:
-                return
-            yield _as_bgr(frame)
-            t += 1
-    finally:
-        cap.release()
+        with av.open(name) as container:
+            if not container.streams.video:
+                return None
+            stream = container.streams.video[0]
+            index = int(stream.frames or 0)
+            rate = stream.average_rate
+            duration, time_base = stream.duration, stream.time_base
+            own = duration is not None and time_base is not None  # the stream's own duration
+            if duration is not None and time_base is not None:
+                seconds = float(duration * time_base)
+            else:  # the container's (Matroska stores no per-stream duration)
+                seconds = container.duration / 1e6 if container.duration else 0.0
+    except (av.error.FFmpegError, OSError, ValueError, ZeroDivisionError):
+        return None
+    by_duration = round(seconds * float(rate)) if rate and seconds > 0 and math.isfinite(seconds) else 0
+    if index > 0:
+        return FrameCount(min(index, by_duration) if own and by_duration > 0 else index, exact=True)
+    return FrameCount(by_duration, exact=False) if by_duration > 0 else None
+
+
+def gif_cut(path: Path) -> GifCut | None:
+    """None if the GIF at ``path`` runs block by block to its trailer; else where it stops (end
+    of file or an unknown block). Reads the file, without decoding its images."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    if len(data) < 13 or not data.startswith(b"GIF8"):
+        return None  # not a GIF to check; the decoder has had its say
+    pos, images = 13, 0
+    if data[10] & 0x80:  # global colour table
+        pos += 3 * (2 << (data[10] & 7))
+    while pos < len(data):
+        block = data[pos]
+        if block == 0x3B:
+            return None
+        if block == 0x21:  # extension: introducer, label, sub-blocks
+            pos += 2
+        elif block == 0x2C:  # image: descriptor, local colour table, LZW code size, sub-blocks
+            if pos + 10 > len(data):
+                return GifCut(images, partial=True)
+            flags = data[pos + 9]
+            pos += 10 + (3 * (2 << (flags & 7)) if flags & 0x80 else 0) + 1
+        else:
+            return GifCut(images, partial=False)
+        while pos < len(data) and data[pos] != 0:
+            pos += 1 + data[pos]
+        if pos >= len(data):
+            return GifCut(images, partial=block == 0x2C)
+        pos += 1  # the block terminator
+        images += block == 0x2C
+    return GifCut(images, partial=False)
 
 
 def _as_bgr(frame: np.ndarray) -> np.ndarray:

@@ -227,28 +227,45 @@ class Overlays:
         if e is None or e.labels is None:
             return None
         labels = cv2.imread(str(self.folder / e.labels), cv2.IMREAD_UNCHANGED)
-        return None if labels is None else np.asarray(labels)
+        if labels is None:
+            raise _missing(self.folder / e.labels)
+        return np.asarray(labels)
 
     def flows(self, t: int) -> list[FlowSlice]:
         e = self.entries.get(t)
         out = []
         for f in () if e is None else e.flows:
             bgra = cv2.imread(str(self.folder / f.file), cv2.IMREAD_UNCHANGED)
-            if bgra is None:
-                raise OSError(f"could not read {self.folder / f.file}")
+            if bgra is None or bgra.ndim != 3 or bgra.shape[2] != 4:
+                raise _missing(self.folder / f.file)
             img = cv2.cvtColor(bgra, cv2.COLOR_BGRA2RGBA)
             out.append(FlowSlice(f.object_id, f.t0, f.t1, f.box, f.max_magnitude, img))
         return out
 
 
+def _missing(path: Path) -> ValueError:
+    return ValueError(f"{path}: an overlay of this record is missing or unreadable; score the clip again")
+
+
+MAX_INDEX_BYTES = 64 << 20
+"""An overlays index larger than this is refused unread (a long clip's index is a few MB)."""
+
+
 def read_overlays(record_dir: str | Path) -> Overlays | None:
-    """The overlays stored beside a record, or None when the record has none."""
+    """The overlays stored beside a record, or None when the record has none; ``ValueError``
+    naming the file when the index is unreadable or not GeoCon's."""
     folder = Path(record_dir)
     folder = (folder if folder.is_dir() else folder.parent) / OVERLAYS_DIR
     index = folder / "index.json"
     if not index.exists():
         return None
-    d = json.loads(index.read_text())
-    if d.get("format") != OVERLAYS_FORMAT:
-        raise ValueError(f"{index}: not GeoCon overlays (format {d.get('format')!r}, expected {OVERLAYS_FORMAT!r})")
-    return Overlays(folder, d)
+    try:
+        if index.stat().st_size > MAX_INDEX_BYTES:
+            raise ValueError(f"{index}: larger than {MAX_INDEX_BYTES >> 20} MB; not a GeoCon overlays index")
+        d = json.loads(index.read_bytes().decode("utf-8"))
+        if not isinstance(d, dict) or d.get("format") != OVERLAYS_FORMAT:
+            fmt = d.get("format") if isinstance(d, dict) else None
+            raise ValueError(f"{index}: not GeoCon overlays (format {fmt!r}, expected {OVERLAYS_FORMAT!r})")
+        return Overlays(folder, d)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"{index}: cannot be read as GeoCon overlays ({type(exc).__name__}: {exc})") from None

@@ -6,6 +6,7 @@ manifest. :mod:`geocon_core.bench` writes it; :mod:`geocon_core.tables` and
     RESULTS/clips/<clip_id>/           record.json, matches.npz, overlays/, audit.rrd (flagged clips),
                                        status.json (written last: ok or failed, with the reason)
     RESULTS/tables/*.parquet           flat tables, rebuilt from clips/ at the end of every run
+    RESULTS/bench.lock                 while a run is writing: its PID and host (removed at its end)
 
 A clip is finished when its ``status.json`` exists.
 """
@@ -24,10 +25,12 @@ __all__ = [
     "MANIFEST_NAME",
     "STATUS_NAME",
     "RRD_NAME",
+    "LOCK_NAME",
     "clip_dir",
     "clip_folders",
     "tables_dir",
     "manifest_path",
+    "lock_path",
     "read_status",
     "write_status",
     "read_manifest",
@@ -47,6 +50,8 @@ MANIFEST_NAME = "bench.json"
 STATUS_NAME = "status.json"
 RRD_NAME = "audit.rrd"
 """Name of a flagged clip's Rerun recording inside its folder."""
+LOCK_NAME = "bench.lock"
+"""The lock file of a run writing into the results folder (:class:`geocon_core.lockfile.FolderLock`)."""
 
 
 def clip_dir(results: Path, clip_id: str) -> Path:
@@ -55,11 +60,12 @@ def clip_dir(results: Path, clip_id: str) -> Path:
 
 
 def clip_folders(results: Path) -> list[Path]:
-    """Every clip folder of a results folder (finished or not), sorted by clip id."""
+    """Every clip folder of a results folder (finished or not), sorted by clip id; hidden folders
+    (a record being written, ``.<clip id>.part-<pid>``) are not clip folders."""
     base = results / CLIPS_DIR
     if not base.is_dir():
         return []
-    return sorted((p for p in base.iterdir() if p.is_dir()), key=lambda p: p.name)
+    return sorted((p for p in base.iterdir() if p.is_dir() and not p.name.startswith(".")), key=lambda p: p.name)
 
 
 def tables_dir(results: Path) -> Path:
@@ -70,6 +76,11 @@ def tables_dir(results: Path) -> Path:
 def manifest_path(results: Path) -> Path:
     """The ``bench.json`` of a results folder."""
     return results / MANIFEST_NAME
+
+
+def lock_path(results: Path) -> Path:
+    """The ``bench.lock`` of a results folder."""
+    return results / LOCK_NAME
 
 
 def write_json(path: Path, payload: dict[str, Any]) -> None:

@@ -10,6 +10,14 @@ working-resolution layout (scale, centred offset, content box), black bars burne
 source, duplicated frames and hard cuts. :func:`iter_frames` decodes it a second time and yields
 every frame at working resolution.
 
+Damaged input: a clip is scored on the frames that decode. When frames were lost (the container
+promises clearly more than decode, a decoder error ends the stream, a GIF stops before its
+trailer), :attr:`ClipInfo.warnings` says so in one sentence, which the record carries; the rule
+and its tolerances are :meth:`~geocon_core.decode.FrameCount.falls_short`. A clip of which fewer
+than 2 frames decode raises :class:`ClipError`. A frame file of an image folder that does not
+decode raises :class:`ClipError` naming it (it is never skipped: that would silently close the gap
+it leaves).
+
 Resolution policy: a clip is never upscaled. A source larger than ``config.working_size`` is
 downscaled to fit inside it (aspect kept, area averaging); a smaller one is processed at its own
 size. The working canvas is the scaled source itself, so pixel thresholds (``tau_h``, the
@@ -41,7 +49,19 @@ import cv2
 import numpy as np
 
 from .config import ScoreConfig
-from .decode import DEFAULT_FPS, IMAGE_SUFFIXES, ClipError, ClipKind, image_frames, open_video, resolve_clip
+from .decode import (
+    DEFAULT_FPS,
+    IMAGE_SUFFIXES,
+    CaptureFrames,
+    ClipError,
+    ClipKind,
+    FrameCount,
+    container_frame_count,
+    gif_cut,
+    image_frames,
+    open_video,
+    resolve_clip,
+)
 from .stage_configs import BarConfig, CutConfig
 
 SkipReason = Literal["duplicate_frame", "hard_cut"]
@@ -97,6 +117,11 @@ class ClipInfo:
     """Sorted t (>= 1) such that frame t duplicates frame t - 1."""
     cuts: tuple[int, ...] = ()
     """Sorted t (>= 1) such that a hard cut lies between frame t - 1 and frame t."""
+    warnings: tuple[str, ...] = ()
+    """One sentence each about frames lost to damage (the container promised more frames than
+    decoded, a decoder error ended the stream, a GIF stops before its trailer); the clip is scored
+    on the :attr:`num_frames` that decoded. The record's warnings include them. Absent from records
+    written before this field (read as none)."""
 
     def __post_init__(self) -> None:
         if self.kind not in ("video", "gif", "images"):
@@ -121,6 +146,8 @@ class ClipInfo:
                 raise ValueError(
                     f"{name} must be sorted distinct frame indices in 1..{self.num_frames - 1}, got {ts!r}"
                 )
+        if not isinstance(self.warnings, tuple) or not all(isinstance(w, str) for w in self.warnings):
+            raise ValueError(f"warnings must be a tuple of str, got {self.warnings!r}")
 
     @property
     def content_mask(self) -> np.ndarray:
@@ -150,13 +177,18 @@ class ClipInfo:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ClipInfo":
-        """The :class:`ClipInfo` that :meth:`to_dict` made ``d`` from."""
+        """The :class:`ClipInfo` that :meth:`to_dict` made ``d`` from (:attr:`warnings` may be
+        absent: records written before it hold none)."""
         names = {f.name for f in fields(cls)}
-        unknown, missing = set(d) - names, names - set(d)
+        unknown, missing = set(d) - names, names - set(d) - {"warnings"}
         if unknown or missing:
             raise ValueError(f"ClipInfo keys: unknown {sorted(unknown)}, missing {sorted(missing)}")
-        kw: dict[str, Any] = {k: tuple(int(x) for x in v) if isinstance(v, list) else v for k, v in d.items()}
+        kw: dict[str, Any] = {
+            k: tuple(int(x) for x in v) if isinstance(v, list) and k != "warnings" else v for k, v in d.items()
+        }
         kw["fps"], kw["scale"], kw["num_frames"] = float(d["fps"]), float(d["scale"]), int(d["num_frames"])
+        warnings = d.get("warnings", [])
+        kw["warnings"] = tuple(warnings) if isinstance(warnings, list) else warnings
         return cls(**kw)
 
 
@@ -200,9 +232,13 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
     thumb_mad: list[float] = []
     n = 0
     size = (0, 0)
-    frames = image_frames(files, name) if files is not None else None
-    if frames is None:
-        fps, frames = open_video(name)
+    video: CaptureFrames | None = None
+    frames: Iterator[np.ndarray]
+    if files is not None:
+        frames = image_frames(files, name)
+    else:
+        fps, video = open_video(name)
+        frames = video
     for bgr in frames:
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         h, w = gray.shape
@@ -225,7 +261,13 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         n += 1
     if n == 0:  # only a video can get here: every file of an image folder decodes or raises
         raise ClipError(f"{name}: unreadable bytes (the container opened but no frame could be decoded)")
+    promise = container_frame_count(name) if video is not None else None
     if n == 1:
+        if promise is not None and promise.falls_short(n):
+            raise ClipError(
+                f"{name}: only 1 of the {promise.frames} frames the container promises decoded"
+                " (truncated or damaged file); at least 2 are needed"
+            )
         raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
     assert row_max is not None and col_max is not None
     w, h = size
@@ -247,7 +289,35 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         content_box=_content_box(size, bars, layout, config.bars.margin_px),
         duplicates=duplicates,
         cuts=cuts,
+        warnings=_damage_warnings(Path(path), kind, n, None if video is None else video.error, promise),
     )
+
+
+def _damage_warnings(
+    path: Path, kind: ClipKind, n: int, error: str | None, promise: FrameCount | None
+) -> tuple[str, ...]:
+    """The warning, if any, that frames of the clip at ``path`` were lost to damage although ``n``
+    decoded: a decoder ``error`` ended the stream, the container's ``promise`` is clearly larger
+    (:meth:`~geocon_core.decode.FrameCount.falls_short`), or a GIF stops before its trailer."""
+    if error is not None:
+        of = f" of the {promise.frames} the container promises" if promise is not None and promise.frames > n else ""
+        return (f"decoding stopped with an error at frame {n}{of} ({error}); scored on the {n} frames before it",)
+    if promise is not None and promise.falls_short(n):
+        said = (
+            f"the container promises {promise.frames} frames"
+            if promise.exact
+            else f"the container's duration implies about {promise.frames} frames"
+        )
+        return (f"{said} but only {n} decoded (truncated or damaged file); scored on those",)
+    cut = gif_cut(path) if kind == "gif" else None
+    if cut is not None:
+        where = (
+            f"is cut short inside frame {cut.complete} (truncated or damaged file)"
+            if cut.partial
+            else "ends without its trailer block, so later frames may be missing"
+        )
+        return (f"the GIF {where}; scored on the {n} frames that decoded",)
+    return ()
 
 
 def check_clip(path: str | Path) -> None:

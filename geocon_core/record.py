@@ -18,12 +18,13 @@ import json
 import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
 from . import record_parts
 from .config import ScoreConfig
+from .npz import NPZ_ERRORS
 from .reader import ClipInfo
 from .record_parts import (
     BackgroundSummary,
@@ -48,11 +49,26 @@ __all__ = [
     "RECORD_FORMAT",
     *record_parts.__all__,  # every part of a record, re-exported
     "ClipRecord",
+    "RecordError",
+    "MAX_RECORD_JSON_BYTES",
     "write_record",
     "read_record",
+    "read_record_json",
+    "read_matches",
 ]
 
 RECORD_FORMAT = "geocon-record/1"
+
+MAX_RECORD_JSON_BYTES = 512 * 1024 * 1024
+"""The largest ``record.json`` :func:`read_record_json` parses: 512 MiB. A record holds about
+350 bytes per scored (pair, scale), so an hour of 30 fps video under the ``strict`` preset (gaps
+1, 4, 8 at three scales) stays below ~350 MB; a larger file is not a record GeoCon wrote, and
+is refused before parsing rather than parsed into several GB of memory."""
+
+
+class RecordError(ValueError):
+    """A saved record that cannot be read (missing, unreadable, corrupt, too large, pickled or of
+    another format): one sentence naming the file."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,17 +252,90 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
     return out / "record.json"
 
 
+_CORRUPT = "score the clip again"
+
+
 def read_record_json(path: str | Path) -> tuple[Path, dict[str, Any]]:
     """The folder of a record (given it or its ``record.json``) and its parsed JSON, checked to be
-    a GeoCon record."""
+    a GeoCon record. Raises :class:`RecordError` for a file that is missing, unreadable, larger
+    than :data:`MAX_RECORD_JSON_BYTES`, not JSON or of another format."""
     p = Path(path)
     folder = p if p.is_dir() else p.parent
-    d = json.loads((folder / "record.json").read_text())
-    if d.get("format") != RECORD_FORMAT:
-        raise ValueError(
-            f"{folder / 'record.json'}: not a GeoCon record (format {d.get('format')!r}, expected {RECORD_FORMAT!r})"
-        )
+    file = folder / "record.json"
+    limit = MAX_RECORD_JSON_BYTES
+    too_large = f"{file} is larger than {limit // 2**20} MiB, far more than a GeoCon record: refusing to parse it"
+    try:
+        if file.stat().st_size > limit:
+            raise RecordError(too_large)
+        if not file.is_file():  # a pipe or a device would block or never end
+            raise RecordError(f"{file} is not a regular file: give a record folder from `geocon score --out`")
+        with file.open("rb") as f:
+            raw = f.read(limit + 1)  # bounded even when the size above was not the real one (a pipe)
+    except FileNotFoundError:
+        raise RecordError(f"{file} does not exist: give a record folder from `geocon score --out`") from None
+    except OSError as exc:
+        raise RecordError(f"{file} could not be read ({exc.strerror or exc})") from None
+    if len(raw) > limit:
+        raise RecordError(too_large)
+    try:
+        d = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise RecordError(f"{file} is not a readable GeoCon record (not UTF-8 text): {_CORRUPT}") from None
+    except json.JSONDecodeError as exc:
+        where = f"line {exc.lineno}, column {exc.colno}"
+        raise RecordError(
+            f"{file} is not a readable GeoCon record (invalid JSON: {exc.msg.removesuffix(' at')} at {where}): "
+            f"{_CORRUPT}"
+        ) from None
+    except RecursionError:
+        raise RecordError(f"{file} is not a readable GeoCon record (JSON nested too deeply): {_CORRUPT}") from None
+    fmt = d.get("format") if isinstance(d, dict) else None
+    if fmt != RECORD_FORMAT:
+        raise RecordError(f"{file}: not a GeoCon record (format {fmt!r}, expected {RECORD_FORMAT!r})")
     return folder, d
+
+
+def _npz_refusal(path: Path, exc: BaseException, name: str | None = None) -> RecordError:
+    """The sentence for a ``matches.npz`` that numpy could not read without unpickling or at all."""
+    if isinstance(exc, ValueError) and "pickle" in str(exc):
+        if name is not None:
+            return RecordError(f"{path}: {name!r} holds pickled Python objects, which GeoCon never loads")
+        with path.open("rb") as f:
+            is_pickle = f.read(1) == b"\x80"  # the PROTO opcode that starts a pickle (protocol 2+)
+        if not is_pickle:
+            return RecordError(f"{path} is not a readable .npz archive (not a zip file): {_CORRUPT}")
+        return RecordError(f"{path} is a Python pickle, which GeoCon never loads (unpickling can run code)")
+    if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile):
+        return RecordError(f"{path} could not be read ({exc.strerror or exc})")
+    return RecordError(f"{path} is not a readable .npz archive ({exc or type(exc).__name__}): {_CORRUPT}")
+
+
+def read_matches(folder: str | Path, names: Iterable[str], optional: Iterable[str] = ()) -> dict[str, np.ndarray]:
+    """The arrays ``names`` of the record's ``matches.npz`` in ``folder``, and those of
+    ``optional`` that it holds. Nothing is unpickled (``allow_pickle=False``); a missing, corrupt or
+    pickled file, or a missing array, raises :class:`RecordError` naming the file."""
+    path = Path(folder) / "matches.npz"
+    names, optional = tuple(names), tuple(optional)
+    name: str | None = None
+    try:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):
+            raise RecordError(f"{path} is not a readable .npz archive (a single .npy array): {_CORRUPT}")
+        with loaded as z:
+            missing = [n for n in names if n not in z.files]
+            if missing:
+                lacks = ", ".join(missing)
+                raise RecordError(f"{path} is not a readable .npz archive (it lacks {lacks}): {_CORRUPT}")
+            out = {}
+            for name in (*names, *(n for n in optional if n in z.files)):
+                out[name] = z[name]
+            return out
+    except FileNotFoundError:
+        raise RecordError(f"{path} does not exist (the record is incomplete): {_CORRUPT}") from None
+    except RecordError:
+        raise
+    except NPZ_ERRORS as exc:
+        raise _npz_refusal(path, exc, name) from None
 
 
 def pairs_from_json(d: dict[str, Any]) -> tuple[PairRecord, ...]:
@@ -255,18 +344,29 @@ def pairs_from_json(d: dict[str, Any]) -> tuple[PairRecord, ...]:
 
 
 def read_record(path: str | Path) -> ClipRecord:
-    """Read a record from its folder or its ``record.json``."""
+    """Read a record from its folder or its ``record.json``. Raises :class:`RecordError` (one
+    sentence naming the file) for a record that is missing, corrupt, pickled, too large or lacks
+    fields."""
     folder, d = read_record_json(path)
-    with np.load(folder / "matches.npz", allow_pickle=False) as z:
-        matches = MatchArrays(**{name: z[name] for name in MatchArrays.NAMES})
-        cells = (
-            CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES})
-            if "cells_offsets" in z.files
-            else None
-        )
-        cloud = None
-        if d.get("cloud") is not None:
-            cloud = PointCloud(xyz=z["cloud_xyz"], rgb=z["cloud_rgb"], note=d["cloud"]["note"])
+    cells_names = tuple(f"cells_{name}" for name in CellArrays.NAMES)
+    z = read_matches(folder, MatchArrays.NAMES, (*cells_names, "cloud_xyz", "cloud_rgb"))
+    try:
+        return _record_from(d, z)
+    except RecordError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:  # missing fields, wrong shapes or types
+        raise RecordError(
+            f"{folder / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc}): {_CORRUPT}"
+        ) from None
+
+
+def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
+    """The :class:`ClipRecord` of a parsed ``record.json`` and its ``matches.npz`` arrays."""
+    matches = MatchArrays(**{name: z[name] for name in MatchArrays.NAMES})
+    cells = CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES}) if "cells_offsets" in z else None
+    cloud = None
+    if d.get("cloud") is not None:
+        cloud = PointCloud(xyz=z["cloud_xyz"], rgb=z["cloud_rgb"], note=d["cloud"]["note"])
     gate = GateRecord.from_json_dict(d["gate"])
     b = d["background"]
     background = BackgroundSummary(**{**b, "chosen": _family_from(b["chosen"]), "other": _family_from(b["other"])})

@@ -21,7 +21,7 @@ import numpy as np
 
 from .config import ScoreConfig
 from .models import FAMILIES, family_spec, inlier_mask, segment_inlier_stats, segment_order
-from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_record_json
+from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_matches, read_record_json
 from .verdict import ClipVerdict, Family, FitRow, Thresholds, aggregate_gap_arrays, family_verdict
 
 __all__ = [
@@ -236,8 +236,7 @@ class Residuals:
 def load_residuals(folder: str | Path) -> Residuals:
     """:class:`Residuals` of the record in ``folder``, reading no coordinates, cells or cloud."""
     path, d = read_record_json(folder)
-    with np.load(path / "matches.npz", allow_pickle=False) as z:
-        arrays = ResidualArrays(**{name: z[name] for name in ResidualArrays.NAMES})
+    arrays = ResidualArrays(**read_matches(path, ResidualArrays.NAMES))  # nothing unpickled; RecordError if bad
     pairs = pairs_from_json(d)
     gate = d["gate"]
     return Residuals(ScoreConfig.from_dict(d["config"]), pairs, arrays, gate["t_inf"], bool(gate["pose_present"]))

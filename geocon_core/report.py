@@ -12,6 +12,11 @@ writes into ``RESULTS/report/`` (or ``out``):
 
 Figures that the data cannot support (no objects, one expected class, ...) are skipped and the
 reason is listed in the report.
+
+The report folder is written whole: into a temporary sibling folder that replaces the previous report
+only once it is complete (:func:`geocon_core.paths.replace_dir`), so a failed or killed run leaves a
+previous report exactly as it was. A folder holding anything but a report (:data:`REPORT_ENTRIES`) is
+never replaced.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from . import stats
+from .paths import check_out_dir, replace_dir
 from .report_figures import (
     FigureBuilder,
     fig_calibration,
@@ -41,7 +47,15 @@ from .report_figures import (
 from .tables import read_tables
 from .verdict import flag_reasons
 
-__all__ = ["ReportResult", "build_report"]
+__all__ = ["REPORT_ENTRIES", "ReportError", "ReportResult", "build_report"]
+
+REPORT_ENTRIES = frozenset({"report.html", "figures", "tables", ".report.html.part"})
+"""What a report folder holds (and what an earlier version left there): a folder holding anything else
+is not replaced by a new report."""
+
+
+class ReportError(ValueError):
+    """Results that cannot be reported, or a report folder that cannot be written (one sentence)."""
 
 
 def _gate_lines(config: dict[str, Any]) -> tuple[float, float, float]:
@@ -151,18 +165,67 @@ def build_report(
     progress: Callable[[str], None] | None = None,
 ) -> ReportResult:
     """Write the report of the results folder ``results`` into ``out`` (default
-    ``RESULTS/report``). Raises ValueError when the folder holds no benchmark results."""
+    ``RESULTS/report``), replacing a previous report there only once the new one is complete.
+    Raises :class:`ReportError` (or :class:`~geocon_core.paths.OutPathError`, both ``ValueError``)
+    before any work when the folder holds no benchmark results or ``out`` cannot be written."""
     base = Path(results)
+    target = Path(out) if out is not None else base / "report"
+    option = "--out" if out is not None else "the report folder"
+    bench, tables = _read_results(base, target, option)
+    say = progress or (lambda _what: None)
+    with replace_dir(target) as stage:
+        b, warnings = _write_report(stage, target, base, bench, tables, seed, bootstrap, formats, say)
+    final = [target / p.relative_to(stage) for p in (*b.paths, *b.tables)]
+    return ReportResult(
+        out=target,
+        html=target / "report.html",
+        figures=tuple(final[: len(b.paths)]),
+        tables=tuple(final[len(b.paths) :]),
+        warnings=tuple(warnings),
+    )
+
+
+def _read_results(base: Path, target: Path, option: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The manifest and tables of the results folder ``base``, once ``target`` (named ``option``) is
+    known to be a folder the report may be written to (or replace)."""
+    if not base.exists():
+        raise ReportError(f"results folder {base} does not exist; pass the --out folder of a `geocon bench` run")
+    if not base.is_dir():
+        raise ReportError(f"{base} is a file, not a results folder written by `geocon bench`")
     manifest = base / "bench.json"
     if not manifest.is_file():
-        raise ValueError(f"{base}: no bench.json; not a results folder written by `geocon bench`")
+        raise ReportError(f"{base}: no bench.json; not a results folder written by `geocon bench`")
+    check_out_dir(target, option)
+    if target.is_dir():
+        other = sorted(p.name for p in target.iterdir() if p.name not in REPORT_ENTRIES)
+        if other:
+            raise ReportError(
+                f"{option} {target} holds files that are not part of a report ({', '.join(other[:3])}"
+                f"{', ...' if len(other) > 3 else ''}), so it is not replaced; choose a new or empty folder"
+            )
+    try:
+        bench = json.loads(manifest.read_text())
+    except (OSError, ValueError) as exc:
+        raise ReportError(f"{manifest} cannot be read ({exc}); run `geocon bench` again") from None
     try:
         tables = read_tables(base)
     except FileNotFoundError as exc:
-        raise ValueError(str(exc)) from None
-    bench = json.loads(manifest.read_text())
-    target = Path(out) if out is not None else base / "report"
-    say = progress or (lambda _what: None)
+        raise ReportError(str(exc)) from None
+    return bench, tables
+
+
+def _write_report(
+    stage: Path,
+    target: Path,
+    base: Path,
+    bench: dict[str, Any],
+    tables: dict[str, Any],
+    seed: int,
+    bootstrap: int,
+    formats: Sequence[str],
+    say: Callable[[str], None],
+) -> tuple[FigureBuilder, list[str]]:
+    """Write the report's files into ``stage`` (links relative to its final place ``target``)."""
     versions = bench.get("versions", {})
     clips = tables["clips"]
     ok = clips[clips["status"] == "ok"].copy()
@@ -171,7 +234,7 @@ def build_report(
         f"{versions.get('opencv', '?')} · "
         f"n = {len(ok)} clips"
     )
-    b = FigureBuilder(target, footer, formats, _gate_lines(bench.get("config", {})))
+    b = FigureBuilder(stage, footer, formats, _gate_lines(bench.get("config", {})))
     warnings: list[str] = []
     sections: list[tuple[str, str]] = []
 
@@ -279,8 +342,5 @@ def build_report(
         f'<p>{len(clips)} clips: {len(ok)} scored, <span class="warn">{len(failed)} failed</span>; '
         f"{ok['model'].nunique()} platforms, {ok['scene_id'].nunique()} scenes.</p><nav>{nav}</nav>{body}</body></html>"
     )
-    path = target / "report.html"
-    tmp = target / ".report.html.part"
-    tmp.write_text(page)
-    tmp.replace(path)
-    return ReportResult(out=target, html=path, figures=tuple(b.paths), tables=tuple(b.tables), warnings=tuple(warnings))
+    (stage / "report.html").write_text(page)
+    return b, warnings

@@ -16,26 +16,64 @@ from __future__ import annotations
 import json
 import math
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable
 
 from .config import ScoreConfig
-from .layout import BENCH_FORMAT, MANIFEST_NAME, read_manifest
+from .layout import BENCH_FORMAT, MANIFEST_NAME, clip_folders, read_manifest, read_status
 from .models import family_spec
-from .record import read_record_json
+from .record import RecordError, read_record_json
 from .regate import Residuals, load_residuals, regate_family
-from .result_clips import ResultClip, clip_from_record_json, read_bench_clips
+from .result_clips import ResultClip, _failed_clip, clip_from_record_json, read_bench_clips
 from .verdict import ClipVerdict, Scores, Thresholds, family_verdict, is_flagged
 
-__all__ = ["ResultClip", "TriageRow", "ResultsIndex", "ResultsError", "VERDICTS", "severity_key"]
+__all__ = ["ResultClip", "TriageRow", "ResultsIndex", "ResultsError", "VERDICTS", "BROKEN", "severity_key"]
 
 VERDICTS = ("fails", "not judged", "error", "passes")
 """Verdict names of the triage list, most severe first."""
 
 
+BROKEN = "broken"
+"""The status of a clip that was scored but whose saved record (``record.json`` or ``matches.npz``)
+cannot be read; its ``error`` says why. Listed like a clip that failed to score (verdict None)."""
+
+
 class ResultsError(ValueError):
-    """A folder that is neither benchmark results nor a record (one sentence)."""
+    """A folder that is neither benchmark results nor a record, or a clip whose record cannot be
+    read (one sentence)."""
+
+
+_RECORD_FAULTS = (RecordError, KeyError, TypeError, ValueError, IndexError, AttributeError)
+"""What reading a record that is corrupt, truncated or lacks fields raises (see :func:`_unreadable`)."""
+
+
+def _unreadable(folder: Path, exc: BaseException) -> str:
+    """The sentence for a record in ``folder`` that could not be read (``exc`` one of
+    :data:`_RECORD_FAULTS`)."""
+    if isinstance(exc, RecordError):
+        return str(exc)
+    return f"{folder / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc})"
+
+
+def _read_clips_listing_broken(root: Path) -> list[ResultClip]:
+    """Every clip of a bench results folder as :func:`read_bench_clips` lists it, each record read
+    on its own, so that one that cannot be read is listed as :data:`BROKEN` with the reason
+    instead of failing the whole list."""
+    clips = []
+    for folder in clip_folders(root):
+        status = read_status(folder)
+        if status is None:
+            continue  # in flight or never started
+        cid = status["clip_id"]
+        if status["status"] != "ok":
+            clips.append(_failed_clip(cid, status, folder))
+            continue
+        try:
+            clips.append(clip_from_record_json(cid, status, folder))
+        except _RECORD_FAULTS as exc:
+            clips.append(replace(_failed_clip(cid, status, folder), status=BROKEN, error=_unreadable(folder, exc)))
+    return clips
 
 
 @dataclass(frozen=True)
@@ -135,10 +173,8 @@ class ResultsIndex:
                 _, d = read_record_json(root)
                 clip = clip_from_record_json(root.name, status, root, d)
                 config = ScoreConfig.from_dict(d["config"])
-            except (ValueError, KeyError, TypeError) as exc:  # not JSON, another format, missing fields
-                raise ResultsError(
-                    f"{root / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc})"
-                ) from None
+            except _RECORD_FAULTS as exc:  # not JSON, too large, another format, missing fields
+                raise ResultsError(_unreadable(root, exc)) from None
             return cls(root, [clip], config, d.get("config_hash"), "record")
         raise ResultsError(
             f"{root} holds neither bench.json (from `geocon bench`) nor record.json (from `geocon score --out`)"
@@ -154,7 +190,10 @@ class ResultsIndex:
             raise ResultsError(
                 f"{root / MANIFEST_NAME} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})"
             )
-        clips = read_bench_clips(root)
+        try:
+            clips = read_bench_clips(root)
+        except _RECORD_FAULTS:  # a record read because the tables are out of date is unreadable
+            clips = _read_clips_listing_broken(root)
         return cls(root, clips, ScoreConfig.from_dict(manifest["config"]), manifest.get("config_hash"), "bench")
 
     # --- facets --------------------------------------------------------------------------------
@@ -173,11 +212,26 @@ class ResultsIndex:
         if res is None:
             clip = self.by_id[clip_id]
             if clip.folder is None or clip.status != "ok":
-                raise ResultsError(f"{clip_id} has no record: {clip.error}")
-            res = load_residuals(clip.folder).prepare()
+                raise ResultsError(f"{clip_id} has no readable record: {clip.error}")
+            try:
+                res = load_residuals(clip.folder).prepare()
+            except _RECORD_FAULTS as exc:
+                raise ResultsError(self.mark_broken(clip_id, _unreadable(clip.folder, exc)).error) from None
             with self._lock:
                 self._residuals[clip_id] = res
         return res
+
+    def mark_broken(self, clip_id: str, reason: str) -> ResultClip:
+        """List ``clip_id`` as :data:`BROKEN` from now on (its saved record turned out unreadable:
+        ``reason``, one sentence naming the file) and forget what was read of it. Returns the
+        clip as now listed."""
+        with self._lock:
+            clip = replace(self.by_id[clip_id], status=BROKEN, error=reason)
+            self.by_id[clip_id] = clip
+            self.clips = [clip if c.clip_id == clip_id else c for c in self.clips]  # a new list: safe to iterate
+            self._residuals.pop(clip_id, None)
+            self._families = {k: v for k, v in self._families.items() if k[0] != clip_id}
+        return clip
 
     def loaded(self) -> int:
         """How many clips' residuals are in memory."""
@@ -185,12 +239,17 @@ class ResultsIndex:
             return len(self._residuals)
 
     def preload(self, progress: Callable[[int, int], None] | None = None, stop: threading.Event | None = None) -> None:
-        """Read every clip's residuals (for a background thread, so later re-gating is fast)."""
+        """Read every clip's residuals (for a background thread, so later re-gating is fast). A clip
+        whose record cannot be read is listed as :data:`BROKEN` (:meth:`mark_broken`) and the
+        preload goes on."""
         ok = [c for c in self.clips if c.status == "ok"]
         for i, c in enumerate(ok):
             if stop is not None and stop.is_set():
                 return
-            self.residuals(c.clip_id)
+            try:
+                self.residuals(c.clip_id)
+            except ResultsError:
+                pass  # now listed as broken, with the reason
             if progress is not None:
                 progress(i + 1, len(ok))
 
@@ -214,7 +273,10 @@ class ResultsIndex:
         clip = self.by_id[clip_id]
         if clip.status != "ok":
             return None
-        h, f = (Scores(*self._family(clip, fam, thresholds.tau(fam))) for fam in ("H", "F"))
+        try:
+            h, f = (Scores(*self._family(clip, fam, thresholds.tau(fam))) for fam in ("H", "F"))
+        except ResultsError:  # its record turned out unreadable: listed as broken from now on
+            return None
         return family_verdict(h, f, t_inf=clip.t_inf, pose_present=clip.pose_present, thresholds=thresholds)
 
     def triage(
@@ -236,7 +298,8 @@ class ResultsIndex:
         for c in self.clips:
             if (platform is not None and c.platform != platform) or (category is not None and c.category != category):
                 continue
-            row = TriageRow(c, self.verdict(c.clip_id, th))
+            verdict = self.verdict(c.clip_id, th)
+            row = TriageRow(self.by_id[c.clip_id], verdict)  # as listed now (it may have turned out broken)
             if gate_label is not None and (row.verdict is None or row.verdict.label != gate_label):
                 continue
             if state is not None and row.state != state:

@@ -37,6 +37,7 @@ from .features import FeatureSet, Matcher, gross_mismatches, make_matcher, scale
 from .flow import FlowBackend, chained_flow, make_flow_backend
 from .geometry import scale_intrinsics, two_view_cloud
 from .masks import MaskSource, make_mask_source
+from .masks.external import check_masks_path
 from .models import FAMILIES, PairFits
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .pose.chain import chain_hops, compose_chain
@@ -133,9 +134,12 @@ class _Pipeline:
         mask = frame.content if labels is None else frame.content & (labels == 0)
         out = {}
         start = time.perf_counter()
-        for s in self.active:
-            g, m = scaled_inputs(frame.gray, mask, s)
-            out[s] = self.matcher.extract(g, m, frame.index, s)
+        inputs = {s: scaled_inputs(frame.gray, mask, s) for s in self.active}
+        if hasattr(self.matcher, "extract_scales"):
+            out = self.matcher.extract_scales(inputs, frame.index)
+        else:
+            for s, (g, m) in inputs.items():
+                out[s] = self.matcher.extract(g, m, frame.index, s)
         self.timer.add("features", start)
         return out
 
@@ -338,14 +342,17 @@ def score_clip(
     timer = _Timer(timings)
     if cfg.masks != "none":
         _import_aside("ot")  # AdaDFRC's transport solver
+    # a pose log and external masks are checked before the clip is decoded
+    backend: PoseBackend = (
+        load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
+    )
+    if masks is not None:
+        check_masks_path(masks)
     start = time.perf_counter()
     info = probe_clip(path, cfg)
     timer.add("probe", start)
     n = info.num_frames
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio, anchors=(0, n - 1))
-    backend: PoseBackend = (
-        load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
-    )
     flow = (
         make_flow_backend(cfg.flow, cfg.flow_params) if cfg.masks != "none" else None
     )  # shared: thread-safe per instance

@@ -34,9 +34,9 @@ import viser
 from geocon_core.diagnostics import read_overlays
 from geocon_core.models import FAMILIES
 from geocon_core.reader import DEFAULT_FPS
-from geocon_core.record import read_record
+from geocon_core.record import RecordError, read_record
 from geocon_core.regate import pair_inliers
-from geocon_core.results import ResultsError, ResultsIndex, TriageRow
+from geocon_core.results import BROKEN, ResultsError, ResultsIndex, TriageRow
 from geocon_core.verdict import ClipVerdict, Thresholds
 
 from .audit_gui import ANY, FLAGGED, AuditPanels
@@ -51,6 +51,7 @@ from .audit_views import (
     render_scene,
     thumb,
 )
+from .processes import check_bind
 
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 
@@ -61,11 +62,17 @@ DISPLAY_WIDTH = 640
 class AuditApp(AuditPanels):
     """The audit app over ``results`` (a ``geocon bench`` folder or a ``geocon score`` record
     folder). Drive it from Python through its GUI handles (setting ``.value`` runs the callbacks),
-    or open :attr:`url` in a browser. :meth:`stop` shuts the server down and frees its port."""
+    or open :attr:`url` in a browser. :meth:`stop` shuts the server down and frees its port.
+
+    ``host`` and ``port`` are checked before anything starts (:func:`~.processes.check_bind`
+    raises :class:`~.processes.BindError`); a busy ``port`` moves to the next free one
+    (:attr:`requested_port` keeps the one asked for)."""
 
     def __init__(
         self, results: str | Path | ResultsIndex, *, host: str = "127.0.0.1", port: int = 8080, preload: bool = True
     ) -> None:
+        self.requested_port = port
+        free = check_bind(host, port)
         self.index = results if isinstance(results, ResultsIndex) else ResultsIndex.open(results)
         self.thresholds: Thresholds = self.index.recorded
         self.rows: list[TriageRow] = []
@@ -77,7 +84,7 @@ class AuditApp(AuditPanels):
         self._decoder: threading.Thread | None = None
         self.cloud_handle: Any = None
         """The selected clip's point cloud in the scene (None when it has none)."""
-        self.server = viser.ViserServer(host=host, port=port, label="GeoCon audit", verbose=False)
+        self.server = viser.ViserServer(host=host, port=free, label="GeoCon audit", verbose=False)
         self.server.gui.configure_theme(
             control_width="large", show_logo=False, show_share_button=False, brand_color=(40, 110, 180)
         )
@@ -218,11 +225,18 @@ class AuditApp(AuditPanels):
         def progress(done: int, total: int) -> None:
             bar.value = 100.0 * done / max(total, 1)  # type: ignore[misc]  # viser setter typing gap
 
+        broken = self._broken()
         try:
-            self.index.preload(progress=progress, stop=self._stop)
+            self.index.preload(progress=progress, stop=self._stop)  # lists unreadable records as broken
         except (OSError, ValueError, ResultsError):
-            pass  # a broken record is reported when it is selected or re-gated
-        bar.visible = False
+            pass  # anything else wrong with a record is reported when it is selected or re-gated
+        finally:
+            bar.visible = False
+        if self._broken() != broken and not self._stop.is_set():
+            self.refresh()  # the clips found broken are listed as such
+
+    def _broken(self) -> int:
+        return sum(c.status == BROKEN for c in self.index.clips)
 
     # --- the selected clip ---------------------------------------------------------------------
     def _on_clip(self, clip_id: str) -> None:
@@ -237,11 +251,18 @@ class AuditApp(AuditPanels):
             if clip.status != "ok" or clip.folder is None:
                 self._show_failed(clip_id)
                 return
-            record = read_record(clip.folder)
+            try:
+                record = read_record(clip.folder)
+            except RecordError as exc:  # listed as broken from now on, with the reason; the list follows
+                self.index.mark_broken(clip_id, str(exc))
+                self.refresh()
+                return
+            try:
+                overlays = read_overlays(clip.folder)
+            except (OSError, ValueError):  # unreadable masks: the clip is shown without them
+                overlays = None
             w, _ = record.video.working_size
-            view = ClipView(
-                clip_id, clip.folder, record, read_overlays(clip.folder), display_scale=min(1.0, DISPLAY_WIDTH / w)
-            )
+            view = ClipView(clip_id, clip.folder, record, overlays, display_scale=min(1.0, DISPLAY_WIDTH / w))
             self.view = view
             n = view.num_frames
             self.slider.max = max(1, n - 1)
@@ -256,8 +277,9 @@ class AuditApp(AuditPanels):
         clip = self.index.by_id[clip_id]
         self.server.scene.reset()
         self.cloud_handle = None
-        self.card_md.content = f"### {clip_id}\n\n**This clip could not be scored.**\n\n```\n{clip.error}\n```"
-        self.frame_md.content = "no frames: the clip has no record"
+        what = "Its saved record could not be read" if clip.status == BROKEN else "This clip could not be scored"
+        self.card_md.content = f"### {clip_id}\n\n**{what}.**\n\n```\n{clip.error}\n```"
+        self.frame_md.content = "no frames: the clip has no readable record"
         self.image.image = np.full((36, 64, 3), 40, np.uint8)
         self._render_thresholds()
         self._render_table()
@@ -269,7 +291,11 @@ class AuditApp(AuditPanels):
         if view is None:
             return
         self.verdict = v = self.index.verdict(view.clip_id, self.thresholds)
-        assert v is not None, "a clip with a record has a verdict"
+        if v is None:  # its record turned out unreadable (re-gating read it): listed as broken now
+            self.view = None
+            view.cancel.set()
+            self.refresh()
+            return
         self.card_md.content = clip_card(view, v, self.index.by_id[view.clip_id], self.thresholds, self.index.recorded)
         plots = Plots(self.ir_plot, self.ge_plot, self.obj_plot, self.gate_plot)
         render_plots(plots, view, v, self.thresholds)

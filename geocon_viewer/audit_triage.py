@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from geocon_core.results import TriageRow
+from geocon_core.results import BROKEN, TriageRow
 from geocon_core.verdict import Thresholds
 
 from .style import EMPTY, fmt
@@ -49,9 +49,8 @@ def triage_table(rows: list[TriageRow], page_value: int, selected: str | None) -
         ir = fmt(None if v is None else v.ir)
         ge = fmt(None if v is None else v.ge, ".2f")
         category = r.clip.category or EMPTY
-        lines.append(
-            f"| {i} | {name} | {r.clip.platform} | {category} | {gate} | {ir} | {ge} | {STATE_MARK[r.state]} |"
-        )
+        mark = "BROKEN" if r.clip.status == BROKEN else STATE_MARK[r.state]  # a record that cannot be read
+        lines.append(f"| {i} | {name} | {r.clip.platform} | {category} | {gate} | {ir} | {ge} | {mark} |")
     if not rows:
         lines.append("| | no clip matches the filters | | | | | | |")
     return "\n".join(lines) + f"\n\npage {page} of {pages} · ≠: gate differs from the category's expected model"

@@ -1,10 +1,12 @@
 """The child processes behind the viewers: the ``rerun`` executable serving a recording on
-127.0.0.1, free loopback ports, private config dirs, and clean-up. Every child is started in its
-own session (process group) and stopped with its whole group (:func:`kill_group`)."""
+127.0.0.1, free loopback ports, the check of an address a server is asked to bind
+(:func:`check_bind`), private config dirs, and clean-up. Every child is started in its own session
+(process group) and stopped with its whole group (:func:`kill_group`)."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import importlib.util
 import os
 import re
@@ -12,6 +14,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import threading
 import time
 import urllib.parse
 import urllib.request
@@ -19,8 +22,10 @@ from pathlib import Path
 
 __all__ = [
     "ScreenshotError",
+    "BindError",
     "find_rerun_binary",
     "free_port",
+    "check_bind",
     "private_env",
     "kill_group",
     "log_tail",
@@ -59,6 +64,84 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+class BindError(ValueError):
+    """A ``--host`` or ``--port`` a server cannot bind to (one sentence naming the option)."""
+
+
+RESOLVE_TIMEOUT_S = 10.0
+"""How long :func:`check_bind` waits for ``--host`` to resolve before refusing it."""
+PORT_SEARCH = 100
+"""How many ports above a busy ``--port`` :func:`check_bind` tries."""
+
+
+def _resolve(host: str) -> list[tuple[int, tuple]]:
+    """(family, socket address) of every address ``host`` binds to, as a server binding ``host``
+    would see them, within :data:`RESOLVE_TIMEOUT_S`."""
+    found: list = []
+
+    def lookup() -> None:
+        try:
+            found.append(socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE))
+        except (OSError, UnicodeError) as exc:
+            found.append(exc)
+
+    thread = threading.Thread(target=lookup, name="geocon-resolve", daemon=True)
+    thread.start()
+    thread.join(RESOLVE_TIMEOUT_S)
+    if not found:
+        raise BindError(f"--host {host} did not resolve within {RESOLVE_TIMEOUT_S:g} s: give an IP address")
+    if isinstance(found[0], BaseException):
+        why = getattr(found[0], "strerror", None) or found[0]
+        raise BindError(f"--host {host} is neither an IP address nor a name that resolves ({why})")
+    addrs = [(fam, sockaddr) for fam, _, _, _, sockaddr in found[0] if fam in (socket.AF_INET, socket.AF_INET6)]
+    if not addrs:
+        raise BindError(f"--host {host} resolves to no IPv4 or IPv6 address")
+    return list(dict.fromkeys(addrs))
+
+
+def _try_bind(addrs: list[tuple[int, tuple]], port: int) -> int:
+    """0 when every address binds on ``port`` (as asyncio's server binds them), else the errno."""
+    with contextlib.ExitStack() as stack:
+        for fam, sockaddr in addrs:
+            sock = stack.enter_context(socket.socket(fam, socket.SOCK_STREAM))
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if fam == socket.AF_INET6:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            try:
+                sock.bind((sockaddr[0], port, *sockaddr[2:]))
+            except OSError as exc:
+                return exc.errno or -1
+    return 0
+
+
+def check_bind(host: str, port: int) -> int:
+    """The port a server asked for ``host`` and ``port`` can bind: ``port`` itself, or when it is
+    in use the next free one above it (0 stays 0: any free port). Checked before anything starts,
+    so that no server thread fails where nobody sees it. Raises :class:`BindError` for a port
+    outside 0-65535, a host that does not resolve or is not an address of this machine, and a
+    port that cannot be bound for another reason."""
+    if not 0 <= port <= 65535:
+        raise BindError(f"--port must be between 0 and 65535 (0 picks any free port), got {port}")
+    if not host.strip():
+        raise BindError("--host is empty: give 127.0.0.1 (this machine only) or 0.0.0.0 (every interface)")
+    addrs = _resolve(host)
+    last = port if port == 0 else min(65535, port + PORT_SEARCH)
+    for candidate in range(port, last + 1):
+        code = _try_bind(addrs, candidate)
+        if code == 0:
+            return candidate
+        if code == errno.EADDRNOTAVAIL:
+            raise BindError(
+                f"--host {host} is not an address of this machine: give 127.0.0.1 (this machine only), "
+                "0.0.0.0 (every interface) or one of its own addresses"
+            )
+        if code == errno.EACCES:
+            raise BindError(f"--port {candidate} needs privileges this user lacks: use 1024 or above, or 0 (any)")
+        if code != errno.EADDRINUSE:
+            raise BindError(f"--host {host} --port {candidate} cannot be bound ({os.strerror(code)})")
+    raise BindError(f"--port {port} and the {last - port} ports above it are in use on {host}: give another --port")
 
 
 def private_env(workdir: Path, **extra: str) -> dict[str, str]:

@@ -37,6 +37,8 @@ logged at frame t. Entity paths:
 
 from __future__ import annotations
 
+import contextlib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -268,17 +270,22 @@ def blueprint() -> rrb.Blueprint:
 class RrdSink:
     """Streams a clip into a recording while it is scored: pass it as the scorer's ``on_frame``,
     then call :meth:`finish` with the record. Writes ``path`` (a ``.rrd`` file) and/or streams to
-    a running viewer at ``connect`` (a ``rerun+http://.../proxy`` URL)."""
+    a running viewer at ``connect`` (a ``rerun+http://.../proxy`` URL). The file is written
+    beside ``path`` under a temporary name and moved into place by :meth:`finish`, so a run that
+    fails or is killed leaves an earlier recording at ``path`` as it was (:meth:`abort` removes
+    the partial file)."""
 
     def __init__(self, path: str | Path | None, *, connect: str | None = None, frames: str = "video") -> None:
         if path is None and connect is None:
             raise ValueError("RrdSink needs a file path, a viewer URL to connect to, or both")
         self.path = None if path is None else Path(path)
+        self.part: Path | None = None
         self.rec = rr.RecordingStream("geocon")
         sinks: list = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            sinks.append(rr.FileSink(str(self.path)))
+            self.part = self.path.with_name(f".{self.path.name}.part-{os.getpid()}")
+            sinks.append(rr.FileSink(str(self.part)))
         if connect is not None:
             sinks.append(rr.GrpcSink(connect))
         self.rec.set_sinks(*sinks, default_blueprint=blueprint())
@@ -300,7 +307,16 @@ class RrdSink:
         self._audit(record.video.fps).record(record)
         self.rec.flush()
         self.rec.disconnect()
+        if self.part is not None and self.path is not None:
+            self.part.replace(self.path)
         return self.path
+
+    def abort(self) -> None:
+        """Stop recording and remove the partial file; an earlier recording at ``path`` stays."""
+        with contextlib.suppress(Exception):
+            self.rec.disconnect()
+        if self.part is not None:
+            self.part.unlink(missing_ok=True)
 
 
 def write_rrd(
@@ -317,17 +333,23 @@ def write_rrd(
     sink = RrdSink(path, connect=connect)
     fps = record.video.fps
     clip = Path(record.clip)
-    if clip.exists():
-        info = probe_clip(clip, record.config)
-        for frame in iter_frames(info):
-            labels = flows = None
-            if overlays is not None:
-                labels, flows = overlays.labels(frame.index), overlays.flows(frame.index)
-            sink.frame(AuditFrame(frame.index, frame.rgb, labels, flows or ()), fps)
-            if progress is not None:
-                progress(frame.index + 1, info.num_frames)
-    else:
-        sink.rec.log(
-            "audit/missing_clip", rr.TextDocument(f"the clip {clip} was not found: frames are not shown"), static=True
-        )
-    return sink.finish(record)
+    try:
+        if clip.exists():
+            info = probe_clip(clip, record.config)
+            for frame in iter_frames(info):
+                labels = flows = None
+                if overlays is not None:
+                    labels, flows = overlays.labels(frame.index), overlays.flows(frame.index)
+                sink.frame(AuditFrame(frame.index, frame.rgb, labels, flows or ()), fps)
+                if progress is not None:
+                    progress(frame.index + 1, info.num_frames)
+        else:
+            sink.rec.log(
+                "audit/missing_clip",
+                rr.TextDocument(f"the clip {clip} was not found: frames are not shown"),
+                static=True,
+            )
+        return sink.finish(record)
+    except BaseException:
+        sink.abort()
+        raise

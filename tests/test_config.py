@@ -181,6 +181,13 @@ def test_invalid_sub_config_values_are_refused() -> None:
             bad()
 
 
+@pytest.mark.parametrize("fov", [0.0, 9.9, 150.1, 179.99, float("nan")])
+def test_a_field_of_view_outside_the_pinhole_range_is_refused(fov: float) -> None:
+    with pytest.raises(ValueError, match=r"field of view \(fov_x_deg, --fov\) must be between 10 and 150 degrees"):
+        ScoreConfig(fov_x_deg=fov)
+    assert ScoreConfig(fov_x_deg=150.0).fov_x_deg == 150.0
+
+
 # --- each stage takes its own sub-configuration ------------------------------------------------
 
 

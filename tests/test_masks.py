@@ -175,6 +175,22 @@ def test_external_object_folders_and_npz_equal_label_images(small_c4, tmp_path: 
         cv2.imwrite(str(flat / f"mask{t + 1}.png"), png.astype(np.uint16))
     assert all(np.array_equal(a, b) for a, b in zip(run_source(ExternalMasks(flat, info), info), ref, strict=True))
 
+    # DAVIS / YouTube-VOS: indexed PNGs whose palette colours the ids (8-bit, and 4-bit indices)
+    from PIL import Image
+
+    palette = [0, 0, 0, 128, 0, 0, 0, 128, 0] + [0] * (256 * 3 - 9)
+    for bits in (8, 4):
+        davis = tmp_path / f"davis{bits}"
+        davis.mkdir()
+        for t, png in enumerate(pngs):
+            img = Image.fromarray(png.astype(np.uint8), mode="P")
+            img.putpalette(palette)
+            img.save(davis / f"{t:05d}.png", bits=bits)
+        assert cv2.imread(str(davis / "00000.png")).ndim == 3  # what OpenCV alone would see: colours
+        src = ExternalMasks(davis, info)
+        assert src.layout == "label_images"
+        assert all(np.array_equal(a, b) for a, b in zip(run_source(src, info), ref, strict=True))
+
 
 def test_external_errors(small_c4, tmp_path: Path) -> None:
     out, _, info = small_c4
@@ -234,6 +250,13 @@ def test_external_errors(small_c4, tmp_path: Path) -> None:
     np.savez(tmp_path / "float.npz", labels=np.zeros((8, 180, 320), np.float32))
     with pytest.raises(ValueError, match="must be integer"):
         ExternalMasks(tmp_path / "float.npz", info)
+    np.savez(tmp_path / "objects.npz", labels=np.array([None] * 8, dtype=object))
+    with pytest.raises(ValueError, match="objects.npz: 'labels' holds pickled Python objects, which GeoCon never"):
+        ExternalMasks(tmp_path / "objects.npz", info)
+    (tmp_path / "noise.npz").write_bytes(np.random.default_rng(0).bytes(4096))
+    with pytest.raises(ValueError, match=r"noise.npz: is not an .npz file \(not a zip archive\)") as err:
+        ExternalMasks(tmp_path / "noise.npz", info)
+    assert "trust" not in str(err.value)
     objs = tmp_path / "objs"
     (objs / "obj_1").mkdir(parents=True)
     for t in range(6):

@@ -383,6 +383,18 @@ def test_pose_log_rejects_bad_files(tmp_path):
         PoseLog(tmp_path / "h.json")
     with pytest.raises(ValueError, match="does not exist"):
         PoseLog(tmp_path / "missing.json")
+    with pytest.raises(ValueError, match="is not a file"):
+        PoseLog(tmp_path)
+    (tmp_path / "i.json").write_bytes(bytes(range(256)))
+    with pytest.raises(ValueError, match="i.json is not UTF-8 text"):
+        PoseLog(tmp_path / "i.json")
+    far = T.copy()
+    far[0, 3] = 1e308  # finite, on no plausible scale
+    with pytest.raises(ValueError, match="translation is 1e.308 mean scene distances"):
+        PoseLog(write_log(tmp_path / "j.json", T_cam0_camT=far.tolist(), scale="unit_mean_distance"))
+    far[0, 3] = 1e300  # finite, and overflows once divided by the scene distance
+    with pytest.raises(ValueError, match="translation is inf mean scene distances"):
+        PoseLog(write_log(tmp_path / "k.json", T_cam0_camT=far.tolist(), scale="metric", mean_scene_distance=1e-300))
 
 
 def test_pose_log_reads_synthetic_ground_truth(tmp_path):

@@ -26,13 +26,15 @@ Sources
     ``info.source_size``). Three layouts, detected automatically:
 
     (a) a folder of label images ``00000.png, 00001.png, ...``: one PNG per frame, 8- or 16-bit
-        single channel, 0 = background, k = object id (1..255); file names end in the frame
+        single channel, or indexed (palette) PNGs as DAVIS and YouTube-VOS ship them, whose
+        palette indices are the ids; 0 = background, k = object id (1..255); file names end in the frame
         number (any zero-padding, any common prefix), taken in natural order, numbered
         consecutively from 0 (or 1). This is what ``geocon synth`` writes as ``<clip>.masks/``.
     (b) a folder of per-object folders ``<id>/NNNNN.png`` or ``obj_<id>/NNNNN.png`` (id 1..255),
         each holding one binary mask per frame (nonzero = object), numbered like (a); where
         objects overlap, the higher id wins.
-    (c) an ``.npz`` file with an integer array ``labels`` of shape (T, h, w), values 0..255.
+    (c) an ``.npz`` file with an integer array ``labels`` of shape (T, h, w), values 0..255
+        (read without pickle: an object array is refused, naming the file).
 
     Every mask is mapped into the working canvas exactly like the reader maps frames (scale
     ``info.scale``, offset ``info.offset``, nearest-neighbour resize with centred pixels), then

@@ -4,15 +4,17 @@
 from __future__ import annotations
 
 import re
+import zipfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from ..npz import NPZ_ERRORS
 from ..reader import ClipInfo, Frame
 from .base import MAX_ID, Coverage, labels_to_canvas
 
-__all__ = ["ExternalMasks"]
+__all__ = ["ExternalMasks", "check_masks_path"]
 
 _DIGITS = re.compile(r"(\d+)$")
 _OBJECT_DIR = re.compile(r"^(?:obj_)?(\d+)$", re.IGNORECASE)
@@ -49,7 +51,44 @@ def _frame_files(folder: Path, num_frames: int, what: str) -> list[Path]:
     return [numbered[k] for k in idx]
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_PALETTE = 3
+"""PNG colour type of an indexed (palette) image: the DAVIS / YouTube-VOS mask layout, whose
+pixel values are the object ids and whose palette only colours them."""
+
+
+def _is_palette_png(path: Path) -> bool:
+    """Whether ``path`` is an indexed PNG (IHDR colour type 3)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+    except OSError:
+        return False
+    return len(head) == 26 and head[:8] == _PNG_SIGNATURE and head[12:16] == b"IHDR" and head[25] == _PNG_PALETTE
+
+
+def _read_palette_png(path: Path) -> np.ndarray | None:
+    """The palette indices (h, w) uint8 of an indexed PNG (OpenCV would expand them to colours)."""
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                if frame.format.name == "pal8":
+                    indices, _palette = frame.to_ndarray()
+                    return np.ascontiguousarray(indices)
+                return None
+    except (av.FFmpegError, OSError, ValueError):
+        return None
+    return None
+
+
 def _read_png(path: Path) -> np.ndarray:
+    if _is_palette_png(path):
+        ids = _read_palette_png(path)
+        if ids is None:
+            raise ValueError(f"{path}: cannot be read as an indexed (palette) PNG")
+        return ids
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ValueError(f"{path}: cannot be read as an image")
@@ -57,7 +96,10 @@ def _read_png(path: Path) -> np.ndarray:
         if img.shape[2] == 1 or all(np.array_equal(img[..., 0], img[..., c]) for c in range(1, min(3, img.shape[2]))):
             img = img[..., 0]
         else:
-            raise ValueError(f"{path}: is a colour image; label masks must be single-channel 8- or 16-bit PNGs")
+            raise ValueError(
+                f"{path}: is a colour image; label masks must be single-channel 8- or 16-bit PNGs "
+                "or indexed (palette) PNGs whose indices are the object ids"
+            )
     if img.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"{path}: has {img.dtype} pixels; label masks must be 8- or 16-bit")
     return img
@@ -75,6 +117,71 @@ def _check_size(img: np.ndarray, info: ClipInfo, where: str) -> None:
     w, h = info.source_size
     if img.shape[:2] != (h, w):
         raise ValueError(f"{where}: mask is {img.shape[1]}x{img.shape[0]} but the clip's frames are {w}x{h}")
+
+
+def _object_dirs(p: Path) -> list[tuple[int, Path]]:
+    """The per-object folders of ``p`` by ascending id (``[]`` when it has none)."""
+    dirs = []
+    for c in p.iterdir():
+        m = _OBJECT_DIR.match(c.name)
+        if c.is_dir() and m:
+            oid = int(m.group(1))
+            if not 1 <= oid <= MAX_ID:
+                raise ValueError(f"{c}: object id {oid} is outside 1..{MAX_ID}")
+            dirs.append((oid, c))
+    ids = [oid for oid, _ in dirs]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"{p}: two folders name the same object id")
+    return sorted(dirs)
+
+
+def _check_npz_header(p: Path) -> None:
+    """The ``labels`` array of an .npz is there and is a plain integer array (its header only)."""
+    if not zipfile.is_zipfile(p):
+        raise ValueError(f"{p}: is not an .npz file (not a zip archive); {_LAYOUTS}")
+    try:
+        with zipfile.ZipFile(p) as zf:
+            names = [n.removesuffix(".npy") for n in zf.namelist()]
+            if "labels" not in names:
+                raise ValueError(f"{p}: has no array 'labels' (found {', '.join(names) or 'none'})")
+            with zf.open("labels.npy") as f:
+                version = np.lib.format.read_magic(f)
+                if version == (1, 0):
+                    shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+                else:
+                    shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+    except NPZ_ERRORS as err:
+        if isinstance(err, ValueError) and str(err).startswith(str(p)):
+            raise
+        raise ValueError(f"{p}: cannot be read as an .npz file ({type(err).__name__}: {err})") from None
+    if dtype.hasobject:
+        raise ValueError(f"{p}: 'labels' holds pickled Python objects, which GeoCon never loads")
+    if len(shape) != 3 or dtype.kind not in "iub":
+        raise ValueError(f"{p}: 'labels' must be integer, of shape (T, h, w), got {dtype} {shape}")
+
+
+def check_masks_path(path: str | Path) -> str:
+    """The layout of the masks at ``path`` (``"npz"``, ``"label_images"`` or ``"object_folders"``),
+    checked as far as it can be without the clip (exists, is a layout, its first file reads), so a
+    wrong path fails before any frame is decoded; ``ValueError`` naming the problem."""
+    p = Path(path)
+    if not p.exists():
+        raise ValueError(f"{p}: masks path does not exist")
+    if p.is_file():
+        if p.suffix.lower() != ".npz":
+            raise ValueError(f"{p}: not a masks layout; {_LAYOUTS}")
+        _check_npz_header(p)
+        return "npz"
+    if not p.is_dir():
+        raise ValueError(f"{p}: not a masks layout; {_LAYOUTS}")
+    pngs = sorted(c for c in p.iterdir() if c.is_file() and c.suffix.lower() == ".png")
+    if pngs:
+        _read_png(pngs[0])
+        return "label_images"
+    dirs = _object_dirs(p)
+    if not dirs:
+        raise ValueError(f"{p}: not a masks layout; {_LAYOUTS}")
+    return "object_folders"
 
 
 class ExternalMasks(Coverage):
@@ -96,45 +203,29 @@ class ExternalMasks(Coverage):
         self._next = 0
         self._cache: tuple[int, np.ndarray] | None = None
         p = self.path
-        if not p.exists():
-            raise ValueError(f"{p}: masks path does not exist")
-        if p.is_file():
-            if p.suffix.lower() != ".npz":
-                raise ValueError(f"{p}: not a masks layout; {_LAYOUTS}")
-            self.layout = "npz"
+        self.layout = check_masks_path(p)
+        if self.layout == "npz":
             self._array = self._load_npz(p, info)
-        elif any(c.is_file() and c.suffix.lower() == ".png" for c in p.iterdir()):
-            self.layout = "label_images"
+        elif self.layout == "label_images":
             self._files = _frame_files(p, T, "label images")
             _check_size(_read_png(self._files[0]), info, str(self._files[0]))
         else:
-            dirs = []
-            for c in p.iterdir():
-                m = _OBJECT_DIR.match(c.name)
-                if c.is_dir() and m:
-                    oid = int(m.group(1))
-                    if not 1 <= oid <= MAX_ID:
-                        raise ValueError(f"{c}: object id {oid} is outside 1..{MAX_ID}")
-                    dirs.append((oid, c))
-            if not dirs:
-                raise ValueError(f"{p}: not a masks layout; {_LAYOUTS}")
-            ids = [oid for oid, _ in dirs]
-            if len(set(ids)) != len(ids):
-                raise ValueError(f"{p}: two folders name the same object id")
-            self.layout = "object_folders"
-            self._objects = [(oid, _frame_files(d, T, "masks")) for oid, d in sorted(dirs)]
+            self._objects = [(oid, _frame_files(d, T, "masks")) for oid, d in _object_dirs(p)]
             for _, files in self._objects:
                 _check_size(_read_png(files[0]), info, str(files[0]))
 
     @staticmethod
     def _load_npz(p: Path, info: ClipInfo) -> np.ndarray:
-        try:
+        try:  # the header was checked by check_masks_path; the data may still be damaged
             with np.load(p, allow_pickle=False) as z:
-                if "labels" not in z.files:
-                    raise ValueError(f"{p}: has no array 'labels' (found {', '.join(z.files) or 'none'})")
-                arr = z["labels"]
-        except (OSError, EOFError) as err:
-            raise ValueError(f"{p}: cannot be read as an .npz file ({err})") from None
+                names = z.files
+                arr = z["labels"] if "labels" in names else None
+        except NPZ_ERRORS as err:
+            if isinstance(err, ValueError) and "pickle" in str(err):
+                raise ValueError(f"{p}: 'labels' holds pickled Python objects, which GeoCon never loads") from None
+            raise ValueError(f"{p}: cannot be read as an .npz file ({type(err).__name__}: {err})") from None
+        if arr is None:
+            raise ValueError(f"{p}: has no array 'labels' (found {', '.join(names) or 'none'})")
         if arr.ndim != 3:
             raise ValueError(f"{p}: 'labels' must have shape (T, h, w), got {arr.shape}")
         if arr.dtype.kind not in "iub":

@@ -25,7 +25,10 @@
         }
 
     The rotation block must be a rotation (``R^T R = I`` and ``det R = 1`` within 1e-6) and
-    the last row ``[0, 0, 0, 1]``; anything else raises ``ValueError``. A GeoCon synthetic
+    the last row ``[0, 0, 0, 1]``; the translation, divided by the scene scale, must be at most
+    :data:`MAX_T_UNIT` mean scene distances (a camera that moved further than that between the
+    first and the last frame is a unit mistake, not a clip); the file must be UTF-8 JSON of at
+    most :data:`MAX_POSE_LOG_BYTES`. Anything else raises ``ValueError`` naming the file. A GeoCon synthetic
     ground-truth file (``"format": "geocon-synth-gt/1"``, written as ``<clip>.gt.json`` by
     ``geocon synth``) is accepted too: its ``T_cam0_camT`` is metric and its
     ``mean_scene_distance`` gives the scale, so clips can be gated with their true pose.
@@ -43,9 +46,14 @@ import numpy as np
 from ..geometry import rotation_angle_deg
 from .base import PoseEstimate, check_inputs, failure, focal_of
 
-__all__ = ["POSE_LOG_FORMAT", "PoseLog", "load_pose_log"]
+__all__ = ["POSE_LOG_FORMAT", "MAX_T_UNIT", "MAX_POSE_LOG_BYTES", "PoseLog", "load_pose_log"]
 
 POSE_LOG_FORMAT = "geocon-pose/1"
+MAX_T_UNIT = 1000.0
+"""Largest translation (in mean scene distances) a pose log may give; the gate's band is at
+0.03-0.05, so a larger value can only come from a wrong scale or unit."""
+MAX_POSE_LOG_BYTES = 1 << 20
+"""A pose log is a few hundred bytes; a larger file is refused before it is parsed."""
 _SYNTH_GT_FORMAT = "geocon-synth-gt/1"
 _ROT_TOL = 1e-6
 
@@ -78,6 +86,29 @@ def _positive(value: Any, name: str, where: str) -> float:
     return float(value)
 
 
+def _read_json(path: Path) -> Any:
+    """The parsed JSON of a pose log, or ``ValueError`` naming the file."""
+    where = str(path)
+    if not path.exists():
+        raise ValueError(f"pose log {where} does not exist")
+    if not path.is_file():
+        raise ValueError(f"pose log {where} is not a file (a geocon-pose/1 JSON file is expected)")
+    try:
+        if path.stat().st_size > MAX_POSE_LOG_BYTES:
+            raise ValueError(
+                f"pose log {where} is larger than {MAX_POSE_LOG_BYTES} bytes; a pose log is a small JSON file"
+            )
+        return json.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"pose log {where} is not UTF-8 text (a geocon-pose/1 JSON file is expected)") from None
+    except json.JSONDecodeError as e:
+        raise ValueError(f"pose log {where} is not valid JSON: {e}") from None
+    except RecursionError:
+        raise ValueError(f"pose log {where} is not a pose log (JSON nested too deeply)") from None
+    except OSError as e:
+        raise ValueError(f"pose log {where} cannot be read: {e.strerror or e}") from None
+
+
 class PoseLog:
     """A pose computed elsewhere, read from a JSON pose log (schema in the module docstring)
     or a GeoCon synthetic ground-truth file. :meth:`estimate` ignores the matches."""
@@ -87,12 +118,7 @@ class PoseLog:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         where = str(self.path)
-        try:
-            d = json.loads(self.path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"pose log {where} does not exist") from None
-        except json.JSONDecodeError as e:
-            raise ValueError(f"pose log {where} is not valid JSON: {e}") from None
+        d = _read_json(self.path)
         if not isinstance(d, dict):
             raise ValueError(f"{where}: a pose log must be a JSON object")
         fmt = d.get("format")
@@ -137,7 +163,14 @@ class PoseLog:
                 f"(or a GeoCon synthetic ground truth, {_SYNTH_GT_FORMAT!r})"
             )
         T = T.copy()
-        T[:3, 3] = T[:3, 3] / dist
+        with np.errstate(over="ignore"):
+            T[:3, 3] = T[:3, 3] / dist
+        t = float(np.max(np.abs(T[:3, 3])))
+        if not t <= MAX_T_UNIT:
+            raise ValueError(
+                f"{where}: the translation is {t:.3g} mean scene distances (at most {MAX_T_UNIT:g} is plausible); "
+                "check the scale and mean_scene_distance"
+            )
         self.pose_present = bool(present)
         self.T_unit = T
 

@@ -163,7 +163,7 @@ def _coverage_of(folder: Path, truth_path: str | None, rec: ClipRecord) -> float
     gt = load_ground_truth(truth_path)
     if not gt.objects or gt.masks_path is None:
         return None
-    with np.load(labels_file) as z:
+    with np.load(labels_file, allow_pickle=False) as z:
         labels = z["labels"]
     truth = ExternalMasks(Path(truth_path).parent / gt.masks_path, rec.video)
     return track_coverage(labels, [truth.labels(t) for t in range(len(labels))])

@@ -68,24 +68,27 @@ def bench(
         err.print(
             f"note: Rerun recordings of flagged clips need the viewer extra ({VIEWER_EXTRA}); scoring without them"
         )
-    with progress_bar("{task.description}", "clips", failed=True, transient=False) as bar:
-        task = bar.add_task("benchmark", total=None, failed=0, visible=False)
+    # started when scoring starts, so a refusal (bad --out, bad dataset, a busy folder) prints its sentence alone
+    bar = progress_bar("{task.description}", "clips", failed=True, transient=False)
+    task = bar.add_task("benchmark", total=None, failed=0, visible=False)
 
-        def on_start(todo: int, skipped: int) -> None:
-            if skipped:
-                err.print(f"resuming: {skipped} clip(s) already finished in {out_dir}, {todo} to score")
-            bar.update(task, total=todo + skipped, completed=skipped, visible=True)
+    def on_start(todo: int, skipped: int) -> None:
+        if skipped:
+            err.print(f"resuming: {skipped} clip(s) already finished in {out_dir}, {todo} to score")
+        bar.start()
+        bar.update(task, total=todo + skipped, completed=skipped, visible=True)
 
-        def on_clip(status: dict[str, Any], done: int, total: int, failed: int) -> None:
-            if status["status"] == "failed":
-                bar.console.print(
-                    f"[red]failed[/] {status['clip_id']}: {status['error']}",
-                    soft_wrap=True,
-                    markup=True,
-                    highlight=False,
-                )
-            bar.update(task, completed=done, failed=failed)
+    def on_clip(status: dict[str, Any], done: int, total: int, failed: int) -> None:
+        if status["status"] == "failed":
+            bar.console.print(
+                f"[red]failed[/] {status['clip_id']}: {status['error']}",
+                soft_wrap=True,
+                markup=True,
+                highlight=False,
+            )
+        bar.update(task, completed=done, failed=failed)
 
+    try:
         try:
             summary = run_bench(
                 dataset,
@@ -97,13 +100,14 @@ def bench(
                 on_start=on_start,
                 on_clip=on_clip,
             )
-        except DatasetError as exc:
-            raise fail(str(exc)) from None
-        except (BenchError, ImportError) as exc:
-            raise fail(str(exc)) from None
-        except KeyboardInterrupt:
-            err.print(f"interrupted: finished clips are kept in {out_dir}; run the same command again to resume")
-            raise typer.Exit(code=130) from None
+        finally:
+            if bar.live.is_started:
+                bar.stop()
+    except (DatasetError, BenchError, ImportError) as exc:
+        raise fail(str(exc)) from None
+    except KeyboardInterrupt:
+        err.print(f"interrupted: finished clips are kept in {out_dir}; run the same command again to resume")
+        raise typer.Exit(code=130) from None
     ok = summary.total - summary.failed
     out.print(
         f"{summary.total} clips: {ok} scored, {summary.failed} failed ({summary.scored} in this run, "
@@ -131,8 +135,12 @@ def report(
         result = build_report(
             results, out_dir, seed=seed, progress=lambda what: err.print(f"report: {what}", highlight=False)
         )
-    except (ValueError, FileNotFoundError) as exc:
+    except ValueError as exc:
         raise fail(str(exc)) from None
+    except OSError as exc:  # the disk filled up, a folder vanished: the previous report is kept
+        raise fail(
+            f"the report could not be written ({exc.strerror or exc}: {exc.filename}); a previous report is unchanged"
+        ) from None
     for warning in result.warnings:
         err.print(f"note: {warning}", soft_wrap=True, highlight=False)
     out.print(f"report: {result.html} ({len(result.figures)} figure files in {result.out})", soft_wrap=True)

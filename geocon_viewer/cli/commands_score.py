@@ -72,15 +72,19 @@ def score_with_progress(
     sinks = [] if rrd is None else [_rrd_sink_factory(rrd)]
     with progress_bar("scoring", "frames", disable=quiet) as bar:
         task = bar.add_task("score", total=None, visible=False)
-        return score_to_folder(
-            clip,
-            cfg,
-            out_dir,
-            pose_log=pose_log,
-            masks=masks,
-            sinks=sinks,
-            progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
-        )
+        try:
+            return score_to_folder(
+                clip,
+                cfg,
+                out_dir,
+                pose_log=pose_log,
+                masks=masks,
+                sinks=sinks,
+                progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
+            )
+        except BaseException:
+            bar.live.transient = True  # a failed run leaves its error, not a half-filled bar
+            raise
 
 
 def _gate_row(record: ClipRecord) -> str:
@@ -180,6 +184,25 @@ def _config(preset_name: str, matcher: str | None, fov: float | None, masks: Pat
     return cfg
 
 
+def check_inputs(
+    out_dir: Path, *, pose_log: Path | None = None, masks: Path | None = None, rrd: Path | None = None
+) -> None:
+    """Everything a scoring command names besides the clip, checked before the clip is decoded:
+    the output folder, the pose log, the masks' layout and the recording's path (``ValueError``
+    with one sentence)."""
+    from geocon_core.masks.external import check_masks_path
+    from geocon_core.paths import check_out_dir, check_out_file
+    from geocon_core.pose import load_pose_log
+
+    check_out_dir(out_dir, "--out")
+    if pose_log is not None:
+        load_pose_log(pose_log)
+    if masks is not None:
+        check_masks_path(masks)
+    if rrd is not None:
+        check_out_file(rrd, "--rrd")
+
+
 def score(
     clip: Annotated[Path, typer.Argument(help="Video (mp4, avi, mov, webm, gif) or a folder of PNG/JPEG frames.")],
     out_dir: Annotated[
@@ -204,9 +227,11 @@ def score(
     no_masks: Annotated[
         bool, typer.Option("--no-masks", help="Do not separate moving objects (score the whole content as background).")
     ] = False,
-    matcher: Annotated[Optional[str], typer.Option(help="Correspondences: sift, orb, klt, klt_tracks.")] = None,
+    matcher: Annotated[
+        Optional[str], typer.Option(help="Correspondences: sift, sift_octaves, orb, klt, klt_tracks.")
+    ] = None,
     fov: Annotated[
-        Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60).")
+        Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60; 10 to 150).")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
     rrd: Annotated[
@@ -223,7 +248,8 @@ def score(
     target = out_dir or default_out(clip)
     try:
         cfg = _config(preset_name, matcher, fov, masks, no_masks)
-    except ValueError as exc:  # settings given on the command line
+        check_inputs(target, pose_log=pose_log, masks=masks, rrd=rrd)
+    except ValueError as exc:
         raise fail(str(exc)) from None
     try:
         record = score_with_progress(clip, cfg, out_dir=target, pose_log=pose_log, masks=masks, quiet=as_json, rrd=rrd)

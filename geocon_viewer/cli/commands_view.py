@@ -89,14 +89,23 @@ def view(
 ) -> None:
     """Re-render the Rerun recording of a saved record without re-scoring, then open it: the
     native viewer when a display is available, otherwise the web viewer served on 127.0.0.1."""
+    if at is not None and at < 0:
+        raise fail(f"--at must be a frame index (0 or more), got {at}")
     if not has_viewer_extra("rerun"):
         raise fail(f"geocon view needs the viewer extra: {VIEWER_EXTRA}")
-    from geocon_core.record import read_record
+    from geocon_core.record import RecordError, read_record
 
     from ..rerun_log import quiet_encoder_logs, worst_frame, write_rrd
 
     quiet_encoder_logs()
     folder = _resolve_record(target, preset_name)
+    try:
+        record = read_record(folder)  # before any rendering: a corrupt record is one sentence naming its file
+    except RecordError as exc:
+        raise fail(str(exc)) from None
+    n = record.video.num_frames
+    if at is not None and at >= n:
+        raise fail(f"--at {at} is past the last frame of {record.clip}: it has {n} frames (0 to {n - 1})")
     rrd = save or folder / "audit.rrd"
     try:
         with progress_bar("rendering", "frames", elapsed=False, eta=False) as bar:
@@ -106,7 +115,7 @@ def view(
             )
     except ValueError as exc:
         raise fail(str(exc)) from None
-    frame = at if at is not None else worst_frame(read_record(folder))
+    frame = at if at is not None else worst_frame(record)
     out.print(
         f"recording: {rrd} ({rrd.stat().st_size / 1e6:.1f} MB, Rerun {rerun_version()}: open it with a viewer "
         "of the same version)"
@@ -165,6 +174,12 @@ def serve(
 ) -> None:
     """Browse a benchmark's clips in the Viser audit app: the triage list (most severe first), live
     re-gating at other thresholds, the 3D scene, frames with overlays and the IR/GE/AdaDFRC plots."""
+    from ..processes import BindError, check_bind
+
+    try:
+        check_bind(host, port)  # before anything starts: a server thread that cannot bind fails unseen
+    except BindError as exc:
+        raise fail(str(exc)) from None
     if not has_viewer_extra("viser"):
         raise fail(f"geocon serve needs the viewer extra: {VIEWER_EXTRA}")
     from geocon_core.results import ResultsError
@@ -197,6 +212,8 @@ def serve(
         n = len(audit.index.clips)
         reach = "this machine only" if audit.host in ("127.0.0.1", "localhost", "::1") else "reachable from the network"
         ready = time.perf_counter() - start
+        if port != 0 and audit.port != port:
+            err.print(f"port {port} on {host} is in use: serving on port {audit.port} instead", soft_wrap=True)
         out.print(
             f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {ready:.1f} s; {reach}; "
             "Ctrl-C to stop)",

@@ -66,8 +66,25 @@ def has_viewer_extra(module: str = "rerun") -> bool:
 
 
 def default_out(clip: Path) -> Path:
-    """Where ``geocon score`` writes the record of ``clip`` by default."""
-    return Path("geocon-out") / (clip.name if clip.is_dir() else clip.stem)
+    """Where ``geocon score`` writes the record of ``clip`` by default: ``geocon-out/<clip name>``.
+    A folder there that holds the record of another clip with the same name is not overwritten:
+    the command refuses and asks for ``--out``."""
+    target = Path("geocon-out") / (clip.name if clip.is_dir() else clip.stem)
+    record = target / "record.json"
+    if not record.is_file():
+        return target
+    import json
+
+    try:
+        other = json.loads(record.read_text(encoding="utf-8")).get("clip")
+    except (OSError, ValueError, AttributeError):
+        other = None
+    if other is None or Path(other).resolve() != clip.resolve():
+        raise fail(
+            f"{target} already holds the record of {other or 'another clip'}; pass --out to choose a folder "
+            f"for {clip} (or remove {target})"
+        )
+    return target
 
 
 def progress_bar(

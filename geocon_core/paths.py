@@ -1,0 +1,128 @@
+"""Output folders: checked before any work, and replaced whole.
+
+:func:`check_out_dir` says in one sentence why a folder cannot take a command's output before the
+command starts (``geocon bench --out``, ``geocon report --out``, ``geocon score --out``);
+:func:`replace_dir` builds a folder in a temporary sibling and moves it into place only when it is
+complete, so a run that fails or is killed leaves the previous folder exactly as it was.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+from contextlib import contextmanager, suppress
+from pathlib import Path
+from typing import Iterator
+
+from .procs import pid_alive
+
+__all__ = ["OutPathError", "check_out_dir", "check_out_file", "clear_stale_parts", "part_prefix", "replace_dir"]
+
+_PSEUDO_FS = (Path("/proc"), Path("/sys"))
+"""Kernel file systems: a folder there cannot hold a command's output."""
+
+
+class OutPathError(ValueError):
+    """An output folder that cannot be used (one sentence naming the option and the path)."""
+
+
+def check_out_dir(path: Path, option: str = "--out") -> Path:
+    """Check that ``path`` can be (or already is) a writable folder, without creating anything.
+
+    Raises :class:`OutPathError` (a ``ValueError``) with one sentence naming ``option`` and ``path``
+    when ``path`` is under ``/proc`` or ``/sys``, exists and is not a folder, is a broken
+    link, is a folder that is not writable, or cannot be created (an ancestor is a file, or the
+    nearest existing ancestor is not writable). Returns ``path`` unchanged.
+
+    Permission checks use :func:`os.access`, so they say nothing for root (who may write anywhere
+    but on a read-only file system)."""
+    full = Path(os.path.abspath(path))
+    for pseudo in _PSEUDO_FS:
+        if full == pseudo or pseudo in full.parents:
+            raise OutPathError(f"{option} {path} is under {pseudo}, which cannot hold files; choose a folder on disk")
+    if path.is_symlink() and not path.exists():
+        raise OutPathError(f"{option} {path} is a broken link (to {os.readlink(path)}); choose another folder")
+    if path.exists():
+        if not path.is_dir():
+            raise OutPathError(
+                f"{option} {path} exists and is not a folder; choose a folder (it is created if missing)"
+            )
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise OutPathError(f"{option} {path} is a folder without write permission; choose another folder")
+        return path
+    ancestor = full.parent
+    while not ancestor.exists() and not ancestor.is_symlink():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutPathError(f"{option} {path} cannot be created: {ancestor} is not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise OutPathError(f"{option} {path} cannot be created: no write permission in {ancestor}")
+    return path
+
+
+def check_out_file(path: Path, option: str) -> Path:
+    """Check that a file can be written at ``path`` (``geocon score --rrd``): not a folder, and its
+    folder can be (or is) a writable folder (:func:`check_out_dir`). Raises :class:`OutPathError`
+    with one sentence naming ``option``; returns ``path`` unchanged."""
+    if path.is_dir():
+        raise OutPathError(f"{option} {path} is a folder; give a file name (e.g. {path / 'audit.rrd'})")
+    try:
+        check_out_dir(path.parent, option)
+    except OutPathError as exc:
+        raise OutPathError(f"{option} {path} cannot be written: {str(exc).removeprefix(f'{option} ')}") from None
+    return path
+
+
+def part_prefix(target: Path) -> str:
+    """Name prefix of the temporary siblings in which ``target`` is built (``.NAME.part-``,
+    followed by the writer's pid)."""
+    return f".{target.name}.part-"
+
+
+def clear_stale_parts(target: Path) -> None:
+    """Remove the temporary siblings of ``target`` left by runs that were killed (their process
+    is gone); those of running processes stay."""
+    stem = part_prefix(target)
+    with suppress(OSError):
+        for stale in target.parent.glob(f"{stem}*"):
+            pid = stale.name[len(stem) :].split("-", 1)[0]
+            if pid.isdigit() and int(pid) != os.getpid() and not pid_alive(int(pid)):
+                if stale.is_dir() and not stale.is_symlink():
+                    shutil.rmtree(stale, ignore_errors=True)
+                else:
+                    stale.unlink(missing_ok=True)
+
+
+@contextmanager
+def replace_dir(target: Path) -> Iterator[Path]:
+    """Yield a new, empty temporary sibling of ``target`` to write into. When the block ends without
+    an error, it replaces ``target`` (a previous ``target`` is removed only then); on an error it is
+    removed and ``target`` is left exactly as it was. Temporary siblings left by killed runs (their
+    process is gone) are removed first.
+
+    The replacement is two renames on one file system: a reader sees the old folder, for an instant
+    no folder, then the new one; never a partial one."""
+    if target.is_symlink():  # replace the folder the link points to, keep the link
+        target = Path(os.path.realpath(target))
+    parent = target.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    clear_stale_parts(target)
+    tmp = parent / f"{part_prefix(target)}{os.getpid()}-{secrets.token_hex(4)}"
+    tmp.mkdir()  # honours the umask, unlike tempfile.mkdtemp (0700)
+    try:
+        yield tmp
+        if target.exists() or target.is_symlink():
+            old = parent / f".{target.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+            target.rename(old)
+            try:
+                tmp.rename(target)
+            except BaseException:
+                old.rename(target)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
