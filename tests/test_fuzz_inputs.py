@@ -7,7 +7,8 @@ inside numpy or OpenCV without the file's name, or a hang.
 The examples are derandomized (the same mutants on every run). Each test runs all its examples,
 collects the distinct failures (by exception type and message, numbers masked) with the first
 mutation that gave each, and fails once with the whole list, so one run shows every kind of
-failure rather than the first."""
+failure rather than the first. 860 mutants in all (the counts passed to each test below); raise
+them for a longer hunt."""
 
 from __future__ import annotations
 
@@ -263,21 +264,21 @@ def fuzz_file(
 
 def test_mutated_mp4(seeds, tmp_path):
     """An MP4 with its index (``moov``) at the end: most truncations lose it."""
-    fuzz_file(seeds["mp4"].read_bytes(), ".mp4", read_clip, tmp_path, 200)
+    fuzz_file(seeds["mp4"].read_bytes(), ".mp4", read_clip, tmp_path, 100)
 
 
 def test_mutated_faststart_mp4(seeds, tmp_path):
     """An MP4 with its index first: truncations and damage reach the decoder."""
-    fuzz_file(seeds["faststart"].read_bytes(), ".mp4", read_clip, tmp_path, 200)
+    fuzz_file(seeds["faststart"].read_bytes(), ".mp4", read_clip, tmp_path, 100)
 
 
 def test_mutated_gif(seeds, tmp_path):
-    fuzz_file(seeds["gif"].read_bytes(), ".gif", read_clip, tmp_path, 200)
+    fuzz_file(seeds["gif"].read_bytes(), ".gif", read_clip, tmp_path, 100)
 
 
 def test_mutated_masks_npz(seeds, tmp_path):
     """The .npz file's bytes (ZIP records, CRCs, the stored array)."""
-    fuzz_file(seeds["npz"].read_bytes(), ".npz", read_masks, tmp_path, 100)
+    fuzz_file(seeds["npz"].read_bytes(), ".npz", read_masks, tmp_path, 80)
 
 
 def _zip_npy(npy: bytes) -> bytes:
@@ -293,11 +294,11 @@ def test_mutated_npy_inside_masks_npz(seeds, tmp_path):
     stored in a valid ZIP, so the mutants reach numpy's .npy parser."""
     with zipfile.ZipFile(seeds["npz"]) as z:
         npy = z.read("labels.npy")
-    fuzz_file(npy[:160], ".npz", read_masks, tmp_path, 200, TEXT, pack=lambda head: _zip_npy(head + npy[160:]))
+    fuzz_file(npy[:160], ".npz", read_masks, tmp_path, 120, TEXT, pack=lambda head: _zip_npy(head + npy[160:]))
 
 
 def test_mutated_pose_log(seeds, tmp_path):
-    fuzz_file(seeds["json"].read_bytes(), ".json", load_pose_log, tmp_path, 300, TEXT)
+    fuzz_file(seeds["json"].read_bytes(), ".json", load_pose_log, tmp_path, 200, TEXT)
 
 
 def fuzz_folder_frame(
@@ -323,9 +324,9 @@ def fuzz_folder_frame(
 
 def test_mutated_png_frame(seeds, tmp_path):
     """Frame 1 of a 3-frame PNG folder mutated."""
-    fuzz_folder_frame(seeds["png"], "00001.png", read_clip, tmp_path, 200, "PNG frame mutants")
+    fuzz_folder_frame(seeds["png"], "00001.png", read_clip, tmp_path, 80, "PNG frame mutants")
 
 
 def test_mutated_palette_mask_png(seeds, tmp_path):
     """Frame 0 of a DAVIS-layout masks folder (indexed PNGs, read through PyAV) mutated."""
-    fuzz_folder_frame(seeds["davis"], "00000.png", read_masks, tmp_path, 150, "palette mask PNG mutants")
+    fuzz_folder_frame(seeds["davis"], "00000.png", read_masks, tmp_path, 80, "palette mask PNG mutants")

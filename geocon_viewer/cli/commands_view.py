@@ -32,7 +32,7 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
         return target.parent
     if not target.exists():
         raise fail(f"{target} does not exist: give a clip or a record folder (one with record.json)")
-    folder = default_out(target)
+    folder = default_out(target, has_out=False)
     if (folder / "record.json").exists():
         err.print(f"using the saved record {folder} (delete it or run `geocon score` to re-score)")
         return folder

@@ -65,10 +65,10 @@ def has_viewer_extra(module: str = "rerun") -> bool:
     return importlib.util.find_spec(module) is not None
 
 
-def default_out(clip: Path) -> Path:
+def default_out(clip: Path, *, has_out: bool = True) -> Path:
     """Where ``geocon score`` writes the record of ``clip`` by default: ``geocon-out/<clip name>``.
-    A folder there that holds the record of another clip with the same name is not overwritten:
-    the command refuses and asks for ``--out``."""
+    A folder there that holds the record of another clip with the same name is not used: the
+    command refuses and asks for ``--out`` (``has_out``) or for a record folder of its own."""
     target = Path("geocon-out") / (clip.name if clip.is_dir() else clip.stem)
     record = target / "record.json"
     if not record.is_file():
@@ -80,10 +80,12 @@ def default_out(clip: Path) -> Path:
     except (OSError, ValueError, AttributeError):
         other = None
     if other is None or Path(other).resolve() != clip.resolve():
-        raise fail(
-            f"{target} already holds the record of {other or 'another clip'}; pass --out to choose a folder "
-            f"for {clip} (or remove {target})"
+        remedy = (
+            f"pass --out to choose a folder for {clip}"
+            if has_out
+            else f"score {clip} into a folder of its own (geocon score {clip} --out DIR) and give DIR"
         )
+        raise fail(f"{target} already holds the record of {other or 'another clip'}; {remedy} (or remove {target})")
     return target
 
 
