@@ -215,7 +215,7 @@ def test_report_is_self_contained_and_names_its_config(results, tmp_path):
     from geocon_core.stats import scene_balanced_median
 
     out = tmp_path / "report"
-    proc = _run("report", str(results), "--out", str(out))
+    proc = _run("report", str(results), "--out", str(out), "--bootstrap", "500")
     assert proc.returncode == 0, proc.stderr
     page = (out / "report.html").read_text()
     bench = json.loads((results / "bench.json").read_text())

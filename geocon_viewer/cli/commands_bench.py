@@ -124,6 +124,10 @@ def report(
     results: Annotated[Path, typer.Argument(help="Results folder written by `geocon bench`.")],
     out_dir: Annotated[Optional[Path], typer.Option("--out", help="Report folder (default: RESULTS/report).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the bootstrap resampling.")] = 0,
+    bootstrap: Annotated[
+        int,
+        typer.Option(min=100, help="Bootstrap resamples behind every confidence interval (fewer: faster, coarser)."),
+    ] = 10_000,
 ) -> None:
     """The paper's tables and figures from benchmark results: PNG/SVG figures and one
     self-contained HTML report that opens offline."""
@@ -133,7 +137,11 @@ def report(
         raise fail(f"the report needs the bench extra: pip install 'geocon[bench]' ({exc})") from None
     try:
         result = build_report(
-            results, out_dir, seed=seed, progress=lambda what: err.print(f"report: {what}", highlight=False)
+            results,
+            out_dir,
+            seed=seed,
+            bootstrap=bootstrap,
+            progress=lambda what: err.print(f"report: {what}", highlight=False),
         )
     except ValueError as exc:
         raise fail(str(exc)) from None
