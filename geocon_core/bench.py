@@ -92,6 +92,7 @@ def score_to_folder(
     *,
     masks: Path | None = None,
     pose_log: Path | None = None,
+    flow_checkpoint: Path | None = None,
     progress: Callable[[int, int], None] | None = None,
     sinks: list[Callable[[Path], Any]] = (),  # type: ignore[assignment]
 ):
@@ -116,7 +117,15 @@ def score_to_folder(
 
     try:
         with staged_record(out_dir) as stage:
-            record = score_clip(clip, cfg, pose_log=pose_log, masks=masks, on_frame=on_frame, progress=progress)
+            record = score_clip(
+                clip,
+                cfg,
+                pose_log=pose_log,
+                masks=masks,
+                flow_checkpoint=flow_checkpoint,
+                on_frame=on_frame,
+                progress=progress,
+            )
             made[0].close()
             write_record(record, stage)
         for sink in made[1:]:

@@ -43,15 +43,22 @@ Backends
     thread counts, but an OpenCV DIS object keeps state from its previous call, so every call
     uses a fresh one: the flow of two images does not depend on what was computed before, and
     :meth:`DisFlow.compute` is thread-safe.
-``raft``
-    Not available in this build: RAFT needs torch and a trained checkpoint, and
-    :func:`make_flow_backend` says so instead of pretending.
+``raft`` (:class:`RaftFlow`, the ``neural`` extra and a checkpoint the user gives)
+    RAFT-small (Teed and Deng 2020; :mod:`geocon_core.raft`, this project's own torch module in
+    the released checkpoints' layout) with 12 iterations, on the grey image repeated in three
+    channels; the computed region is padded (edge pixels repeated) to sides that are multiples
+    of 8 and at least 128 px. Forward and backward flow run as one batch of two, and the same
+    forward-backward rule as DIS decides reliability (the ``fb_abs``, ``fb_rel`` and ``margin``
+    of :class:`~geocon_core.stage_configs.FlowConfig`; its DIS preset does not apply). A GPU is
+    used when torch sees one. ``make_flow_backend("raft", checkpoint=PATH)``.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import threading
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any, Protocol, Sequence
 
 import cv2
@@ -64,6 +71,7 @@ __all__ = [
     "FlowBackend",
     "DisFlow",
     "FLOW_BACKENDS",
+    "RaftFlow",
     "DIS_PRESETS",
     "make_flow_backend",
     "forward_backward",
@@ -160,7 +168,49 @@ def _check_box(box: Box | None, shape: tuple[int, int]) -> Box:
     return (x0, y0, x1, y1)
 
 
-class DisFlow:
+class _RegionFlow:
+    """What every backend does around its flow: the box grown by the margin, forward and
+    backward flow of that region (:meth:`_both`, the backend's own), the forward-backward check
+    of each, and the fields cropped back to the box."""
+
+    config: FlowConfig
+
+    def _both(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:
+        """Forward flow ``gray0 -> gray1`` over ``box`` (the whole frame if None)."""
+        return self.compute_both(gray0, gray1, box)[0]
+
+    def compute_both(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> tuple[FlowField, FlowField]:
+        """The forward field ``gray0 -> gray1`` (on ``gray0``'s pixels) and the backward field
+        ``gray1 -> gray0`` (on ``gray1``'s pixels) over the same ``box``, each with its own
+        forward-backward check; one pair of flow runs serves both."""
+        _check_images(gray0, gray1)
+        h, w = gray0.shape
+        x0, y0, x1, y1 = _check_box(box, (h, w))
+        m = self.config.margin
+        rx0, ry0, rx1, ry1 = max(0, x0 - m), max(0, y0 - m), min(w, x1 + m), min(h, y1 + m)
+        a = np.ascontiguousarray(gray0[ry0:ry1, rx0:rx1])
+        b = np.ascontiguousarray(gray1[ry0:ry1, rx0:rx1])
+        fwd, bwd = self._both(a, b)
+        err_f, rel_f = forward_backward(fwd, bwd, self.config.fb_abs, self.config.fb_rel)
+        err_b, rel_b = forward_backward(bwd, fwd, self.config.fb_abs, self.config.fb_rel)
+        sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
+        out = []
+        for flow, err, rel in ((fwd, err_f, rel_f), (bwd, err_b, rel_b)):
+            out.append(
+                FlowField(
+                    box=(x0, y0, x1, y1),
+                    flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
+                    reliable=np.ascontiguousarray(rel[sl]),
+                    fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
+                )
+            )
+        return out[0], out[1]
+
+
+class DisFlow(_RegionFlow):
     """OpenCV DIS optical flow (``name = "dis"``); see the module docstring for the preset and
     the reliability rule.
 
@@ -195,36 +245,53 @@ class DisFlow:
         dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])  # type: ignore[attr-defined]  # missing from the cv2 stubs
         return np.ascontiguousarray(dis.calc(a, b, None)[:h, :w])
 
-    def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:
-        """Forward flow ``gray0 -> gray1`` over ``box`` (the whole frame if None)."""
-        return self.compute_both(gray0, gray1, box)[0]
+    def _both(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self._calc(a, b), self._calc(b, a)
 
-    def compute_both(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> tuple[FlowField, FlowField]:
-        """The forward field ``gray0 -> gray1`` (on ``gray0``'s pixels) and the backward field
-        ``gray1 -> gray0`` (on ``gray1``'s pixels) over the same ``box``, each with its own
-        forward-backward check; one pair of DIS runs serves both."""
-        _check_images(gray0, gray1)
-        h, w = gray0.shape
-        x0, y0, x1, y1 = _check_box(box, (h, w))
-        m = self.config.margin
-        rx0, ry0, rx1, ry1 = max(0, x0 - m), max(0, y0 - m), min(w, x1 + m), min(h, y1 + m)
-        a = np.ascontiguousarray(gray0[ry0:ry1, rx0:rx1])
-        b = np.ascontiguousarray(gray1[ry0:ry1, rx0:rx1])
-        fwd, bwd = self._calc(a, b), self._calc(b, a)
-        err_f, rel_f = forward_backward(fwd, bwd, self.config.fb_abs, self.config.fb_rel)
-        err_b, rel_b = forward_backward(bwd, fwd, self.config.fb_abs, self.config.fb_rel)
-        sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
-        out = []
-        for flow, err, rel in ((fwd, err_f, rel_f), (bwd, err_b, rel_b)):
-            out.append(
-                FlowField(
-                    box=(x0, y0, x1, y1),
-                    flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
-                    reliable=np.ascontiguousarray(rel[sl]),
-                    fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
-                )
+
+class RaftFlow(_RegionFlow):
+    """RAFT-small optical flow (``name = "raft"``; see the module docstring). ``checkpoint``:
+    the user's ``raft-small.pth``; ``device``: a torch device (default: CUDA when torch sees
+    one, else the CPU). Calls are serialised (one network, torch spreads each call over the
+    cores itself)."""
+
+    name = "raft"
+
+    def __init__(
+        self, config: FlowConfig | None = None, *, checkpoint: str | Path | None = None, device: str | None = None
+    ) -> None:
+        if checkpoint is None:
+            raise ValueError("the raft flow backend needs a checkpoint: pass --raft-checkpoint PATH (raft-small.pth)")
+        if importlib.util.find_spec("torch") is None:
+            raise ValueError("the raft flow backend needs torch: pip install 'geocon[neural]'")
+        import torch
+
+        from .raft import load_raft_small
+
+        self.config = config or FlowConfig()
+        self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        self.model = load_raft_small(checkpoint, self.device)
+        self._lock = threading.Lock()
+
+    def __repr__(self) -> str:
+        return f"RaftFlow(device={self.device!r}, fb_abs={self.config.fb_abs}, fb_rel={self.config.fb_rel})"
+
+    def _both(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        import torch
+
+        from .raft import MIN_SIDE
+
+        h, w = a.shape
+        ph = max(MIN_SIDE, -(-h // 8) * 8) - h
+        pw = max(MIN_SIDE, -(-w // 8) * 8) - w
+        pads = [cv2.copyMakeBorder(g, 0, ph, 0, pw, cv2.BORDER_REPLICATE) for g in (a, b)]
+        rgb = [torch.from_numpy(np.repeat(g[None], 3, axis=0)).float() for g in pads]
+        with self._lock, torch.no_grad():
+            flow = self.model(
+                torch.stack([rgb[0], rgb[1]]).to(self.device), torch.stack([rgb[1], rgb[0]]).to(self.device)
             )
-        return out[0], out[1]
+        out = flow.permute(0, 2, 3, 1).cpu().numpy()[:, :h, :w]
+        return np.ascontiguousarray(out[0]), np.ascontiguousarray(out[1])
 
 
 def chained_flow(backend: FlowBackend, grays: Sequence[np.ndarray], box: Box | None = None) -> FlowField:
@@ -254,28 +321,16 @@ def chained_flow(backend: FlowBackend, grays: Sequence[np.ndarray], box: Box | N
     return FlowField(first.box, flow, reliable, err)
 
 
-FLOW_BACKENDS: dict[str, type] = {"dis": DisFlow}
+FLOW_BACKENDS: dict[str, type] = {"dis": DisFlow, "raft": RaftFlow}
 """Available flow backends by name."""
-
-
-def _raft_missing() -> str:
-    torch = "torch is installed" if importlib.util.find_spec("torch") is not None else "torch is not installed"
-    return (
-        f"RAFT needs torch and a checkpoint: {torch}, and this build ships neither RAFT weights nor a "
-        f"loader for them; use one of: {', '.join(FLOW_BACKENDS)}"
-    )
 
 
 def make_flow_backend(name: str, config: FlowConfig | None = None, **kwargs: Any) -> FlowBackend:
     """The flow backend called ``name`` (case-insensitive), built with its settings ``config``
-    (defaults when None) and single-field overrides ``kwargs``. Raises
-    ValueError for unknown names (listing the valid ones) and for ``raft``, which this build
-    cannot run."""
+    (defaults when None) and its keyword arguments ``kwargs`` (``DisFlow``: single-field
+    overrides; ``RaftFlow``: ``checkpoint``, ``device``). Raises ValueError for unknown names
+    (listing the valid ones) and, for ``raft``, when torch or the checkpoint is missing."""
     key = str(name).strip().lower()
-    if key == "raft":
-        raise ValueError(_raft_missing())
     if key not in FLOW_BACKENDS:
-        raise ValueError(
-            f"unknown flow backend {name!r}; valid: {', '.join(FLOW_BACKENDS)} (raft needs torch and a checkpoint)"
-        )
+        raise ValueError(f"unknown flow backend {name!r}; valid: {', '.join(FLOW_BACKENDS)}")
     return FLOW_BACKENDS[key](config, **kwargs)

@@ -318,12 +318,24 @@ def _timed(frames: Iterator[Frame], timer: _Timer) -> Iterator[Frame]:
         yield frame
 
 
+def _flow_backend(cfg: ScoreConfig, checkpoint: str | Path | None) -> FlowBackend | None:
+    """The dense flow of the masks and objects (None without masks); a checkpoint only for a
+    backend that loads one."""
+    weighted = cfg.flow.strip().lower() == "raft"
+    if checkpoint is not None and not weighted:
+        raise ValueError(f"a flow checkpoint was given but the flow backend is {cfg.flow!r} (use --flow raft)")
+    if cfg.masks == "none":
+        return None
+    return make_flow_backend(cfg.flow, cfg.flow_params, **({"checkpoint": checkpoint} if weighted else {}))
+
+
 def score_clip(
     path: str | Path,
     config: ScoreConfig | None = None,
     *,
     pose_log: str | Path | None = None,
     masks: str | Path | None = None,
+    flow_checkpoint: str | Path | None = None,
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     timings: dict[str, float] | None = None,
@@ -332,7 +344,8 @@ def score_clip(
     """Score one clip. ``pose_log`` replaces the pose backend by an external pose (JSON, see
     :mod:`geocon_core.pose`); ``masks`` is a path to external object masks (see
     :mod:`geocon_core.masks`), otherwise ``config.masks`` chooses the built-in segmentation or
-    none; ``progress(done, total)`` is called as frames are processed; ``timings``, if given,
+    none; ``flow_checkpoint`` is the weights file of a neural flow backend (``config.flow ==
+    "raft"``: a ``raft-small.pth``); ``progress(done, total)`` is called as frames are processed; ``timings``, if given,
     receives seconds per stage (summed over worker threads); ``on_frame``, if given, receives a
     :class:`~geocon_core.diagnostics.FrameDiagnostics` per frame, in frame order, on the calling
     thread. Raises :class:`~geocon_core.reader.ClipError` for unusable input."""
@@ -342,20 +355,18 @@ def score_clip(
     timer = _Timer(timings)
     if cfg.masks != "none":
         _import_aside("ot")  # AdaDFRC's transport solver
-    # a pose log and external masks are checked before the clip is decoded
+    # a pose log, external masks and flow weights are checked before the clip is decoded
     backend: PoseBackend = (
         load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
     )
     if masks is not None:
         check_masks_path(masks)
+    flow = _flow_backend(cfg, flow_checkpoint)  # shared: thread-safe per instance
     start = time.perf_counter()
     info = probe_clip(path, cfg)
     timer.add("probe", start)
     n = info.num_frames
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio, anchors=(0, n - 1))
-    flow = (
-        make_flow_backend(cfg.flow, cfg.flow_params) if cfg.masks != "none" else None
-    )  # shared: thread-safe per instance
     mask_source = _mask_source(cfg, info, masks, flow)
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
     stages = _Pipeline(info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None)

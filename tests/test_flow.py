@@ -240,12 +240,12 @@ def test_flow_does_not_depend_on_earlier_calls() -> None:
 
 
 def test_registry_and_errors() -> None:
-    assert set(FLOW_BACKENDS) == {"dis"}
+    assert set(FLOW_BACKENDS) == {"dis", "raft"}
     backend = make_flow_backend("DIS", preset="fast", fb_abs=1.0)
     assert backend.name == "dis" and isinstance(backend, DisFlow) and backend.config.preset == "fast"
-    with pytest.raises(ValueError, match=r"unknown flow backend 'farneback'; valid: dis"):
+    with pytest.raises(ValueError, match=r"unknown flow backend 'farneback'; valid: dis, raft"):
         make_flow_backend("farneback")
-    with pytest.raises(ValueError, match=r"RAFT needs torch and a checkpoint: .*torch"):
+    with pytest.raises(ValueError, match=r"needs a checkpoint: pass --raft-checkpoint PATH"):
         make_flow_backend("raft")
     with pytest.raises(ValueError, match="unknown DIS preset"):
         DisFlow(preset="slow")

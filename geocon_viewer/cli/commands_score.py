@@ -64,6 +64,7 @@ def score_with_progress(
     masks: Path | None = None,
     quiet: bool = False,
     rrd: Path | None = None,
+    flow_checkpoint: Path | None = None,
 ) -> ClipRecord:
     """Score a clip with a progress bar on stderr that appears once the clip is readable; write
     the record (with its overlays) into ``out_dir`` and, with ``rrd``, a Rerun recording."""
@@ -79,6 +80,7 @@ def score_with_progress(
                 out_dir,
                 pose_log=pose_log,
                 masks=masks,
+                flow_checkpoint=flow_checkpoint,
                 sinks=sinks,
                 progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
             )
@@ -168,12 +170,28 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
     out.print(table)
 
 
-def _config(preset_name: str, matcher: str | None, fov: float | None, masks: Path | None, no_masks: bool) -> Any:
+def _config(
+    preset_name: str,
+    matcher: str | None,
+    fov: float | None,
+    masks: Path | None,
+    no_masks: bool,
+    flow: str | None = None,
+    flow_checkpoint: Path | None = None,
+) -> Any:
     from geocon_core.config import preset
     from geocon_core.features import make_matcher
+    from geocon_core.flow import FLOW_BACKENDS
 
     cfg = preset(preset_name)
-    overrides: dict[str, Any] = {k: v for k, v in (("matcher", matcher), ("fov_x_deg", fov)) if v is not None}
+    settings = (("matcher", matcher), ("fov_x_deg", fov), ("flow", flow))
+    overrides: dict[str, Any] = {k: v for k, v in settings if v is not None}
+    if flow is not None and flow.strip().lower() not in FLOW_BACKENDS:
+        raise ValueError(f"unknown flow backend {flow!r}; valid: {', '.join(FLOW_BACKENDS)}")
+    if (flow or cfg.flow).strip().lower() == "raft" and flow_checkpoint is None:
+        raise ValueError("--flow raft needs --raft-checkpoint PATH (a raft-small.pth; nothing is downloaded)")
+    if flow_checkpoint is not None and (flow or cfg.flow).strip().lower() != "raft":
+        raise ValueError("--raft-checkpoint is used with --flow raft")
     if no_masks:
         if masks is not None:
             raise ValueError("--masks and --no-masks exclude each other")
@@ -233,6 +251,15 @@ def score(
     fov: Annotated[
         Optional[float], typer.Option(help="Assumed horizontal field of view in degrees (default 60; 10 to 150).")
     ] = None,
+    flow: Annotated[
+        Optional[str],
+        typer.Option(
+            help="Dense flow of the masks and objects: dis (default, no weights) or raft (needs --raft-checkpoint)."
+        ),
+    ] = None,
+    raft_checkpoint: Annotated[
+        Optional[Path], typer.Option(help="RAFT-small weights (raft-small.pth from the RAFT authors) for --flow raft.")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
     rrd: Annotated[
         Optional[Path],
@@ -247,12 +274,21 @@ def score(
     (GE) per frame pair and scale, the report verdict; writes the audit record."""
     target = out_dir or default_out(clip)
     try:
-        cfg = _config(preset_name, matcher, fov, masks, no_masks)
+        cfg = _config(preset_name, matcher, fov, masks, no_masks, flow, raft_checkpoint)
         check_inputs(target, pose_log=pose_log, masks=masks, rrd=rrd)
     except ValueError as exc:
         raise fail(str(exc)) from None
     try:
-        record = score_with_progress(clip, cfg, out_dir=target, pose_log=pose_log, masks=masks, quiet=as_json, rrd=rrd)
+        record = score_with_progress(
+            clip,
+            cfg,
+            out_dir=target,
+            pose_log=pose_log,
+            masks=masks,
+            quiet=as_json,
+            rrd=rrd,
+            flow_checkpoint=raft_checkpoint,
+        )
     except ValueError as exc:
         if not is_input_error(exc):
             raise
