@@ -14,6 +14,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``view``            a saved record in the Rerun viewer (:mod:`.commands_view`)
 ``serve``           a results folder in the Viser audit app
 ``validate``        the validation report: synthetic grid and annotated real clips (:mod:`.commands_validate`)
+``doctor``          which backends, viewers and extras are usable here (:mod:`.commands_doctor`)
 ==================  ============================================================================
 """
 
@@ -25,7 +26,15 @@ import typer
 
 from geocon_core import __version__
 
-from . import commands_bench, commands_demo, commands_score, commands_synth, commands_validate, commands_view
+from . import (
+    commands_bench,
+    commands_demo,
+    commands_doctor,
+    commands_score,
+    commands_synth,
+    commands_validate,
+    commands_view,
+)
 from .console import out
 
 __all__ = ["app", "main"]
@@ -66,6 +75,7 @@ app.command("presets")(commands_bench.presets)
 app.command("view")(commands_view.view)
 app.command("serve")(commands_view.serve)
 app.command("validate")(commands_validate.validate)
+app.command("doctor")(commands_doctor.doctor)
 
 
 def main() -> None:
