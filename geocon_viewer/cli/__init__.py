@@ -14,6 +14,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``view``            a saved record in the Rerun viewer (:mod:`.commands_view`)
 ``serve``           a results folder in the Viser audit app
 ``validate``        the validation report: synthetic grid and annotated real clips (:mod:`.commands_validate`)
+``pose-log``        a pose log from a COLMAP model or a DUSt3R scene (:mod:`.commands_pose`)
 ``doctor``          which backends, viewers and extras are usable here (:mod:`.commands_doctor`)
 ==================  ============================================================================
 """
@@ -30,6 +31,7 @@ from . import (
     commands_bench,
     commands_demo,
     commands_doctor,
+    commands_pose,
     commands_score,
     commands_synth,
     commands_validate,
@@ -75,6 +77,7 @@ app.command("presets")(commands_bench.presets)
 app.command("view")(commands_view.view)
 app.command("serve")(commands_view.serve)
 app.command("validate")(commands_validate.validate)
+app.command("pose-log")(commands_pose.pose_log)
 app.command("doctor")(commands_doctor.doctor)
 
 

@@ -1,0 +1,53 @@
+"""``geocon pose-log``: a pose log (``geocon-pose/1``) from a COLMAP model or a DUSt3R scene run
+elsewhere, for ``geocon score --pose-log``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from .console import fail, out
+
+__all__ = ["pose_log"]
+
+
+def pose_log(
+    source: Annotated[
+        Path,
+        typer.Argument(
+            help="A COLMAP sparse model in text format (a folder with images.txt and points3D.txt) or a DUSt3R "
+            "scene saved as .npz (poses: cam-to-world (N, 4, 4); pts3d: the first view's point map)."
+        ),
+    ],
+    out_file: Annotated[Path, typer.Option("--out", help="The pose log to write (JSON).")],
+    first: Annotated[
+        Optional[str], typer.Option(help="COLMAP: name of the clip's first frame (default: first by name).")
+    ] = None,
+    last: Annotated[
+        Optional[str], typer.Option(help="COLMAP: name of the clip's last frame (default: last by name).")
+    ] = None,
+) -> None:
+    """Turn a reconstruction made elsewhere (COLMAP, DUSt3R) into the pose log that `geocon score
+    --pose-log` reads: the first -> last relative pose on the scale of the first camera's mean
+    scene distance."""
+    from geocon_core.paths import check_out_file
+    from geocon_core.pose.convert import from_colmap, from_dust3r, write_pose_log
+    from geocon_core.pose.log import PoseLog
+
+    try:
+        check_out_file(out_file, "--out")
+        if source.is_dir():
+            log = from_colmap(source, first, last)
+        else:
+            if first is not None or last is not None:
+                raise ValueError("--first and --last name COLMAP images; a DUSt3R scene uses its first and last view")
+            log = from_dust3r(source)
+        write_pose_log(log, out_file)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    t_inf = PoseLog(out_file).t_inf
+    out.print(
+        f"pose log: {out_file} ({log['source']}; t_inf {t_inf:.4f} on the unit mean scene distance)", soft_wrap=True
+    )
