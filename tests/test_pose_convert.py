@@ -96,6 +96,11 @@ def test_dust3r_scene_gives_the_true_pose_on_the_unit_scale(tmp_path):
     (tmp_path / "p.json").write_text(json.dumps(from_dust3r(tmp_path / "scene.npz")))
     pose = PoseLog(tmp_path / "p.json")
     assert np.allclose(pose.T_unit, T_rel, atol=1e-9)
+    # every view's point map and mask, as the global aligner returns them
+    np.savez(tmp_path / "all.npz", poses=np.stack(cams), pts3d=np.stack([grid] * 3), mask=np.stack([mask] * 3))
+    assert from_dust3r(tmp_path / "all.npz") == from_dust3r(tmp_path / "scene.npz") | {
+        "source": from_dust3r(tmp_path / "all.npz")["source"]
+    }
 
 
 def test_quaternion_convention_is_colmaps():

@@ -13,7 +13,7 @@ COLMAP (:func:`from_colmap`)
 DUSt3R (:func:`from_dust3r`)
     An ``.npz`` with ``poses``, the cameras' cam-to-world matrices (N, 4, 4) in frame order, and
     ``pts3d``, the first view's point map in world coordinates (H, W, 3) or every view's (N, H,
-    W, 3), with an optional boolean ``mask`` of the first view's confident points (H, W): what
+    W, 3), with an optional boolean ``mask`` of the confident points (H, W), or (N, H, W): what
     ``scene.get_im_poses()``, ``scene.get_pts3d()`` and ``scene.get_masks()`` of DUSt3R's global
     aligner return, saved with ``numpy.savez``. The scale is that of the point map.
 
@@ -166,6 +166,8 @@ def from_dust3r(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"{p}: pts3d must be (H, W, 3) or (N, H, W, 3), got {pts.shape}")
     xyz = first_view.reshape(-1, 3)
     if mask is not None:
+        if mask.ndim == 3:  # every view's mask: the first view's is the one that counts
+            mask = mask[0]
         if mask.shape != first_view.shape[:2]:
             raise ValueError(f"{p}: mask is {mask.shape} but the first point map is {first_view.shape[:2]}")
         xyz = xyz[mask.reshape(-1)]
