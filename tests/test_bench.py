@@ -253,7 +253,7 @@ def test_report_is_self_contained_and_names_its_config(results, tmp_path):
     for name, df in tables.items():
         keep = df[df["model"] == "clean"] if name != "objects" and name != "object_frames" else df.iloc[0:0]
         keep.to_parquet(one / "tables" / f"{name}.parquet", index=False)
-    res = build_report(one, bootstrap=200)
+    res = build_report(one, bootstrap=200, formats=("png",))
     assert res.html.is_file()
     assert any("Effect sizes" in w for w in res.warnings) and any("AdaP90" in w for w in res.warnings)
 
