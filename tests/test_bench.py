@@ -58,7 +58,7 @@ def _broken_clip(root: Path) -> None:
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("bench-data")
-    write_benchmark(root, plan_benchmark(families=("C1", "C3", "C4"), scenes=2), width=320, height=180, num_frames=16)
+    write_benchmark(root, plan_benchmark(families=("C1", "C3", "C4"), scenes=2), width=320, height=180, num_frames=12)
     _broken_clip(root)
     return root
 
