@@ -228,7 +228,7 @@ def container_frame_count(name: str) -> FrameCount | None:
             rate = stream.average_rate
             duration, time_base = stream.duration, stream.time_base
             own = duration is not None and time_base is not None  # the stream's own duration
-            if duration is not None and time_base is not None:
+            if duration is not None and time_base is not None:  # (spelt out: mypy narrows on it)
                 seconds = float(duration * time_base)
             else:  # the container's (Matroska stores no per-stream duration)
                 seconds = container.duration / 1e6 if container.duration else 0.0

@@ -17,7 +17,16 @@ from typing import Iterator
 
 from .procs import pid_alive
 
-__all__ = ["OutPathError", "check_out_dir", "check_out_file", "clear_stale_parts", "part_prefix", "replace_dir"]
+__all__ = [
+    "OutPathError",
+    "check_out_dir",
+    "check_out_file",
+    "clear_stale_parts",
+    "part_path",
+    "part_prefix",
+    "remove_path",
+    "replace_dir",
+]
 
 _PSEUDO_FS = (Path("/proc"), Path("/sys"))
 """Kernel file systems: a folder there cannot hold a command's output."""
@@ -80,6 +89,19 @@ def part_prefix(target: Path) -> str:
     return f".{target.name}.part-"
 
 
+def part_path(target: Path) -> Path:
+    """This process's temporary sibling of ``target`` (``.NAME.part-<pid>``)."""
+    return target.with_name(f"{part_prefix(target)}{os.getpid()}")
+
+
+def remove_path(path: Path) -> None:
+    """Remove a file, a link or a folder with its contents; nothing if it is absent."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
 def clear_stale_parts(target: Path) -> None:
     """Remove the temporary siblings of ``target`` left by runs that were killed (their process
     is gone); those of running processes stay."""
@@ -88,10 +110,7 @@ def clear_stale_parts(target: Path) -> None:
         for stale in target.parent.glob(f"{stem}*"):
             pid = stale.name[len(stem) :].split("-", 1)[0]
             if pid.isdigit() and int(pid) != os.getpid() and not pid_alive(int(pid)):
-                if stale.is_dir() and not stale.is_symlink():
-                    shutil.rmtree(stale, ignore_errors=True)
-                else:
-                    stale.unlink(missing_ok=True)
+                remove_path(stale)
 
 
 @contextmanager

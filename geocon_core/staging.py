@@ -14,26 +14,17 @@ running) are removed by the next run into the same folder.
 from __future__ import annotations
 
 import contextlib
-import os
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
 from .diagnostics import OVERLAYS_DIR
 from .layout import RRD_NAME
-from .paths import clear_stale_parts, part_prefix
+from .paths import clear_stale_parts, part_path, remove_path
 
 __all__ = ["RECORD_PARTS", "staged_record"]
 
 RECORD_PARTS = (OVERLAYS_DIR, "matches.npz", RRD_NAME, "record.json")
 """What a record folder holds, in the order a commit moves them (``record.json`` last)."""
-
-
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        path.unlink(missing_ok=True)
 
 
 def _commit(stage: Path, out_dir: Path) -> None:
@@ -46,7 +37,7 @@ def _commit(stage: Path, out_dir: Path) -> None:
                 old.rename(trash)  # a folder cannot be replaced by rename while it holds files
             new.replace(old)
         elif old.exists() or old.is_symlink():
-            _remove(old)  # a part of the previous record that this one does not have
+            remove_path(old)  # a part of the previous record that this one does not have
 
 
 @contextlib.contextmanager
@@ -57,11 +48,11 @@ def staged_record(out_dir: str | Path) -> Iterator[Path]:
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     clear_stale_parts(out_dir)
-    stage = out_dir.parent / f"{part_prefix(out_dir)}{os.getpid()}"
-    _remove(stage)
+    stage = part_path(out_dir)
+    remove_path(stage)
     stage.mkdir()
     try:
         yield stage
         _commit(stage, out_dir)
     finally:
-        _remove(stage)
+        remove_path(stage)

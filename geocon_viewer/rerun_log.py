@@ -38,7 +38,6 @@ logged at frame t. Entity paths:
 from __future__ import annotations
 
 import contextlib
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -49,6 +48,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from geocon_core.diagnostics import FlowSlice, FrameDiagnostics, flow_hue
+from geocon_core.paths import clear_stale_parts, part_path
 from geocon_core.reader import DEFAULT_FPS
 from geocon_core.record import ClipRecord
 
@@ -284,7 +284,8 @@ class RrdSink:
         sinks: list = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.part = self.path.with_name(f".{self.path.name}.part-{os.getpid()}")
+            clear_stale_parts(self.path)
+            self.part = part_path(self.path)
             sinks.append(rr.FileSink(str(self.part)))
         if connect is not None:
             sinks.append(rr.GrpcSink(connect))

@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..npz import NPZ_ERRORS
+from ..paths import part_path
 from .log import POSE_LOG_FORMAT, PoseLog
 
 __all__ = ["from_colmap", "from_dust3r", "write_pose_log", "rotation_from_quaternion"]
@@ -183,7 +183,7 @@ def write_pose_log(log: dict[str, Any], out: str | Path) -> Path:
     """Write ``log`` as JSON to ``out`` once :class:`~geocon_core.pose.log.PoseLog` accepts it
     (a rotation, a plausible translation): written beside ``out`` and renamed into place."""
     out = Path(out)
-    tmp = out.with_name(f".{out.name}.part-{os.getpid()}")
+    tmp = part_path(out)
     tmp.write_text(json.dumps(log, indent=1) + "\n", encoding="utf-8")
     try:
         PoseLog(tmp)

@@ -73,11 +73,11 @@ def default_out(clip: Path, *, has_out: bool = True) -> Path:
     record = target / "record.json"
     if not record.is_file():
         return target
-    import json
+    from geocon_core.record import read_record_json
 
     try:
-        other = json.loads(record.read_text(encoding="utf-8")).get("clip")
-    except (OSError, ValueError, AttributeError):
+        other = read_record_json(target)[1].get("clip")
+    except ValueError:  # unreadable or not a record: not this clip's either
         other = None
     if other is None or Path(other).resolve() != clip.resolve():
         remedy = (
