@@ -5,6 +5,7 @@
     .venv/bin/python benchmarks/bench_score.py --memory      # 120 vs 480 frames
     .venv/bin/python benchmarks/bench_score.py --matcher klt # another matcher than the preset's
     .venv/bin/python benchmarks/bench_score.py --rrd         # cost and size of the Rerun recording
+    .venv/bin/python benchmarks/bench_score.py --rrd --family C3  # ... of a translation clip
 
 Renders a C4 clip (static camera, two moving objects) once into a cache folder, then scores
 it in a fresh process per measurement, without and with mask-first separation (built-in
@@ -12,7 +13,9 @@ motion segmentation, flow and AdaDFRC-W2), and prints frames per second end to e
 utilisation of the scoring ((user + system CPU time) / (wall time x cores)), seconds per stage
 (summed over the worker threads, so they can exceed the wall time) and the peak resident
 memory. With ``--rrd`` it scores the clip (paper preset, motion masks) without and with
-the Rerun recording streamed while scoring, and prints the recording's size and the time it adds.
+the Rerun recording streamed while scoring (with the dense point clouds, as ``geocon score --rrd``
+makes them), and prints the recording's size and the time it adds; ``--family`` picks another
+synthetic family (C3: a translating camera, whose dense clouds are not empty).
 """
 
 from __future__ import annotations
@@ -58,7 +61,12 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
     cfg = preset(preset_name).with_(masks=masks)
     if matcher != "-":
         cfg = cfg.with_(matcher=matcher)
-    record = score_clip(path, cfg, timings=timings, on_frame=sink)
+    dense = None
+    if sink is not None:
+        from geocon_core.dense_cloud import DenseCloudConfig
+
+        dense = DenseCloudConfig()
+    record = score_clip(path, cfg, timings=timings, on_frame=sink, dense=dense)
     if sink is not None:
         sink.finish(record)
     wall = time.perf_counter() - t0
@@ -79,6 +87,7 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
         "ir": record.background.ir,
         "gate": record.gate.label,
         "rrd_mb": round(Path(rrd).stat().st_size / 1e6, 2) if sink is not None else None,
+        "dense_points": [len(w.cloud) for w in record.dense],
     }
 
 
@@ -103,6 +112,12 @@ def rrd_overhead(path: Path, preset_name: str, matcher: str, repeats: int = 2) -
     print(f"  scoring alone      {a['wall_s']:7.1f} s  ({a['fps']:.2f} frames/s, peak RSS {a['peak_rss_mib']:.0f} MiB)")
     print(f"  scoring + .rrd     {b['wall_s']:7.1f} s  ({b['fps']:.2f} frames/s, peak RSS {b['peak_rss_mib']:.0f} MiB)")
     print(f"  recording adds     {100 * extra:+.1f} % time; .rrd {b['rrd_mb']:.1f} MB (targets: <= 30 %, <= 15 MB)")
+    pts = b["dense_points"]
+    if pts:
+        print(
+            f"  dense clouds       first/last {pts[0]} points, {len(pts) - 1} windows of {min(pts[1:], default=0)}-"
+            f"{max(pts[1:], default=0)} points (dense stage {b['stages_s'].get('dense', 0):.1f} s)"
+        )
 
 
 def main() -> None:
@@ -116,13 +131,14 @@ def main() -> None:
     ap.add_argument(
         "--rrd", action="store_true", help="time and size of the Rerun recording (paper preset, motion masks)"
     )
+    ap.add_argument("--family", default="C4", help="synthetic family of the clip (C4: still camera, C3: translation)")
     ap.add_argument("--child", nargs=5, metavar=("CLIP", "PRESET", "MASKS", "MATCHER", "RRD"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(measure(Path(args.child[0]), *args.child[1:])))
         return
     if args.rrd:
-        rrd_overhead(clip(args.frames, args.size), args.preset or "paper", args.matcher)
+        rrd_overhead(clip(args.frames, args.size, args.family), args.preset or "paper", args.matcher)
         return
     presets = [args.preset] if args.preset else ["paper", "strict", "fast"]
     lengths = [120, 480] if args.memory else [args.frames]

@@ -93,12 +93,17 @@ def score_to_folder(
     masks: Path | None = None,
     pose_log: Path | None = None,
     flow_checkpoint: Path | None = None,
+    sam2_checkpoint: Path | None = None,
+    dust3r_checkpoint: Path | None = None,
+    dust3r_path: Path | None = None,
     progress: Callable[[int, int], None] | None = None,
     sinks: list[Callable[[Path], Any]] = (),  # type: ignore[assignment]
+    dense: Any = None,
 ):
     """Score ``clip`` and write its record and overlays into ``out_dir``, all at once
     (:func:`~geocon_core.staging.staged_record`: a failed or killed run leaves the previous record
-    in ``out_dir`` as it was). ``sinks`` are factories called with the first frame's arrival and
+    in ``out_dir`` as it was). ``dense``: a :class:`~geocon_core.dense_cloud.DenseCloudConfig` to
+    add the dense point clouds to the record. ``sinks`` are factories called with the first frame's arrival and
     the staging folder; each made sink receives every frame, ``finish(record)`` once the record is
     in place, and ``abort()`` (where it has one) when scoring fails."""
     from .diagnostics import OverlayWriter
@@ -123,6 +128,10 @@ def score_to_folder(
                 pose_log=pose_log,
                 masks=masks,
                 flow_checkpoint=flow_checkpoint,
+                sam2_checkpoint=sam2_checkpoint,
+                dust3r_checkpoint=dust3r_checkpoint,
+                dust3r_path=dust3r_path,
+                dense=dense,
                 on_frame=on_frame,
                 progress=progress,
             )

@@ -13,20 +13,41 @@ import json
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any
 
-from .stage_configs import BarConfig, CategoryConfig, CutConfig, FlowConfig, MotionConfig, PoseConfig, ScanConfig
+from .stage_configs import (
+    BarConfig,
+    CategoryConfig,
+    CutConfig,
+    Dust3rConfig,
+    FlowConfig,
+    MotionConfig,
+    PoseConfig,
+    Sam2Config,
+    ScanConfig,
+)
 
 SUB_CONFIGS: dict[str, type] = {
     "bars": BarConfig,
     "cuts": CutConfig,
     "flow_params": FlowConfig,
     "motion": MotionConfig,
+    "sam2": Sam2Config,
     "pose": PoseConfig,
+    "dust3r": Dust3rConfig,
     "category": CategoryConfig,
     "scans": ScanConfig,
 }
 """The nested sub-configurations of :class:`ScoreConfig` by field name."""
 
-__all__ = ["ScoreConfig", "PRESETS", "DEFAULT_PRESET", "FOV_RANGE_DEG", "preset", "config_hash", "config_items"]
+__all__ = [
+    "ScoreConfig",
+    "PRESETS",
+    "DEFAULT_PRESET",
+    "FOV_RANGE_DEG",
+    "preset",
+    "config_hash",
+    "config_items",
+    "UNUSED_BACKENDS",
+]
 __all__ += [sub.__name__ for sub in SUB_CONFIGS.values()]
 
 FOV_RANGE_DEG = (10.0, 150.0)
@@ -80,8 +101,10 @@ class ScoreConfig:
     """Neighbours whose median displacement a match is compared with (gross-mismatch rule)."""
     # mask-first separation and object rigidity (SPEC sections 2, 4)
     masks: str = "motion"
-    """Where object masks come from: ``motion`` (built-in segmentation, no weights) or ``none``;
-    external masks are given as a path (``geocon score --masks DIR``)."""
+    """Where object masks come from: ``motion`` (built-in segmentation, no weights), ``sam2``
+    (SAM-2 prompted by the motion segmentation's movers, :attr:`sam2`; a checkpoint is given to
+    :func:`~geocon_core.scorer.score_clip`) or ``none``; external masks are given as a path
+    (``geocon score --masks DIR``)."""
     flow: str = "dis"
     """Dense flow backend by name (:func:`geocon_core.flow.make_flow_backend`); its settings are
     :attr:`flow_params`."""
@@ -172,9 +195,13 @@ class ScoreConfig:
     flow_params: FlowConfig = field(default_factory=FlowConfig)
     """Settings of the dense flow backend."""
     motion: MotionConfig = field(default_factory=MotionConfig)
-    """Settings of the built-in motion segmentation."""
+    """Settings of the built-in motion segmentation (also the prompts of ``masks = "sam2"``)."""
+    sam2: Sam2Config = field(default_factory=Sam2Config)
+    """Settings of the SAM-2 masks (``masks = "sam2"``)."""
     pose: PoseConfig = field(default_factory=PoseConfig)
     """Settings of the classical pose backend."""
+    dust3r: Dust3rConfig = field(default_factory=Dust3rConfig)
+    """Settings of the DUSt3R pose backend (``pose_backend = "dust3r"``)."""
     category: CategoryConfig = field(default_factory=CategoryConfig)
     """Thresholds of the scene family rule."""
     scans: ScanConfig = field(default_factory=ScanConfig)
@@ -185,8 +212,8 @@ class ScoreConfig:
             raise ValueError(f"scales must be in (0, 1], got {self.scales}")
         if not self.gaps or any(g < 1 for g in self.gaps):
             raise ValueError(f"gaps must be positive integers, got {self.gaps}")
-        if self.masks not in ("motion", "none", "external"):
-            raise ValueError(f"masks must be 'motion', 'none' or 'external', got {self.masks!r}")
+        if self.masks not in ("motion", "sam2", "none", "external"):
+            raise ValueError(f"masks must be 'motion', 'sam2', 'none' or 'external', got {self.masks!r}")
         if self.grid < 1 or self.min_cells < 1:
             raise ValueError("grid and min_cells must be positive")
         if not 0.0 <= self.min_coverage <= 1.0:
@@ -286,8 +313,8 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "own size only (one scale; a larger clip is downscaled, a smaller one kept), KLT tracks kept alive "
         "across frames instead of SIFT (each frame tracked once; a pair matches the tracks alive in both), "
         "1000 tracks, DIS `fast` flow, motion segmentation analysed at 256x180 and gate windows every "
-        "16 frames; otherwise the paper's protocol (its thresholds apply to the 512x360 canvas as they "
-        "do to the paper's half-size scale)",
+        "16 frames, SAM-2 masks (when chosen) at 512 px; otherwise the paper's protocol (its thresholds "
+        "apply to the 512x360 canvas as they do to the paper's half-size scale)",
         ScoreConfig(
             preset="fast",
             working_size=(512, 360),
@@ -297,6 +324,7 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             gate_stride=16,
             flow_params=FlowConfig(preset="fast"),
             motion=MotionConfig(analysis_size=(256, 180)),
+            sam2=Sam2Config(image_size=512),
         ),
     ),
 }
@@ -344,7 +372,17 @@ def _fields_of(cls: type, d: dict[str, Any], where: str) -> dict[str, Any]:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
 
 
+UNUSED_BACKENDS: dict[str, tuple[str, str]] = {"sam2": ("masks", "sam2"), "dust3r": ("pose_backend", "dust3r")}
+"""Settings of an optional backend (key) that count only when the field names it (field, value)."""
+
+
 def config_hash(config: ScoreConfig) -> str:
-    """First 16 hex digits of the SHA-256 of the canonical JSON of the full configuration."""
-    blob = json.dumps(config.to_dict(), sort_keys=True, separators=(",", ":"))
+    """First 16 hex digits of the SHA-256 of the canonical JSON of the configuration, without the
+    settings of an optional backend that is not selected (they cannot change a number, and a
+    configuration's hash does not change when such a backend is added)."""
+    d = config.to_dict()
+    for key, (name, value) in UNUSED_BACKENDS.items():
+        if d.get(name) != value:
+            d.pop(key, None)
+    blob = json.dumps(d, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

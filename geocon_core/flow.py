@@ -76,6 +76,7 @@ __all__ = [
     "make_flow_backend",
     "forward_backward",
     "chained_flow",
+    "FlowChain",
 ]
 
 Box = tuple[int, int, int, int]
@@ -294,31 +295,49 @@ class RaftFlow(_RegionFlow):
         return np.ascontiguousarray(out[0]), np.ascontiguousarray(out[1])
 
 
+class FlowChain:
+    """A forward flow composed hop by hop: started with the flow of frames (0, 1), :meth:`extend`
+    adds the flow of the next consecutive pair, each computed over the first hop's box. A pixel
+    follows each hop's flow from where the previous hops took it (bilinear sampling); it is
+    reliable while every hop is reliable where it passes and it stays inside the box, and its
+    ``fb_error`` is the sum of the hops' errors along the path."""
+
+    def __init__(self, first: FlowField) -> None:
+        self.box = first.box
+        self.flow, self.reliable, self.err = first.flow.copy(), first.reliable.copy(), first.fb_error.copy()
+        h, w = self.reliable.shape
+        self._gx, self._gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+
+    def extend(self, hop: FlowField) -> None:
+        """Compose the flow of the next pair (over the same box)."""
+        h, w = self.reliable.shape
+        mx, my = self._gx + self.flow[..., 0], self._gy + self.flow[..., 1]
+        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+        self.flow += cv2.remap(hop.flow, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        hop_ok = cv2.remap(hop.reliable.astype(np.uint8), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        hop_err = cv2.remap(hop.fb_error, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
+        self.reliable &= inside & (hop_ok > 0)
+        self.err = np.where(inside, self.err + hop_err, np.float32(np.inf)).astype(np.float32)
+
+    def field(self) -> FlowField:
+        """The composed flow so far."""
+        return FlowField(self.box, self.flow, self.reliable, self.err)
+
+
 def chained_flow(backend: FlowBackend, grays: Sequence[np.ndarray], box: Box | None = None) -> FlowField:
     """Forward flow ``grays[0] -> grays[-1]`` over ``box``, composed from the flows of the
-    consecutive frames (each computed over the same box): a pixel follows hop k's flow from where
-    the previous hops took it (bilinear sampling), so a displacement of many pixels over several
-    frames is tracked in steps the flow's search range covers. A pixel is reliable when every hop
-    is reliable where it passes and it stays inside the box; ``fb_error`` is the sum of the hops'
-    errors along the path. Two frames give ``backend.compute`` itself."""
+    consecutive frames (:class:`FlowChain`), so a displacement of many pixels over several frames
+    is tracked in steps the flow's search range covers. Two frames give ``backend.compute``
+    itself."""
     if len(grays) < 2:
         raise ValueError(f"chained_flow needs at least two frames, got {len(grays)}")
     first = backend.compute(grays[0], grays[1], box)
     if len(grays) == 2:
         return first
-    flow, reliable, err = first.flow.copy(), first.reliable.copy(), first.fb_error.copy()
-    h, w = reliable.shape
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    chain = FlowChain(first)
     for g0, g1 in zip(grays[1:-1], grays[2:], strict=True):
-        hop = backend.compute(g0, g1, first.box)
-        mx, my = gx + flow[..., 0], gy + flow[..., 1]
-        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
-        flow += cv2.remap(hop.flow, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        hop_ok = cv2.remap(hop.reliable.astype(np.uint8), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-        hop_err = cv2.remap(hop.fb_error, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
-        reliable &= inside & (hop_ok > 0)
-        err = np.where(inside, err + hop_err, np.float32(np.inf)).astype(np.float32)
-    return FlowField(first.box, flow, reliable, err)
+        chain.extend(backend.compute(g0, g1, first.box))
+    return chain.field()
 
 
 FLOW_BACKENDS: dict[str, type] = {"dis": DisFlow, "raft": RaftFlow}

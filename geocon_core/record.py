@@ -24,6 +24,7 @@ import numpy as np
 
 from . import record_parts
 from .config import ScoreConfig
+from .dense_cloud import DenseCloud, WindowCloud
 from .npz import NPZ_ERRORS
 from .reader import ClipInfo
 from .record_parts import (
@@ -40,6 +41,7 @@ from .record_parts import (
     ObjectSummary,
     PairRecord,
     PointCloud,
+    PointMaps,
     ScaleSummary,
 )
 from .record_parts import Family as Family  # these two re-exported only
@@ -103,6 +105,9 @@ class ClipRecord:
         objects).
     cloud: the two-view point cloud of the first/last pair (first-camera coordinates, unit mean
         scene distance), or None.
+    dense: the dense clouds (:mod:`geocon_core.dense_cloud`) of the first/last pair, then of each
+        gate window, when they were asked for (``score_clip(dense=...)``); empty otherwise.
+    pointmaps: DUSt3R's point maps of the first/last pair (``--pose dust3r``), or None.
     """
 
     clip: str
@@ -123,6 +128,8 @@ class ClipRecord:
     object_entries: tuple[ObjectEntry, ...] = ()
     cells: CellArrays | None = None
     cloud: PointCloud | None = None
+    dense: tuple[WindowCloud, ...] = ()
+    pointmaps: PointMaps | None = None
 
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
@@ -204,6 +211,8 @@ class ClipRecord:
             "objects": [asdict(o) for o in self.objects],
             "object_entries": [asdict(e) for e in self.object_entries],
             "cloud": None if self.cloud is None else {"points": int(self.cloud.xyz.shape[0]), "note": self.cloud.note},
+            "pointmaps": None if self.pointmaps is None else self.pointmaps.to_json_dict(),
+            "dense": [_dense_entry(w) for w in self.dense],
         }
 
 
@@ -238,6 +247,10 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
         arrays.update({f"cells_{name}": getattr(record.cells, name) for name in CellArrays.NAMES})
     if record.cloud is not None:
         arrays.update({"cloud_xyz": record.cloud.xyz, "cloud_rgb": record.cloud.rgb})
+    if record.pointmaps is not None:
+        arrays.update({f"pointmaps_{name}": getattr(record.pointmaps, name) for name in PointMaps.NAMES})
+    if record.dense:
+        arrays.update(_dense_arrays(record.dense))
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -253,6 +266,57 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
 
 
 _CORRUPT = "score the clip again"
+
+DENSE_NAMES = ("xyz", "rgb", "pixel", "residual", "kind")
+"""The arrays of the dense clouds in ``matches.npz`` (``dense_<name>``, all windows concatenated,
+plus ``dense_offsets``: window i holds rows ``offsets[i]:offsets[i + 1]``)."""
+
+
+def _dense_arrays(dense: tuple[WindowCloud, ...]) -> dict[str, np.ndarray]:
+    arrays = {f"dense_{name}": np.concatenate([getattr(w.cloud, name) for w in dense]) for name in DENSE_NAMES}
+    arrays["dense_offsets"] = np.cumsum([0, *(len(w.cloud) for w in dense)]).astype(np.int64)
+    return arrays
+
+
+def _nan(v: Any) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def _dense_entry(w: WindowCloud) -> dict[str, Any]:
+    T = None if w.T_cam0_camT is None else np.asarray(w.T_cam0_camT, float).tolist()
+    tau = None if np.isnan(w.cloud.tau_px) else w.cloud.tau_px
+    return {
+        "start": w.start,
+        "end": w.end,
+        "points": len(w.cloud),
+        "note": w.cloud.note,
+        "tau_px": tau,
+        "T_cam0_camT": T,
+    }
+
+
+def _dense_from(entries: list[dict[str, Any]], z: dict[str, np.ndarray]) -> tuple[WindowCloud, ...]:
+    if not entries:
+        return ()
+    if "dense_offsets" not in z:
+        raise KeyError("dense_offsets")
+    offsets = z["dense_offsets"]
+    if offsets.shape != (len(entries) + 1,) or offsets[0] != 0 or np.any(np.diff(offsets) < 0):
+        raise ValueError(f"dense_offsets of shape {offsets.shape} do not fit {len(entries)} dense clouds")
+    out = []
+    for i, e in enumerate(entries):
+        rows = slice(int(offsets[i]), int(offsets[i + 1]))
+        parts = {name: z[f"dense_{name}"][rows] for name in DENSE_NAMES}
+        T = None if e.get("T_cam0_camT") is None else np.asarray(e["T_cam0_camT"], float).reshape(4, 4)
+        out.append(
+            WindowCloud(
+                int(e["start"]),
+                int(e["end"]),
+                DenseCloud(**parts, note=str(e["note"]), tau_px=_nan(e.get("tau_px"))),
+                T,
+            )
+        )
+    return tuple(out)
 
 
 def read_record_json(path: str | Path) -> tuple[Path, dict[str, Any]]:
@@ -349,7 +413,11 @@ def read_record(path: str | Path) -> ClipRecord:
     fields."""
     folder, d = read_record_json(path)
     cells_names = tuple(f"cells_{name}" for name in CellArrays.NAMES)
-    z = read_matches(folder, MatchArrays.NAMES, (*cells_names, "cloud_xyz", "cloud_rgb"))
+    dense_names = tuple(f"dense_{name}" for name in (*DENSE_NAMES, "offsets"))
+    pointmaps_names = tuple(f"pointmaps_{name}" for name in PointMaps.NAMES)
+    z = read_matches(
+        folder, MatchArrays.NAMES, (*cells_names, "cloud_xyz", "cloud_rgb", *dense_names, *pointmaps_names)
+    )
     try:
         return _record_from(d, z)
     except RecordError:
@@ -367,6 +435,17 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
     cloud = None
     if d.get("cloud") is not None:
         cloud = PointCloud(xyz=z["cloud_xyz"], rgb=z["cloud_rgb"], note=d["cloud"]["note"])
+    pointmaps = None
+    if d.get("pointmaps") is not None:  # records before DUSt3R have no such key
+        p = d["pointmaps"]
+        pointmaps = PointMaps(
+            **{name: z[f"pointmaps_{name}"] for name in PointMaps.NAMES},
+            frames=tuple(p["frames"]),
+            box=tuple(p["box"]),
+            input_size=tuple(p["input_size"]),
+            step=p["step"],
+            note=p["note"],
+        )
     gate = GateRecord.from_json_dict(d["gate"])
     b = d["background"]
     background = BackgroundSummary(**{**b, "chosen": _family_from(b["chosen"]), "other": _family_from(b["other"])})
@@ -393,4 +472,6 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         object_entries=tuple(ObjectEntry(**e) for e in d["object_entries"]),
         cells=cells,
         cloud=cloud,
+        dense=_dense_from(d.get("dense", []), z),
+        pointmaps=pointmaps,
     )

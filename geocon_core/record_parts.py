@@ -10,6 +10,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .pointmaps import PointMaps as PointMaps  # re-exported: a record part
 from .pose import PoseEstimate
 
 __all__ = [
@@ -29,6 +30,7 @@ __all__ = [
     "CellArrays",
     "Category",
     "PointCloud",
+    "PointMaps",
 ]
 
 Family = Literal["H", "F"]

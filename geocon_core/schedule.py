@@ -82,6 +82,10 @@ class Stages(Protocol):
 
     def release(self, t: int) -> None: ...
 
+    def observe(self, frame: Frame, labels: np.ndarray | None) -> None:
+        """Frame ``t`` with its final labels, on the calling thread, once per frame in frame order
+        (before its features are submitted)."""
+
     def extract(self, frame: Frame, labels: np.ndarray | None) -> Any: ...
 
     def score_pair(self, a: Future, b: Future, t0: int, t1: int, gap: int) -> list[Any]: ...
@@ -236,6 +240,7 @@ class StreamSchedule:
         labels = asked.result()
         if labels is not None:
             self._labels[t] = labels
+        stages.observe(frame, labels)
         self._wait_for_room()
         self.features[t] = self.pool.submit(stages.extract, frame, labels)
         self._inflight.append(self.features[t])

@@ -32,6 +32,7 @@ import numpy as np
 
 from .assemble import add_objects, assemble_record, software_versions
 from .config import ScoreConfig
+from .dense_cloud import DenseCloudBuilder, DenseCloudConfig
 from .diagnostics import FrameDiagnostics, ObjectFlow
 from .features import FeatureSet, Matcher, gross_mismatches, make_matcher, scaled_inputs
 from .flow import FlowBackend, chained_flow, make_flow_backend
@@ -42,7 +43,7 @@ from .models import FAMILIES, PairFits
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .pose.chain import chain_hops, compose_chain
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
-from .record import ClipRecord, PointCloud
+from .record import ClipRecord, PointCloud, PointMaps
 from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, refine_object_mask
 from .schedule import StreamSchedule, gate_windows
 
@@ -84,9 +85,14 @@ class _Pipeline:
         timer: _Timer,
         *,
         keep_flows: bool,
+        dense: DenseCloudBuilder | None = None,
     ) -> None:
         self.info, self.config, self.matcher, self.flow, self.timer = info, config, matcher, flow, timer
+        self.dense = dense
         self.backend, self.mask_source, self.keep_flows = backend, mask_source, keep_flows
+        # a backend that reads frames (DUSt3R) gets the first and last; its point maps go to the record
+        self.anchor_rgb: dict[int, np.ndarray] | None = {} if getattr(backend, "needs_frames", False) else None
+        self.pointmaps: PointMaps | None = None
         self.s_max = max(config.scales)
         x0, y0, x1, y1 = info.content_box
         side = min(x1 - x0, y1 - y0)
@@ -127,6 +133,15 @@ class _Pipeline:
     def emit(self, on_frame: Callable[[FrameDiagnostics], None], frame: Frame, labels, flows: tuple) -> None:
         share = float(self.masked_share[frame.index])
         on_frame(FrameDiagnostics(frame.index, frame, self.info.fps, labels, share, flows))
+
+    def observe(self, frame: Frame, labels: np.ndarray | None) -> None:
+        """The dense clouds' share of frame t (:class:`~geocon_core.dense_cloud.DenseCloudBuilder`)."""
+        if self.dense is not None:
+            start = time.perf_counter()
+            self.dense.observe(frame.index, frame.rgb, frame.gray, labels)
+            self.timer.add("dense", start)
+        if self.anchor_rgb is not None and frame.index in (0, self.info.num_frames - 1):
+            self.anchor_rgb[frame.index] = frame.rgb
 
     # --- work on the pool ----------------------------------------------------------------------
     def extract(self, frame: Frame, labels: np.ndarray | None) -> dict[float, FeatureSet]:
@@ -237,7 +252,12 @@ class _Pipeline:
         a, b = fa.result()[self.s_max], fb.result()[self.s_max]
         start = time.perf_counter()
         x0, x1 = self.matcher.match(a, b)
-        est = self.backend.estimate(x0, x1, self.K_pose, seed=_pair_seed(self.config.seed, t0, t1, 99))
+        if first is not None and self.anchor_rgb is not None:
+            frames_backend: Any = self.backend
+            rgb1, box = self.anchor_rgb[t1], self.info.content_box
+            est, self.pointmaps = frames_backend.estimate_frames(first.rgb, rgb1, box, self.K_pose, (t0, t1))
+        else:
+            est = self.backend.estimate(x0, x1, self.K_pose, seed=_pair_seed(self.config.seed, t0, t1, 99))
         self.timer.add("pose", start)
         if first is None:
             return est
@@ -280,7 +300,11 @@ def _cloud(
     return PointCloud(xyz, rgb, note)
 
 
-def _mask_source(cfg: ScoreConfig, info: ClipInfo, masks: str | Path | None, flow: FlowBackend | None):
+def _mask_source(
+    cfg: ScoreConfig, info: ClipInfo, masks: str | Path | None, flow: FlowBackend | None, sam2_model: Any = None
+):
+    if cfg.masks == "sam2":
+        return make_mask_source("sam2", info, cfg.motion, model=sam2_model, sam2=cfg.sam2, flow=flow, seed=cfg.seed)
     if cfg.masks == "external":
         if masks is None:
             raise ValueError("config.masks is 'external' but no masks path was given")
@@ -329,6 +353,28 @@ def _flow_backend(cfg: ScoreConfig, checkpoint: str | Path | None) -> FlowBacken
     return make_flow_backend(cfg.flow, cfg.flow_params, **({"checkpoint": checkpoint} if weighted else {}))
 
 
+def _sam2_model(cfg: ScoreConfig, checkpoint: str | Path | None) -> Any:
+    """SAM-2's model for ``masks = "sam2"`` (None otherwise), loaded before the clip is decoded."""
+    if cfg.masks != "sam2":
+        if checkpoint is not None:
+            raise ValueError(f"a SAM-2 checkpoint was given but the masks are {cfg.masks!r} (use --masks sam2)")
+        return None
+    from .masks.sam2 import load_sam2
+
+    return load_sam2(checkpoint, cfg.sam2)
+
+
+def _pose_backend(cfg: ScoreConfig, checkpoint: str | Path | None, clone: str | Path | None) -> PoseBackend:
+    """The pose backend ``cfg.pose_backend`` names, built (and its weights loaded) before decoding."""
+    if cfg.pose_backend.strip().lower() == "dust3r":
+        return make_pose_backend("dust3r", cfg.dust3r, checkpoint=checkpoint, clone=clone)
+    if checkpoint is not None or clone is not None:
+        raise ValueError(
+            f"a DUSt3R checkpoint or path was given but the pose backend is {cfg.pose_backend!r} (use --pose dust3r)"
+        )
+    return make_pose_backend(cfg.pose_backend, cfg.pose)
+
+
 def score_clip(
     path: str | Path,
     config: ScoreConfig | None = None,
@@ -336,6 +382,10 @@ def score_clip(
     pose_log: str | Path | None = None,
     masks: str | Path | None = None,
     flow_checkpoint: str | Path | None = None,
+    sam2_checkpoint: str | Path | None = None,
+    dense: DenseCloudConfig | None = None,
+    dust3r_checkpoint: str | Path | None = None,
+    dust3r_path: str | Path | None = None,
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     timings: dict[str, float] | None = None,
@@ -345,7 +395,13 @@ def score_clip(
     :mod:`geocon_core.pose`); ``masks`` is a path to external object masks (see
     :mod:`geocon_core.masks`), otherwise ``config.masks`` chooses the built-in segmentation or
     none; ``flow_checkpoint`` is the weights file of a neural flow backend (``config.flow ==
-    "raft"``: a ``raft-small.pth``); ``progress(done, total)`` is called as frames are processed; ``timings``, if given,
+    "raft"``: a ``raft-small.pth``); ``sam2_checkpoint`` is SAM-2's weights file for ``config.masks
+    == "sam2"`` (its model configuration is ``config.sam2.model``); ``dense``, if given, also
+    makes the dense point clouds of the first/last pair and of every gate window
+    (:mod:`geocon_core.dense_cloud`, no score changes);
+    ``dust3r_checkpoint`` (and ``dust3r_path``, a DUSt3R checkout) serve ``config.pose_backend ==
+    "dust3r"`` (:mod:`geocon_core.pose.dust3r`), which poses the first and last frame only;
+    ``progress(done, total)`` is called as frames are processed; ``timings``, if given,
     receives seconds per stage (summed over worker threads); ``on_frame``, if given, receives a
     :class:`~geocon_core.diagnostics.FrameDiagnostics` per frame, in frame order, on the calling
     thread. Raises :class:`~geocon_core.reader.ClipError` for unusable input."""
@@ -356,23 +412,33 @@ def score_clip(
     if cfg.masks != "none":
         _import_aside("ot")  # AdaDFRC's transport solver
     # a pose log, external masks and flow weights are checked before the clip is decoded
-    backend: PoseBackend = (
-        load_pose_log(pose_log) if pose_log is not None else make_pose_backend(cfg.pose_backend, cfg.pose)
-    )
+    backend = load_pose_log(pose_log) if pose_log is not None else _pose_backend(cfg, dust3r_checkpoint, dust3r_path)
     if masks is not None:
         check_masks_path(masks)
     flow = _flow_backend(cfg, flow_checkpoint)  # shared: thread-safe per instance
+    sam2_model = _sam2_model(cfg, sam2_checkpoint)
     start = time.perf_counter()
     info = probe_clip(path, cfg)
     timer.add("probe", start)
     n = info.num_frames
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio, anchors=(0, n - 1))
-    mask_source = _mask_source(cfg, info, masks, flow)
+    mask_source = _mask_source(cfg, info, masks, flow, sam2_model)
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
-    stages = _Pipeline(info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None)
     windows = gate_windows(n, cfg.gate_window, cfg.gate_stride)
-    hops = [] if pose_log is not None or cfg.chain_hop == 0 else chain_hops(n, cfg.chain_hop)
-    pose_windows = [] if pose_log is not None else [w for w in windows if w != (0, n - 1)]
+    first_last_only = pose_log is not None or getattr(backend, "needs_frames", False)  # a log, DUSt3R
+    hops = [] if first_last_only or cfg.chain_hop == 0 else chain_hops(n, cfg.chain_hop)
+    pose_windows = [] if first_last_only else [w for w in windows if w != (0, n - 1)]
+    builder = None
+    if dense is not None and n >= 2:
+        dense_flow = (
+            flow
+            if flow is not None and cfg.flow.strip().lower() != "dis"  # a neural flow serves the clouds too
+            else make_flow_backend("dis", cfg.flow_params, preset=dense.dis_preset)
+        )
+        builder = DenseCloudBuilder(info.content_mask, [(0, n - 1), *pose_windows], dense_flow, dense)
+    stages = _Pipeline(
+        info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None, dense=builder
+    )
     pose_windows += [h for h in hops if h not in pose_windows]
     emit = None if on_frame is None else partial(stages.emit, on_frame)
     workers = workers or min(2, os.cpu_count() or 1)
@@ -396,8 +462,12 @@ def score_clip(
             warnings=record.warnings
             + (f"objects scored on frames {object_gap} apart: the clip has {n} frames, fewer than object_gap + 1",),
         )
+    if builder is not None:
+        start = time.perf_counter()
+        record = replace(record, dense=builder.clouds(K, {**by_window, (0, n - 1): pose}))
+        timer.add("dense", start)
     return add_objects(
-        replace(record, cloud=cloud),
+        replace(record, cloud=cloud, pointmaps=stages.pointmaps),
         objects,
         scales=cfg.scales,
         masked_share=stages.masked_share,

@@ -18,7 +18,9 @@ __all__ = [
     "CutConfig",
     "FlowConfig",
     "MotionConfig",
+    "Sam2Config",
     "PoseConfig",
+    "Dust3rConfig",
     "CategoryConfig",
     "ScanConfig",
 ]
@@ -199,6 +201,36 @@ class MotionConfig:
 
 
 @dataclass(frozen=True)
+class Sam2Config:
+    """SAM-2 masks (:class:`~geocon_core.masks.sam2.Sam2Masks`): the model, the size it sees and
+    how the motion segmentation's movers become its prompts."""
+
+    model: str = "sam2.1_hiera_t"
+    """Model configuration shipped in the ``sam2`` package (``sam2.1_hiera_t``, ``sam2_hiera_s``,
+    ..., with or without ``.yaml`` and ``configs/<family>/``); it must match the checkpoint."""
+    image_size: int = 1024
+    """Side (px) of the square image SAM-2 sees (the content box resized to it). 1024 is the
+    models' training size; 512 is about 4x faster on a CPU with masks at half the detail."""
+    box_margin: float = 0.05
+    """A prompt box is the mover's motion-mask box grown by this share of its size on each side
+    (motion masks are trimmed to the sharp part of the motion and can miss an object's rim)."""
+    prompt_cover: float = 0.5
+    """A new motion id whose mask lies at least this share (0..1] inside objects SAM-2 already
+    tracks in that frame is one of them (a mover the motion segmentation re-detected), not a new
+    prompt."""
+    mask_threshold: float = 0.0
+    """A pixel belongs to an object where SAM-2's mask logit exceeds this (0: probability 1/2)."""
+
+    def __post_init__(self) -> None:
+        if not self.model.strip():
+            raise ValueError("sam2.model must name a SAM-2 model configuration, e.g. sam2.1_hiera_t")
+        if self.image_size < 64 or self.image_size % 32:
+            raise ValueError(f"sam2.image_size must be a multiple of 32 of at least 64 px, got {self.image_size}")
+        if self.box_margin < 0 or not 0.0 < self.prompt_cover <= 1.0:
+            raise ValueError("sam2.box_margin must be >= 0 and sam2.prompt_cover in (0, 1]")
+
+
+@dataclass(frozen=True)
 class PoseConfig:
     """Classical two-view pose backend (:class:`~geocon_core.pose.ClassicalPose`); pixels are
     pixels of the images the matches come from."""
@@ -272,6 +304,26 @@ class PoseConfig:
             raise ValueError("focal_sigma must be positive, max_focal_ratio >= 1, focal_min_gain >= 0")
         if self.ransac_iters < 1 or self.rot_hypotheses < 1 or not 0 < self.confidence < 1:
             raise ValueError("ransac_iters and rot_hypotheses must be positive, confidence in (0, 1)")
+
+
+@dataclass(frozen=True)
+class Dust3rConfig:
+    """DUSt3R pose backend (:class:`~geocon_core.pose.dust3r.Dust3rPose`): how its point maps of
+    the first and last frame become the gate's pose and the record's point maps."""
+
+    min_conf: float = 3.0
+    """Least DUSt3R confidence (``1 + exp(.)``, so at least 1) of a pixel used for the pose and
+    for the mean scene distance; DUSt3R's own demo keeps points from 3 up."""
+    min_points: int = 100
+    """Fewer confident pixels in both point maps give the failure ``too_few_points``."""
+    record_side: int = 128
+    """Longest side (points) of the point maps stored in the record (subsampled on a grid)."""
+
+    def __post_init__(self) -> None:
+        if not self.min_conf >= 1.0:
+            raise ValueError(f"dust3r.min_conf must be at least 1 (DUSt3R's least confidence), got {self.min_conf}")
+        if self.min_points < 3 or self.record_side < 1:
+            raise ValueError("dust3r.min_points must be at least 3 and dust3r.record_side at least 1")
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,9 @@ One page for triaging a whole benchmark (or one scored clip):
   (tau_H, tau_F, the IR/GE report gates, the hysteresis gate) with what differs from the recorded
   configuration;
 - **3D scene**: the selected clip's first/last point cloud and both cameras as frustums showing
-  the first and last frames;
+  the first and last frames; with dense clouds in the record, the residual-coloured dense cloud of
+  the first/last pair or of a gate window (picked in the control panel's *3D scene* folder, with the
+  colour legend);
 - **Frame panel** (left): the current frame with its background inliers/outliers under the
   thresholds of the moment and the object masks, a frame slider with play, the audit card and a
   button that writes the clip's Rerun recording (and offers it as a download);
@@ -34,7 +36,7 @@ import viser
 from geocon_core.diagnostics import read_overlays
 from geocon_core.models import FAMILIES
 from geocon_core.reader import DEFAULT_FPS
-from geocon_core.record import RecordError, read_record
+from geocon_core.record import ClipRecord, RecordError, read_record
 from geocon_core.regate import pair_inliers
 from geocon_core.results import BROKEN, ResultsError, ResultsIndex, TriageRow
 from geocon_core.verdict import ClipVerdict, Thresholds
@@ -45,8 +47,11 @@ from .audit_views import (
     ClipView,
     Plots,
     clip_card,
+    dense_legend_html,
     draw_frame,
     frame_text,
+    pair_options,
+    pair_text,
     render_plots,
     render_scene,
     thumb,
@@ -83,6 +88,7 @@ class AuditApp(AuditPanels):
         self._stop = threading.Event()
         self._decoder: threading.Thread | None = None
         self.cloud_handle: Any = None
+        self._pair_index = 0
         """The selected clip's point cloud in the scene (None when it has none)."""
         self.server = viser.ViserServer(host=host, port=free, label="GeoCon audit", verbose=False)
         self.server.gui.configure_theme(
@@ -136,6 +142,7 @@ class AuditApp(AuditPanels):
         self.reset.on_click(lambda _: self._reset_thresholds())
 
         self.slider.on_update(lambda e: self._on_frame(int(e.target.value)))
+        self.pair.on_update(lambda e: self._on_pair(e.target.value))
         for box in (self.show_matches, self.show_masks):
             box.on_update(lambda _: self._render_frame())
 
@@ -267,11 +274,34 @@ class AuditApp(AuditPanels):
             n = view.num_frames
             self.slider.max = max(1, n - 1)
             self.frame = min(self.frame, n - 1)
+            self._show_pairs(record)
             self.cloud_handle = render_scene(self.server, self.view)
             self._refresh_selected()
             self.rrd_md.content = self._rrd_text()
         self._decoder = threading.Thread(target=self._decode_frames, args=(view,), name="geocon-frames", daemon=True)
         self._decoder.start()
+
+    def _show_pairs(self, record: ClipRecord) -> None:
+        """The 3D tab of a newly selected clip: its pairs, the first/last one shown, the legend."""
+        options = pair_options(record)
+        self._pair_index = 0
+        self.pair.options = options
+        if self.pair.value != options[0]:
+            self.pair.value = options[0]  # type: ignore[misc]  # viser setter typing gap
+        self.pair_md.content = pair_text(record, 0)
+        self.legend_html.content = dense_legend_html(record)
+
+    def _on_pair(self, value: str) -> None:
+        with self._lock:
+            view = self.view
+            if view is None or value not in self.pair.options:
+                return
+            index = list(self.pair.options).index(value)
+            if index == self._pair_index:
+                return
+            self._pair_index = index
+            self.cloud_handle = render_scene(self.server, view, index)
+            self.pair_md.content = pair_text(view.record, index)
 
     def _show_failed(self, clip_id: str) -> None:
         clip = self.index.by_id[clip_id]

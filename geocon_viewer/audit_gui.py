@@ -13,7 +13,7 @@ from geocon_core.results import VERDICTS, ResultsIndex
 from geocon_core.verdict import Thresholds
 
 from .audit_triage import LIST_ROWS, THRESHOLD_LABELS
-from .audit_views import empty_plot
+from .audit_views import PAIR_FIRST_LAST, empty_plot
 
 __all__ = ["AuditPanels", "ANY", "FLAGGED"]
 
@@ -65,6 +65,15 @@ class AuditPanels:
             self.reset = gui.add_button("Reset to the recorded thresholds")
             self.thresholds_md = gui.add_markdown("")
             self.preload_bar = gui.add_progress_bar(0.0, visible=False)
+        with gui.add_folder("3D scene"):
+            self.pair = gui.add_dropdown(
+                "pair",
+                [PAIR_FIRST_LAST],
+                initial_value=PAIR_FIRST_LAST,
+                hint="The frame pair whose cloud and cameras the 3D scene shows: first/last, or a gate window",
+            )
+            self.pair_md = gui.add_markdown("")
+            self.legend_html = gui.add_html("")
         self.frame_panel = gui.add_panel()
         with self.frame_panel.add_tab("Frame", icon=None):
             self.image = gui.add_image(np.zeros((36, 64, 3), np.uint8), format="jpeg", jpeg_quality=85)

@@ -16,16 +16,20 @@ import viser
 import viser.transforms as vtf
 import viser.uplot as uplot
 
+from geocon_core.dense_cloud import KIND_OBJECT, KIND_OUTLIER
 from geocon_core.diagnostics import Overlays
 from geocon_core.record import ClipRecord
 from geocon_core.regate import regate_pairs
 from geocon_core.results import ResultClip
 from geocon_core.verdict import ClipVerdict, Thresholds
 
-from .style import EMPTY, fmt, object_color
+from .clouds import dense_points
+from .style import EMPTY, dense_legend, fmt, object_color
 
 INLIER = (60, 200, 90)
 OUTLIER = (235, 60, 50)
+DENSE_POINTS = 40000
+"""At most this many points of a dense cloud are sent to the browser."""
 
 __all__ = [
     "ClipView",
@@ -35,6 +39,11 @@ __all__ = [
     "frame_text",
     "empty_plot",
     "render_scene",
+    "pair_options",
+    "pair_text",
+    "dense_legend_html",
+    "PAIR_FIRST_LAST",
+    "DENSE_POINTS",
     "render_plots",
     "clip_card",
 ]
@@ -141,27 +150,80 @@ class Plots:
     gate: Any
 
 
-def render_scene(server: viser.ViserServer, view: ClipView | None) -> Any:
-    """Point cloud and both cameras of the selected clip; returns the point cloud's handle (or
-    None)."""
+PAIR_FIRST_LAST = "first/last"
+
+
+def pair_options(record: ClipRecord) -> list[str]:
+    """The pairs the 3D scene can show: the first/last pair, then each gate window with a dense
+    cloud (``"window a-b"``)."""
+    return [PAIR_FIRST_LAST, *(f"window {w.start}-{w.end}" for w in record.dense[1:])]
+
+
+def dense_legend_html(record: ClipRecord) -> str:
+    """The colour legend of the dense clouds (HTML swatches), or "" for a record without them."""
+    if not record.dense:
+        return ""
+    tau = record.dense[0].cloud.tau_px
+    rows = "".join(
+        f'<div style="display:flex;align-items:center;gap:6px;margin:2px 0">'
+        f'<span style="width:14px;height:14px;border-radius:3px;background:rgb({r},{g},{b})"></span>'
+        f"<span>{label}</span></div>"
+        for label, (r, g, b) in dense_legend(tau if np.isfinite(tau) else 1.0)
+    )
+    return (
+        '<div style="font-size:0.85em"><b>Dense cloud: epipolar residual of each point</b>'
+        f"{rows}<div>a point is the flow of the pair triangulated with its pose</div></div>"
+    )
+
+
+def pair_text(record: ClipRecord, pair: int) -> str:
+    """What the 3D scene shows for ``pair`` (an index of :func:`pair_options`), in words."""
+    if not record.dense:
+        cloud = record.cloud
+        return "no point cloud" if cloud is None else f"sparse cloud: {len(cloud.xyz)} points; {cloud.note}"
+    w = record.dense[pair]
+    head = f"frames {w.start} -> {w.end}: "
+    if not len(w.cloud):
+        return head + w.cloud.note
+    return (
+        head + f"{len(w.cloud)} points; outliers {w.cloud.share(KIND_OUTLIER):.1%} of the background, "
+        f"objects {float(np.mean(w.cloud.kind == KIND_OBJECT)):.1%}; {w.cloud.note}"
+    )
+
+
+def render_scene(server: viser.ViserServer, view: ClipView | None, pair: int = 0) -> Any:
+    """The point cloud and both cameras of the selected clip's pair ``pair`` (0: first/last, then
+    the gate windows, :func:`pair_options`): the dense residual-coloured cloud when the record has
+    one, else the sparse first/last cloud. Returns the point cloud's handle (or None)."""
     scene = server.scene
     scene.reset()
     if view is None:
         return None
+    view.frustums.clear()
     rec = view.record
     w, h = view.working_size
     fy = float(np.asarray(rec.intrinsics)[1, 1]) * rec.gate.pose.focal_scale
     fov = 2.0 * math.atan(h / 2.0 / fy)
-    cloud = rec.cloud
     depth = 1.0
     cloud_handle = None
-    if cloud is not None and len(cloud.xyz):
-        depth = float(np.median(cloud.xyz[:, 2])) or 1.0
+    if rec.dense:
+        win = rec.dense[min(max(pair, 0), len(rec.dense) - 1)]
+        t0, t1, T_end = win.start, win.end, win.T_cam0_camT
+        note = f"dense cloud, frames {t0}-{t1}" if len(win.cloud) else f"frames {t0}-{t1}: {win.cloud.note}"
+        empty = (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8))
+        xyz, rgb = dense_points(win, DENSE_POINTS) if len(win.cloud) else empty
+    else:
+        t0, t1, T_end = 0, view.num_frames - 1, rec.gate.pose.T_cam0_camT
+        note = "no point cloud" if rec.cloud is None else rec.cloud.note
+        xyz = np.zeros((0, 3), np.float32) if rec.cloud is None else rec.cloud.xyz
+        rgb = np.zeros((0, 3), np.uint8) if rec.cloud is None else rec.cloud.rgb
+    if len(xyz):
+        depth = float(np.median(xyz[:, 2])) or 1.0
         cloud_handle = scene.add_point_cloud(
             "/cloud",
-            points=cloud.xyz.astype(np.float32),
-            colors=cloud.rgb,
-            point_size=0.012 * depth,
+            points=xyz.astype(np.float32),
+            colors=rgb,
+            point_size=(0.006 if rec.dense else 0.012) * depth,
             precision="float32",
             point_shape="circle",
         )
@@ -181,16 +243,10 @@ def render_scene(server: viser.ViserServer, view: ClipView | None) -> Any:
             **pose,
         )
 
-    frustum("/cam_first", 0, (90, 200, 255))
-    if rec.gate.pose.T_cam0_camT is not None:
-        T = np.asarray(rec.gate.pose.T_cam0_camT, dtype=float)
-        frustum(
-            "/cam_last",
-            view.num_frames - 1,
-            (255, 180, 60),
-            wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz,
-            position=T[:3, 3],
-        )
+    frustum("/cam_first", t0, (90, 200, 255))
+    if T_end is not None:
+        T = np.asarray(T_end, dtype=float)
+        frustum("/cam_last", t1, (255, 180, 60), wxyz=vtf.SO3.from_matrix(T[:3, :3]).wxyz, position=T[:3, 3])
         if np.linalg.norm(T[:3, 3]) > 0:
             scene.add_line_segments(
                 "/baseline",
@@ -199,7 +255,6 @@ def render_scene(server: viser.ViserServer, view: ClipView | None) -> Any:
                 thickness=2.0,
                 thickness_units="screen",
             )
-    note = "no point cloud" if cloud is None else cloud.note
     scene.add_label("/note", note, position=(0.0, -0.12 * depth, 0.0))
     look_at, position, up = (0.0, 0.0, depth), (0.3 * depth, -0.45 * depth, -0.7 * depth), (0.0, -1.0, 0.0)
     cam = server.initial_camera

@@ -7,6 +7,7 @@ import rerun as rr
 
 from geocon_core.record import ClipRecord
 
+from .rerun_dense import dense_legend_markdown
 from .style import fmt
 
 __all__ = ["audit_card", "worst_frame", "RERUN_VERSION"]
@@ -71,6 +72,7 @@ def audit_card(record: ClipRecord) -> str:
         f"content box {list(v.content_box)}",
         f"- duplicated frames {len(v.duplicates)}, hard cuts {len(v.cuts)}; masks: {record.masks_source}",
     ]
+    lines += dense_legend_markdown(record)
     if record.objects:
         lines += [
             "",

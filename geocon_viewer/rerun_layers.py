@@ -5,7 +5,6 @@ entity paths)."""
 
 from __future__ import annotations
 
-import math
 from typing import Any, Sequence
 
 import numpy as np
@@ -14,6 +13,8 @@ import rerun as rr
 from geocon_core.models import family_spec
 from geocon_core.record import ClipRecord, FitSummary
 
+from .clouds import clean_cloud
+from .rerun_dense import log_dense, log_pointmaps
 from .rerun_images import colormap, object_rgba, png_bytes, residual_map
 
 __all__ = ["RecordLayers", "ARROW_GAIN", "INLIER", "OUTLIER"]
@@ -26,21 +27,6 @@ ARROW_GAIN = 4.0
 MATCH_RADIUS = rr.Radius.ui_points(1.6)
 OUTLIER_RADIUS = rr.Radius.ui_points(2.2)
 LINE_RADIUS = rr.Radius.ui_points(0.6)
-
-
-def _clean_cloud(xyz: np.ndarray, rgb: np.ndarray, *, max_points: int = 20000) -> tuple[np.ndarray, np.ndarray]:
-    """Statistical outlier removal and, for large clouds, voxel downsampling (open3d)."""
-    if len(xyz) < 20:
-        return xyz, rgb
-    import open3d as o3d
-
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz.astype(np.float64)))
-    pc.colors = o3d.utility.Vector3dVector(rgb.astype(np.float64) / 255.0)
-    if len(xyz) > max_points:
-        extent = float(np.linalg.norm(np.ptp(xyz, axis=0)))
-        pc = pc.voxel_down_sample(extent / math.sqrt(max_points) / 4)
-    pc, _ = pc.remove_statistical_outlier(nb_neighbors=16, std_ratio=2.5)
-    return np.asarray(pc.points, np.float32), np.round(np.asarray(pc.colors) * 255).astype(np.uint8)
 
 
 def _rule(family: str, fit: FitSummary, s: float) -> tuple[str, float]:
@@ -319,10 +305,14 @@ class RecordLayers:
         T = None if pose.T_cam0_camT is None else np.asarray(pose.T_cam0_camT, dtype=float)
         cloud = record.cloud
         depth = 1.0
-        if cloud is not None and len(cloud.xyz):
-            xyz, rgb = _clean_cloud(cloud.xyz, cloud.rgb)
+        has_dense = bool(record.dense) and len(record.dense[0].cloud) > 0  # the dense cloud shows more
+        if cloud is not None and len(cloud.xyz) and not has_dense:
+            xyz, rgb = clean_cloud(cloud.xyz, cloud.rgb)
             depth = float(np.median(xyz[:, 2])) if len(xyz) else 1.0
             rec.log("world/points", rr.Points3D(xyz, colors=rgb, radii=0.004 * depth), static=True)
+        dense_depth = log_dense(rec, record, K, self._time)
+        log_pointmaps(rec, record)
+        depth = depth if dense_depth is None else dense_depth
         plane = 0.15 * depth
         rec.log(
             "world/cam_first",

@@ -28,7 +28,8 @@ logged at frame t. Entity paths:
 ``series/background/...``      IR and GE per gap and scale, report gates, flagged pairs
 ``series/objects/<id>``        AdaDFRC ``D_t`` per object
 ``series/gate/...``            per-window ``t_inf`` with the 0.03 / 0.05 lines and margin
-``world/points``               first/last two-view point cloud
+``world/points``               first/last two-view point cloud (sparse; when there is no dense one)
+``world/dense``, ``window/...``  the dense clouds (:mod:`geocon_viewer.rerun_dense`)
 ``world/cam_first``,
 ``world/cam_last``             both cameras as pinholes
 ``audit``                      the audit card (markdown)
@@ -247,7 +248,10 @@ def blueprint() -> rrb.Blueprint:
         rrb.Vertical(
             rrb.Horizontal(frame_view, residual_view, object_view),
             rrb.Horizontal(
-                rrb.Spatial3DView(name="First/last two-view geometry", origin="world"),
+                rrb.Tabs(
+                    rrb.Spatial3DView(name="First/last two-view geometry", origin="world"),
+                    rrb.Spatial3DView(name="Gate window: dense cloud", origin="window"),
+                ),
                 rrb.Vertical(
                     rrb.TimeSeriesView(name="Background IR", origin="series/background/ir"),
                     rrb.TimeSeriesView(name="Background GE (px)", origin="series/background/ge"),

@@ -53,3 +53,37 @@ if [ ! -f "$stamp" ]; then
     rm -f .venv/.geocon-install-*
     touch "$stamp"
 fi
+
+# Neural backends that pip cannot install from the extra alone (only when the neural extra is asked for).
+want_neural=0
+for extra in "$@"; do [ "$extra" != neural ] || want_neural=1; done
+if [ "$want_neural" = 1 ]; then
+    # SAM-2 (Apache-2.0, see README, "SAM-2 masks"): PyPI has only its source, whose declared
+    # dependencies pull a CUDA torch and torchvision; built without the CUDA extension, against the
+    # CPU torch of the neural extra, with what the video predictor imports (hydra-core, iopath).
+    if ! .venv/bin/python -c 'import importlib.metadata as m, sys; sys.exit(m.version("sam2") != "1.1.0")' \
+        2>/dev/null; then
+        echo "geocon: installing sam2 1.1.0 (SAM-2) into .venv" >&2
+        log=".venv/pip-install-sam2.log"
+        if ! { .venv/bin/python -m pip install "setuptools>=70.1" \
+            && SAM2_BUILD_CUDA=0 .venv/bin/python -m pip install --no-build-isolation --no-deps "sam2==1.1.0"; } \
+            >"$log" 2>&1; then
+            tail -n 20 "$log" >&2
+            echo "geocon: pip install sam2 failed; full log in $log" >&2
+            exit 1
+        fi
+    fi
+    # DUSt3R (CC BY-NC-SA 4.0, see README, "DUSt3R pose"): the inference-only mini-dust3r package
+    # without its declared dependencies (gradio, a CUDA torchvision, ...); what its model imports
+    # (einops, beartype, huggingface_hub) comes pinned with the neural extra.
+    if ! .venv/bin/python -c 'import importlib.metadata as m, sys; sys.exit(m.version("mini-dust3r") != "0.1.2")' \
+        2>/dev/null; then
+        echo "geocon: installing mini-dust3r 0.1.2 (DUSt3R) into .venv" >&2
+        log=".venv/pip-install-dust3r.log"
+        if ! .venv/bin/python -m pip install --no-deps "mini-dust3r==0.1.2" >"$log" 2>&1; then
+            tail -n 20 "$log" >&2
+            echo "geocon: pip install mini-dust3r failed; full log in $log" >&2
+            exit 1
+        fi
+    fi
+fi

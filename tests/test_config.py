@@ -16,6 +16,7 @@ from geocon_core.category import categorize
 from geocon_core.config import (
     PRESETS,
     SUB_CONFIGS,
+    UNUSED_BACKENDS,
     BarConfig,
     CategoryConfig,
     CutConfig,
@@ -26,6 +27,7 @@ from geocon_core.config import (
     ScoreConfig,
     config_hash,
     config_items,
+    preset,
 )
 from geocon_core.flow import DisFlow, make_flow_backend
 from geocon_core.masks import MotionSegmenter, make_mask_source
@@ -48,7 +50,7 @@ def _changed(name: str, value: Any) -> list[Any]:
     if isinstance(value, bool):
         return [not value]
     if isinstance(value, int):
-        return [value + 1, value - 1]
+        return [value + 1, value - 1, value * 2]  # doubled: sizes that must stay multiples
     if isinstance(value, float):
         return [v for v in (value * 0.9, value * 1.1, value + 0.1, value + 0.5) if v != value]
     if isinstance(value, str):
@@ -108,7 +110,20 @@ def test_every_field_is_enumerated() -> None:
 @pytest.mark.parametrize("name,config", VARIANTS, ids=[n for n, _ in VARIANTS])
 def test_every_field_changes_the_hash(name: str, config: ScoreConfig) -> None:
     assert config != ScoreConfig()
+    top = name.split(".")[0]
+    if top in UNUSED_BACKENDS:
+        # an optional backend's settings count once the backend is selected, and only then
+        field, value = UNUSED_BACKENDS[top]
+        assert config_hash(config) == config_hash(ScoreConfig()), name
+        assert config_hash(config.with_(**{field: value})) != config_hash(ScoreConfig().with_(**{field: value}))
+        return
     assert config_hash(config) != config_hash(ScoreConfig()), name
+
+
+def test_adding_an_optional_backend_keeps_the_hashes_of_the_presets() -> None:
+    # the hashes of the records and benchmark folders made before SAM-2 and DUSt3R were added
+    assert config_hash(preset("audit")) == "38cd1bfc046b483d"
+    assert config_hash(preset("paper")) == "00d5370ab13a019d"
 
 
 def test_presets_print_every_field() -> None:

@@ -314,11 +314,11 @@ def test_masked_share_and_canvas_mapping() -> None:
 
 def test_registry_and_errors(small_c4) -> None:
     _, _, info = small_c4
-    assert set(MASK_SOURCES) == {"external", "motion"}
+    assert set(MASK_SOURCES) == {"external", "motion", "sam2"}
     assert isinstance(make_mask_source("motion", info, seed=3), MotionSegmenter)
-    with pytest.raises(ValueError, match=r"SAM-2 needs torch, the sam2 package and a checkpoint"):
+    with pytest.raises(ValueError, match=r"SAM-2 masks need a checkpoint: pass --sam2-checkpoint PATH"):
         make_mask_source("sam2", info)
-    with pytest.raises(ValueError, match=r"unknown mask source 'grabcut'; valid: external, motion"):
+    with pytest.raises(ValueError, match=r"unknown mask source 'grabcut'; valid: external, motion, sam2"):
         make_mask_source("grabcut", info)
     with pytest.raises(ValueError, match="need path"):
         make_mask_source("external", info)

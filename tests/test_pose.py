@@ -411,8 +411,10 @@ def test_backend_registry():
     backend = make_pose_backend("classical", min_matches=40)
     assert isinstance(backend, ClassicalPose) and backend.config.min_matches == 40 and backend.name == "classical"
     assert isinstance(backend, PoseBackend)
-    with pytest.raises(ValueError, match="classical.*log"):
-        make_pose_backend("dust3r")
+    with pytest.raises(ValueError, match="classical, log, dust3r"):
+        make_pose_backend("sfm")
+    with pytest.raises(ValueError, match="needs --dust3r-checkpoint"):
+        make_pose_backend("dust3r")  # known, but not without the user's checkpoint
     with pytest.raises(ValueError):
         make_pose_backend("log")
 

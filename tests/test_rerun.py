@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +16,12 @@ rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
 from geocon_core.config import preset  # noqa: E402
+from geocon_core.dense_cloud import DenseCloudConfig  # noqa: E402
 from geocon_core.diagnostics import OverlayWriter, read_overlays  # noqa: E402
 from geocon_core.record import read_record, write_record  # noqa: E402
 from geocon_core.scorer import score_clip  # noqa: E402
+from geocon_viewer.rerun_dense import WINDOW_POINTS, WORLD_POINTS  # noqa: E402
+from geocon_viewer.rerun_layers import RecordLayers  # noqa: E402
 from geocon_viewer.rerun_log import RrdSink, audit_card, residual_map, write_rrd  # noqa: E402
 
 
@@ -38,7 +42,7 @@ def _rows(rrd: Path) -> dict[str, list[dict]]:
     return out
 
 
-def _score(clip: Path, folder: Path, cfg, masks=None):
+def _score(clip: Path, folder: Path, cfg, masks=None, dense=None):
     sink = RrdSink(folder / "live.rrd")
     overlays = OverlayWriter(folder / "record")
 
@@ -46,7 +50,7 @@ def _score(clip: Path, folder: Path, cfg, masks=None):
         overlays(fd)
         sink(fd)
 
-    record = score_clip(clip, cfg, masks=masks, on_frame=on_frame)
+    record = score_clip(clip, cfg, masks=masks, on_frame=on_frame, dense=dense)
     overlays.close()
     write_record(record, folder / "record")
     sink.finish(record)
@@ -63,9 +67,10 @@ def objects_run(synth_dir: Path, tmp_path_factory) -> tuple:
 
 @pytest.fixture(scope="module")
 def parallax_run(synth_dir: Path, tmp_path_factory) -> tuple:
-    """The translating camera (strong parallax): the point cloud and both cameras."""
+    """The translating camera (strong parallax): the dense point clouds and both cameras."""
     folder = tmp_path_factory.mktemp("rrd_c3")
-    record = _score(synth_dir / "c3_translation.mp4", folder, preset("paper").with_(masks="none"))
+    cfg = preset("paper").with_(masks="none")
+    record = _score(synth_dir / "c3_translation.mp4", folder, cfg, dense=DenseCloudConfig())
     return record, folder, _rows(folder / "live.rrd")
 
 
@@ -175,12 +180,37 @@ def test_cells_are_the_records_vectors(objects_run):
     assert np.allclose(vectors, ARROW_GAIN * cells["observed"], atol=1e-4)
 
 
-def test_point_cloud_and_cameras(parallax_run):
-    record, _, rows = parallax_run
-    assert record.gate.model == "F" and record.cloud is not None and len(record.cloud.xyz) > 100
+def test_sparse_cloud_when_the_record_has_no_dense_one(parallax_run, tmp_path):
+    record, _, _ = parallax_run
+    assert record.cloud is not None and len(record.cloud.xyz) > 100
+    rec = rr.RecordingStream("geocon-test")
+    rec.save(tmp_path / "world.rrd")
+    RecordLayers(rec, 30.0, None)._log_world(replace(record, dense=()))
+    rec.disconnect()  # writes the file's footer
+    rows = _rows(tmp_path / "world.rrd")
     pts = next(r for r in rows["/world/points"])["Points3D:positions"]
     # outlier removal keeps most of a clean synthetic cloud, never adds points
     assert 0.8 * len(record.cloud.xyz) <= len(pts) <= len(record.cloud.xyz)
+    assert "/world/dense" not in rows and "/window/dense" not in rows
+
+
+def test_dense_clouds_first_last_in_world_and_each_window_on_the_timeline(parallax_run):
+    record, _, rows = parallax_run
+    first, windows = record.dense[0], record.dense[1:]
+    assert len(first.cloud) > 20_000 and len(windows) >= 1 and "/world/points" not in rows
+    (row,) = rows["/world/dense"]
+    pts, colors = np.asarray(row["Points3D:positions"]), np.asarray(row["Points3D:colors"])
+    # open3d thins the cloud to the recording's budget and drops strays, never adds points
+    assert 0.5 * WORLD_POINTS <= len(pts) <= WORLD_POINTS and len(colors) == len(pts)
+    assert np.median(pts[:, 2]) == pytest.approx(np.median(first.cloud.xyz[:, 2]), rel=0.05)
+    logged = [r for r in rows["/window/dense"] if r.get("Points3D:positions") is not None]
+    assert [r["frame"] for r in logged] == [w.start for w in windows if len(w.cloud)]
+    for r, w in zip(logged, [w for w in windows if len(w.cloud)], strict=True):
+        assert 0 < len(r["Points3D:positions"]) <= min(WINDOW_POINTS, len(w.cloud))
+    ends = [r for r in rows["/window/cam_end"] if r.get("Transform3D:translation") is not None]
+    for r, w in zip(ends, [w for w in windows if w.T_cam0_camT is not None], strict=True):
+        tr = r["Transform3D:translation"]
+        assert np.allclose(tr[0] if np.ndim(tr[0]) else tr, np.asarray(w.T_cam0_camT)[:3, 3], atol=1e-5)
     for cam in ("/world/cam_first", "/world/cam_last"):
         row = next(r for r in rows[cam] if r.get("Pinhole:image_from_camera") is not None)
         K = np.array(row["Pinhole:image_from_camera"][0]).reshape(3, 3).T  # stored column-major

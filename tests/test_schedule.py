@@ -26,6 +26,7 @@ class FakeStages:
         self.labelled: list[int] = []
         self.released: list[int] = []
         self.scored_pairs: list[tuple[int, int]] = []
+        self.observed: list[tuple[int, bool]] = []
         self.lock = threading.Lock()
         self.rng = random.Random(0)
 
@@ -49,6 +50,9 @@ class FakeStages:
 
     def release(self, t: int) -> None:
         self.released.append(t)
+
+    def observe(self, frame, labels) -> None:
+        self.observed.append((frame.index, labels is not None))
 
     def extract(self, frame, labels):
         self._sleep()
@@ -145,6 +149,13 @@ def test_skipped_pairs_are_never_scored_and_results_keep_submission_order():
     assert len(scored) + len(skipped) == sum(max(0, 20 - g) for g in (1, 2, 4))
     assert ("objects", 6, 7, "cut") in out.objects
     assert [o[1] for o in out.objects] == list(range(19))
+
+
+@pytest.mark.parametrize("masks", [True, False])
+def test_every_frame_is_observed_once_in_order_after_its_labels(masks):
+    stages = FakeStages(lookahead=3, masks=masks)
+    _run(stages)
+    assert stages.observed == [(t, masks) for t in range(20)]
 
 
 def test_labels_wait_for_the_mask_lookahead():

@@ -371,3 +371,42 @@ def test_headless_chromium_shows_the_list_scene_and_plots(results, tmp_path):
     assert busy(left[60:400]) > 0.2, "the frame panel shows a frame"
     assert busy(centre) > 0.05, "the 3D scene shows a point cloud and frustums"
     assert busy(right) > 0.05, "the triage list is drawn"
+
+
+# --- dense point clouds -----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def dense_record(tmp_path_factory) -> Path:
+    """A translating clip scored into a record with dense clouds (first/last and one gate window)."""
+    from geocon_core.bench import score_to_folder
+    from geocon_core.dense_cloud import DenseCloudConfig
+    from geocon_core.synth import ClipPlan, write_clip
+
+    data = tmp_path_factory.mktemp("dense-clip")
+    gt = write_clip(ClipPlan("C3"), data, width=320, height=180, num_frames=20)
+    folder = data / "record"
+    score_to_folder(data / f"{gt.clip_id}.mp4", ScoreConfig(), folder, dense=DenseCloudConfig())
+    return folder
+
+
+def test_the_scene_shows_the_dense_cloud_of_the_pair_picked_with_its_legend(dense_record):
+    from geocon_viewer.audit_views import DENSE_POINTS
+    from geocon_viewer.clouds import dense_points
+
+    record = read_record(dense_record)
+    assert [(w.start, w.end) for w in record.dense] == [(0, 19), (0, 16)]
+    audit = AuditApp(dense_record, port=0, preload=False)
+    try:
+        assert list(audit.pair.options) == ["first/last", "window 0-16"]
+        assert "outlier" in audit.legend_html.content and "moving object" in audit.legend_html.content
+        for value, w in zip(audit.pair.options, record.dense, strict=True):
+            audit.pair.value = value
+            xyz, rgb = dense_points(w, DENSE_POINTS)
+            assert audit.cloud_handle is not None and audit.cloud_handle.points.shape == xyz.shape
+            np.testing.assert_allclose(audit.cloud_handle.points, xyz)
+            np.testing.assert_array_equal(audit.cloud_handle.colors, rgb)
+            assert sorted(audit.view.frustums) == [w.start, w.end]
+            assert f"frames {w.start} -> {w.end}: {len(w.cloud)} points" in audit.pair_md.content
+    finally:
+        audit.stop()

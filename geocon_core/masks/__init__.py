@@ -49,31 +49,33 @@ Sources
     movers), parts of one mover merged, tracked into stable ids that survive gaps. Background failures
     (breathing, sliding layers, boiling texture) stay background. See the class docstring.
 
-``sam2``
-    Not available in this build: SAM-2 needs torch, the ``sam2`` package and a checkpoint, and
-    :func:`make_mask_source` says so instead of pretending.
+``sam2`` (:class:`~geocon_core.masks.sam2.Sam2Masks`, the motion segmentation's lookahead)
+    SAM-2's video predictor prompted with the boxes of the motion segmentation's movers on the
+    first frame each appears, then tracking them under the same ids (:mod:`.sam2`). Needs the
+    ``neural`` extra, the ``sam2`` package and a checkpoint the user gives; nothing is downloaded.
 
 Modules: :mod:`.base` (the protocol, coverage, canvas mapping), :mod:`.external`,
 :mod:`.motion` (the segmenter), :mod:`.evidence` (flow and background residuals),
 :mod:`.regions` (object regions of a score map), :mod:`.identity` (colour, merged parts),
-:mod:`.tracking` (object ids).
+:mod:`.tracking` (object ids), :mod:`.sam2` (SAM-2, loaded only when chosen).
 """
 
 from __future__ import annotations
 
-import importlib.util
 from typing import Any
 
 from ..reader import ClipInfo
-from ..stage_configs import MotionConfig
+from ..stage_configs import MotionConfig, Sam2Config
 from .base import IMPLAUSIBLE_SHARE, MaskSource, labels_to_canvas, masked_share
 from .external import ExternalMasks
 from .motion import MotionSegmenter
+from .sam2 import Sam2Masks, load_sam2
 
 __all__ = [
     "MaskSource",
     "ExternalMasks",
     "MotionSegmenter",
+    "Sam2Masks",
     "MASK_SOURCES",
     "IMPLAUSIBLE_SHARE",
     "make_mask_source",
@@ -81,32 +83,25 @@ __all__ = [
     "labels_to_canvas",
 ]
 
-MASK_SOURCES: dict[str, type] = {"external": ExternalMasks, "motion": MotionSegmenter}
-"""Available mask sources by name."""
-
-
-def _sam2_missing() -> str:
-    have = [m for m in ("torch", "sam2") if importlib.util.find_spec(m) is not None]
-    state = f"{' and '.join(have)} installed but " if have else ""
-    return (
-        "SAM-2 needs torch, the sam2 package and a checkpoint, which are not available in this build "
-        f"({state}no checkpoint or loader is shipped); use one of: {', '.join(MASK_SOURCES)}"
-    )
+MASK_SOURCES: dict[str, type] = {"external": ExternalMasks, "motion": MotionSegmenter, "sam2": Sam2Masks}
+"""Available mask sources by name (``sam2`` imports torch and SAM-2 only when a model is loaded)."""
 
 
 def make_mask_source(name: str, info: ClipInfo, config: MotionConfig | None = None, **kwargs: Any) -> MaskSource:
     """The mask source called ``name`` for the clip of ``info``: ``external`` (``path=...``,
-    see :class:`ExternalMasks`) or ``motion`` (settings ``config``, defaults when None, plus
-    ``flow=``, ``seed=`` and single-field overrides of :class:`MotionSegmenter`). Raises
-    ValueError for ``sam2`` (not in this build) and for unknown names, listing the valid ones."""
+    see :class:`ExternalMasks`), ``motion`` (settings ``config``, defaults when None, plus
+    ``flow=``, ``seed=`` and single-field overrides of :class:`MotionSegmenter`) or ``sam2``
+    (:class:`~geocon_core.masks.sam2.Sam2Masks`: ``model=`` a :func:`~geocon_core.masks.sam2.load_sam2`
+    result or ``checkpoint=PATH``, ``sam2=`` its :class:`~geocon_core.stage_configs.Sam2Config`,
+    and the motion segmentation's ``config``, ``flow=`` and ``seed=`` for its prompts). Raises
+    ValueError for unknown names, listing the valid ones, and for missing settings."""
     key = str(name).strip().lower()
-    if key in ("sam2", "sam-2"):
-        raise ValueError(_sam2_missing())
+    if key == "sam-2":
+        key = "sam2"
     if key not in MASK_SOURCES:
-        raise ValueError(
-            f"unknown mask source {name!r}; valid: {', '.join(MASK_SOURCES)} "
-            "(sam2 needs torch, the sam2 package and a checkpoint)"
-        )
+        raise ValueError(f"unknown mask source {name!r}; valid: {', '.join(MASK_SOURCES)}")
+    if key == "sam2":
+        return _sam2_source(info, config, **kwargs)
     if key == "external":
         if "path" not in kwargs:
             raise ValueError("external masks need path=... (a folder of label PNGs, per-object folders or an .npz)")
@@ -117,3 +112,19 @@ def make_mask_source(name: str, info: ClipInfo, config: MotionConfig | None = No
             raise ValueError("external masks take no motion segmentation settings")
         return ExternalMasks(kwargs["path"], info)
     return MotionSegmenter(info, config, **kwargs)
+
+
+def _sam2_source(
+    info: ClipInfo,
+    config: MotionConfig | None,
+    *,
+    model: Any = None,
+    checkpoint: Any = None,
+    sam2: Sam2Config | None = None,
+    **motion: Any,
+) -> MaskSource:
+    if model is None:
+        model = load_sam2(checkpoint, sam2)
+    elif checkpoint is not None:
+        raise ValueError("sam2 masks take either model= or checkpoint=, not both")
+    return Sam2Masks(info, model, MotionSegmenter(info, config, **motion), sam2)

@@ -14,6 +14,9 @@ Backends
     between them; settings in :class:`~geocon_core.stage_configs.PoseConfig`.
 ``log`` (:class:`PoseLog`, :mod:`geocon_core.pose.log`)
     A pose computed elsewhere, read from a JSON pose log.
+``dust3r`` (:class:`~geocon_core.pose.dust3r.Dust3rPose`, :mod:`geocon_core.pose.dust3r`)
+    DUSt3R's point maps of the first and last frame, aligned; the user's own DUSt3R install and
+    checkpoint (torch and DUSt3R are imported only when it is built).
 
 Modules: :mod:`.base` (the result record, the protocol, default intrinsics),
 :mod:`.classical`, :mod:`.lsq` (least-squares helpers), :mod:`.log`.
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from ..stage_configs import PoseConfig
+from ..stage_configs import Dust3rConfig, PoseConfig
 from .base import POSE_METHODS, PoseBackend, PoseEstimate, default_intrinsics
 from .classical import ClassicalPose
 from .log import POSE_LOG_FORMAT, PoseLog, load_pose_log
@@ -47,16 +50,24 @@ POSE_BACKENDS: dict[str, Callable[..., PoseBackend]] = {"classical": ClassicalPo
 :func:`make_pose_backend` (``make_pose_backend("log", path=...)``) or :func:`load_pose_log`."""
 
 
-def make_pose_backend(name: str, config: PoseConfig | None = None, **kwargs: Any) -> PoseBackend:
+def make_pose_backend(name: str, config: PoseConfig | Dust3rConfig | None = None, **kwargs: Any) -> PoseBackend:
     """Build a pose backend by name: ``"classical"`` (settings ``config``, defaults when None,
-    and single-field overrides as keywords) or ``"log"`` (``path=`` the pose log). An unknown
-    name raises ``ValueError`` listing the valid ones."""
+    and single-field overrides as keywords), ``"log"`` (``path=`` the pose log) or ``"dust3r"``
+    (``checkpoint=``, optional ``clone=`` and ``config=`` a
+    :class:`~geocon_core.stage_configs.Dust3rConfig`). An unknown name raises ``ValueError``
+    listing the valid ones."""
     key = str(name).strip().lower()
+    if key == "dust3r":
+        from .dust3r import Dust3rPose
+
+        if config is not None and not isinstance(config, Dust3rConfig):
+            raise ValueError(f"the 'dust3r' pose backend takes a Dust3rConfig, got {type(config).__name__}")
+        return Dust3rPose(config, **kwargs)
     if key == "log":
         if "path" not in kwargs or len(kwargs) != 1 or config is not None:
             raise ValueError("the 'log' pose backend takes exactly one argument, path= (the pose log JSON)")
         return PoseLog(kwargs["path"])
     if key not in POSE_BACKENDS:
-        valid = ", ".join([*POSE_BACKENDS, "log"])
+        valid = ", ".join([*POSE_BACKENDS, "log", "dust3r"])
         raise ValueError(f"unknown pose backend {name!r}; valid: {valid}")
     return POSE_BACKENDS[key](config, **kwargs)

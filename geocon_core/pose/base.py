@@ -21,7 +21,7 @@ __all__ = [
     "check_inputs",
 ]
 
-POSE_METHODS = ("essential", "rotation", "chain", "log", "none")
+POSE_METHODS = ("essential", "rotation", "chain", "log", "dust3r", "none")
 
 ZOOM_NOTE_LOG = 0.05
 """A fitted zoom whose log exceeds this (about 5 %) is named in the pose's note."""
@@ -38,9 +38,11 @@ class PoseEstimate:
         translation column is zero (a translation below the noise is not observable) and
         ``t_inf`` is the first-order bound ``parallax_px / focal_px``.
     method: ``"essential"``, ``"rotation"``, ``"chain"`` (composed from short hops when the
-        first-last pair failed, :mod:`geocon_core.pose.chain`), ``"log"`` or ``"none"``.
+        first-last pair failed, :mod:`geocon_core.pose.chain`), ``"log"``, ``"dust3r"`` (aligned
+        DUSt3R point maps, :mod:`geocon_core.pose.dust3r`) or ``"none"``.
     reason: reason code when not present (``"too_few_matches"``, ``"too_few_inliers"``,
-        ``"degenerate"``, ``"no_cheirality"``, ``"log_no_pose"``), else None.
+        ``"degenerate"``, ``"no_cheirality"``, ``"log_no_pose"``, ``"too_few_points"``,
+        ``"needs_frames"``), else None.
     n_matches: finite matches given to the backend.
     n_inliers: inliers of the model used (0 for logs and for failures before any fit).
     rotation_deg: rotation angle of the relative pose, degrees (None when unknown).

@@ -66,10 +66,10 @@ def checks() -> list[Check]:
         ),
         Check("masks", "motion", True, "built in (default, no weights)"),
         Check("masks", "external", True, "label PNGs (also indexed DAVIS PNGs), per-object folders or .npz (--masks)"),
-        Check("masks", "sam2", False, "not in this version of GeoCon; give SAM-2 masks as files with --masks"),
+        _sam2(torch_ok, torch_text),
         Check("pose", "classical", True, "built in (default, no weights)"),
         Check("pose", "log", True, "a geocon-pose/1 JSON file (--pose-log), e.g. from DUSt3R run elsewhere"),
-        Check("pose", "dust3r", False, "not in this version of GeoCon; run DUSt3R elsewhere and pass --pose-log"),
+        _dust3r(torch_ok, torch_text),
     ]
     rerun = _version("rerun-sdk")
     rerun_text = f"rerun-sdk {rerun}" if rerun else VIEWER_EXTRA
@@ -110,6 +110,51 @@ def checks() -> list[Check]:
     )
     out_checks.append(Check("machine", "cores", True, f"{os.cpu_count()} CPU cores"))
     return out_checks
+
+
+def _sam2(torch_ok: bool, torch_text: str) -> Check:
+    """Whether SAM-2's video predictor imports (it also needs torch), and how to get it."""
+    from geocon_core.masks.sam2 import SAM2_INSTALL, sam2_config_names
+
+    missing = [m for m in ("sam2", "hydra", "iopath") if not _have(m)]
+    if not torch_ok or missing:
+        need = torch_text if not torch_ok else f"needs {', '.join(missing)}: {SAM2_INSTALL}"
+        return Check("masks", "sam2", False, need)
+    try:
+        import sam2.build_sam  # noqa: F401  (hydra and the model code: what a broken install fails on)
+    except Exception as exc:
+        return Check("masks", "sam2", False, f"sam2 is installed but does not import ({type(exc).__name__}: {exc})")
+    return Check(
+        "masks",
+        "sam2",
+        True,
+        f"sam2 {_version('sam2')} ({len(sam2_config_names())} model configurations), {torch_text}; "
+        "pass --masks sam2 --sam2-checkpoint sam2.1_hiera_tiny.pt",
+    )
+
+
+def _dust3r(torch_ok: bool, torch_text: str) -> Check:
+    """Whether DUSt3R's model imports from the mini-dust3r package (a checkout given with
+    --dust3r-path is checked when it is used), and how to get it."""
+    from geocon_core.pose.dust3r import DUST3R_INSTALL
+
+    elsewhere = "; or run DUSt3R elsewhere and pass --pose-log"
+    missing = [m for m in ("mini_dust3r", "einops", "beartype", "huggingface_hub") if not _have(m)]
+    if not torch_ok or missing:
+        need = torch_text if not torch_ok else f"needs {', '.join(missing)}: {DUST3R_INSTALL}"
+        return Check("pose", "dust3r", False, need + elsewhere)
+    try:
+        from geocon_core.pose.dust3r import import_model_class
+
+        _, source = import_model_class()
+    except ValueError as exc:
+        return Check("pose", "dust3r", False, f"mini-dust3r is installed but does not import ({exc}){elsewhere}")
+    return Check(
+        "pose",
+        "dust3r",
+        True,
+        f"{source} (CC BY-NC-SA 4.0, non-commercial), {torch_text}; pass --pose dust3r --dust3r-checkpoint PATH",
+    )
 
 
 def _open3d() -> Check:

@@ -65,10 +65,16 @@ def score_with_progress(
     quiet: bool = False,
     rrd: Path | None = None,
     flow_checkpoint: Path | None = None,
+    dense: bool = True,
+    sam2_checkpoint: Path | None = None,
+    dust3r_checkpoint: Path | None = None,
+    dust3r_path: Path | None = None,
 ) -> ClipRecord:
     """Score a clip with a progress bar on stderr that appears once the clip is readable; write
-    the record (with its overlays) into ``out_dir`` and, with ``rrd``, a Rerun recording."""
+    the record (with its overlays and, with ``dense``, the dense point clouds) into ``out_dir``
+    and, with ``rrd``, a Rerun recording."""
     from geocon_core.bench import score_to_folder
+    from geocon_core.dense_cloud import DenseCloudConfig
 
     sinks = [] if rrd is None else [_rrd_sink_factory(rrd)]
     with progress_bar("scoring", "frames", disable=quiet) as bar:
@@ -81,7 +87,11 @@ def score_with_progress(
                 pose_log=pose_log,
                 masks=masks,
                 flow_checkpoint=flow_checkpoint,
+                sam2_checkpoint=sam2_checkpoint,
+                dust3r_checkpoint=dust3r_checkpoint,
+                dust3r_path=dust3r_path,
                 sinks=sinks,
+                dense=DenseCloudConfig() if dense else None,
                 progress=lambda done, total: bar.update(task, completed=done, total=total, visible=True),
             )
         except BaseException:
@@ -178,7 +188,13 @@ def _config(
     no_masks: bool,
     flow: str | None = None,
     flow_checkpoint: Path | None = None,
+    *,
+    sam2: bool = False,
+    sam2_checkpoint: Path | None = None,
+    sam2_config: str | None = None,
 ) -> Any:
+    from dataclasses import replace
+
     from geocon_core.config import preset
     from geocon_core.features import make_matcher
     from geocon_core.flow import FLOW_BACKENDS
@@ -193,13 +209,47 @@ def _config(
     if flow_checkpoint is not None and (flow or cfg.flow).strip().lower() != "raft":
         raise ValueError("--raft-checkpoint is used with --flow raft")
     if no_masks:
-        if masks is not None:
+        if masks is not None or sam2:
             raise ValueError("--masks and --no-masks exclude each other")
         overrides["masks"] = "none"
+    if sam2:
+        if sam2_checkpoint is None:
+            raise ValueError("--masks sam2 needs --sam2-checkpoint PATH (a SAM-2 .pt file; nothing is downloaded)")
+        overrides["masks"] = "sam2"
+        if sam2_config is not None:
+            overrides["sam2"] = replace(cfg.sam2, model=sam2_config)
+    elif sam2_checkpoint is not None or sam2_config is not None:
+        raise ValueError("--sam2-checkpoint and --sam2-config are used with --masks sam2")
     if overrides:
         cfg = cfg.with_(**overrides)
     make_matcher(cfg.matcher)
     return cfg
+
+
+def _pose_settings(
+    cfg: ScoreConfig,
+    pose: str | None,
+    pose_log: Path | None,
+    dust3r_checkpoint: Path | None,
+    dust3r_path: Path | None,
+) -> ScoreConfig:
+    """``cfg`` with the pose backend of ``--pose``, its options checked (``ValueError``, one sentence)."""
+    name = None if pose is None else pose.strip().lower()
+    if name is not None and name not in ("classical", "dust3r"):
+        raise ValueError(f"unknown pose backend {pose!r}; valid: classical, dust3r (or --pose-log FILE)")
+    if name == "dust3r":
+        if pose_log is not None:
+            raise ValueError("--pose dust3r and --pose-log exclude each other")
+        if dust3r_checkpoint is None:
+            raise ValueError("--pose dust3r needs --dust3r-checkpoint PATH (a DUSt3R .pth; nothing is downloaded)")
+        if not dust3r_checkpoint.is_file():
+            raise ValueError(f"--dust3r-checkpoint {dust3r_checkpoint} does not exist or is not a file")
+        if dust3r_path is not None and not dust3r_path.is_dir():
+            raise ValueError(f"--dust3r-path {dust3r_path} is not a folder (a checkout of naver/dust3r is expected)")
+        return cfg.with_(pose_backend="dust3r")
+    if dust3r_checkpoint is not None or dust3r_path is not None:
+        raise ValueError("--dust3r-checkpoint and --dust3r-path are used with --pose dust3r")
+    return cfg if name is None else cfg.with_(pose_backend=name)
 
 
 def check_inputs(
@@ -237,9 +287,10 @@ def score(
         ),
     ] = None,
     masks: Annotated[
-        Optional[Path],
+        Optional[str],
         typer.Option(
-            help="External object masks: a folder of label PNGs, per-object folders, or an .npz (see the README)."
+            help="External object masks: a folder of label PNGs, per-object folders, or an .npz (see the README); "
+            "or `sam2`: SAM-2 masks prompted by the motion segmentation (needs --sam2-checkpoint)."
         ),
     ] = None,
     no_masks: Annotated[
@@ -260,6 +311,35 @@ def score(
     raft_checkpoint: Annotated[
         Optional[Path], typer.Option(help="RAFT-small weights (raft-small.pth from the RAFT authors) for --flow raft.")
     ] = None,
+    pose: Annotated[
+        Optional[str],
+        typer.Option(
+            "--pose",
+            help="First->last pose of the gate: classical (default, no weights) or dust3r (needs --dust3r-checkpoint).",
+        ),
+    ] = None,
+    dust3r_checkpoint: Annotated[
+        Optional[Path], typer.Option(help="DUSt3R weights (a DUSt3R .pth from its authors) for --pose dust3r.")
+    ] = None,
+    dust3r_path: Annotated[
+        Optional[Path],
+        typer.Option(help="A checkout of naver/dust3r (with croco) to import instead of the mini-dust3r package."),
+    ] = None,
+    sam2_checkpoint: Annotated[
+        Optional[Path], typer.Option(help="SAM-2 weights (a sam2*.pt from the SAM-2 authors) for --masks sam2.")
+    ] = None,
+    sam2_config: Annotated[
+        Optional[str],
+        typer.Option(help="SAM-2 model configuration the checkpoint was made for (default sam2.1_hiera_t)."),
+    ] = None,
+    dense: Annotated[
+        bool,
+        typer.Option(
+            "--dense/--no-dense",
+            help="Also make the dense point clouds (first/last pair and gate windows, coloured by residual) for "
+            "the viewers; no score depends on them.",
+        ),
+    ] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
     rrd: Annotated[
         Optional[Path],
@@ -273,9 +353,23 @@ def score(
     """Score a clip: translation gate (H/F), background inlier ratio (IR) and geometric error
     (GE) per frame pair and scale, the report verdict; writes the audit record."""
     target = out_dir or default_out(clip)
+    sam2 = masks is not None and masks.strip().lower() == "sam2"
+    mask_path = None if masks is None or sam2 else Path(masks)
     try:
-        cfg = _config(preset_name, matcher, fov, masks, no_masks, flow, raft_checkpoint)
-        check_inputs(target, pose_log=pose_log, masks=masks, rrd=rrd)
+        cfg = _config(
+            preset_name,
+            matcher,
+            fov,
+            mask_path,
+            no_masks,
+            flow,
+            raft_checkpoint,
+            sam2=sam2,
+            sam2_checkpoint=sam2_checkpoint,
+            sam2_config=sam2_config,
+        )
+        cfg = _pose_settings(cfg, pose, pose_log, dust3r_checkpoint, dust3r_path)
+        check_inputs(target, pose_log=pose_log, masks=mask_path, rrd=rrd)
     except ValueError as exc:
         raise fail(str(exc)) from None
     try:
@@ -284,10 +378,14 @@ def score(
             cfg,
             out_dir=target,
             pose_log=pose_log,
-            masks=masks,
+            masks=mask_path,
             quiet=as_json,
             rrd=rrd,
             flow_checkpoint=raft_checkpoint,
+            dense=dense,
+            sam2_checkpoint=sam2_checkpoint,
+            dust3r_checkpoint=dust3r_checkpoint,
+            dust3r_path=dust3r_path,
         )
     except ValueError as exc:
         if not is_input_error(exc):
