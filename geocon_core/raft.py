@@ -239,15 +239,10 @@ def load_raft_small(checkpoint: str | Path, device: str | torch.device = "cpu") 
     state dict in its layout; the ``module.`` prefix is optional), read with
     ``torch.load(..., weights_only=True)``, in eval mode on ``device``. A missing file, a file
     that is not a state dict, or one with other parameter names raises ``ValueError`` naming it."""
+    from .checkpoint import read_checkpoint_file
+
     path = Path(checkpoint)
-    if not path.is_file():
-        raise ValueError(f"RAFT checkpoint {path} does not exist (pass --raft-checkpoint with raft-small.pth)")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a file that is not a checkpoint
-        raise ValueError(
-            f"RAFT checkpoint {path} cannot be read as a torch state dict ({type(exc).__name__})"
-        ) from None
+    state = read_checkpoint_file(path, "RAFT checkpoint", "pass --raft-checkpoint with raft-small.pth")
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise ValueError(f"RAFT checkpoint {path} is not a state dict of tensors")
     state = {k.removeprefix("module."): v for k, v in state.items()}

@@ -69,7 +69,7 @@ def test_bad_checkpoints_are_one_sentence(tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
         load_raft_small(tmp_path / "nope.pth")
     (tmp_path / "junk.pth").write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match="cannot be read as a torch state dict"):
+    with pytest.raises(ValueError, match="cannot be read as a PyTorch checkpoint"):
         load_raft_small(tmp_path / "junk.pth")
     torch.save({"conv.weight": torch.zeros(3)}, tmp_path / "other.pth")
     with pytest.raises(ValueError, match="not a RAFT-small checkpoint"):

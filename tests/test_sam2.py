@@ -290,7 +290,7 @@ def test_bad_checkpoints_are_one_sentence(checkpoint, tmp_path) -> None:
 
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint at all")
-    with pytest.raises(ValueError, match=r"cannot be read as a torch checkpoint \("):
+    with pytest.raises(ValueError, match=r"cannot be read as a PyTorch checkpoint \("):
         load_sam2(junk)
     empty = tmp_path / "empty.pt"
     torch.save({"model": {"step": 3}}, empty)

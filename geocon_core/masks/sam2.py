@@ -271,18 +271,15 @@ def load_sam2(checkpoint: str | Path | None, config: Sam2Config | None = None, d
     path = Path(checkpoint)
     if not path.is_file():
         raise ValueError(f"SAM-2 checkpoint {path} does not exist (pass --sam2-checkpoint with a SAM-2 .pt file)")
+    from ..checkpoint import read_checkpoint_file
+
     config_name = resolve_sam2_config(cfg.model)
     try:
         import torch
         from sam2.build_sam import build_sam2_video_predictor
     except ImportError as exc:
         raise ValueError(f"SAM-2 does not import ({exc}): {SAM2_INSTALL}") from None
-    try:
-        loaded = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a file that is not a checkpoint
-        raise ValueError(
-            f"SAM-2 checkpoint {path} cannot be read as a torch checkpoint ({type(exc).__name__})"
-        ) from None
+    loaded = read_checkpoint_file(path, "SAM-2 checkpoint", "pass --sam2-checkpoint with a SAM-2 .pt file")
     state = loaded.get("model", loaded) if isinstance(loaded, dict) else None
     if not isinstance(state, dict) or not state or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise ValueError(f"SAM-2 checkpoint {path} holds no state dict of tensors (expected {{'model': state_dict}})")

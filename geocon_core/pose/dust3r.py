@@ -192,21 +192,11 @@ def read_checkpoint(path: str | Path) -> tuple[ModelSpec, dict[str, Any]]:
     unreadable or foreign file."""
     import torch
 
-    p = Path(path)
-    where = f"DUSt3R checkpoint {p}"
-    if not p.is_file():
-        raise ValueError(f"{where} does not exist or is not a file (pass --dust3r-checkpoint with a DUSt3R .pth)")
-    try:
-        with torch.serialization.safe_globals([argparse.Namespace]):
-            ckpt = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a file that is not a checkpoint
-        text = str(exc)
-        if "Unsupported global" in text:
-            name = text.split("Unsupported global:", 1)[1].split()[1] if "GLOBAL" in text else "an object"
-            raise ValueError(
-                f"{where} holds {name}, which GeoCon does not unpickle (only tensors and argparse.Namespace)"
-            ) from None
-        raise ValueError(f"{where} cannot be read as a PyTorch checkpoint ({type(exc).__name__})") from None
+    from ..checkpoint import read_checkpoint_file
+
+    where = f"DUSt3R checkpoint {Path(path)}"
+    hint = "pass --dust3r-checkpoint with a DUSt3R .pth"
+    ckpt = read_checkpoint_file(path, "DUSt3R checkpoint", hint, allow=[argparse.Namespace])
     args = ckpt.get("args") if isinstance(ckpt, dict) else None
     model_string = args.get("model") if isinstance(args, dict) else getattr(args, "model", None)
     state = ckpt.get("model") if isinstance(ckpt, dict) else None
