@@ -37,6 +37,13 @@ def test_json_summary_has_the_documented_keys_and_is_stable(clip, tmp_path):
     assert s["category"] == "C3" and len(s["config_hash"]) == 16
     assert (tmp_path / "a" / "record.json").read_bytes() == (tmp_path / "b" / "record.json").read_bytes()
     assert s["gate"]["label"] == "F"
+    # dense clouds only when asked (or with --rrd): they change no score, so the record holds the same summary
+    assert json.loads((tmp_path / "a" / "record.json").read_text())["dense"] == []
+    c = runner.invoke(app, [*args, "--out", str(tmp_path / "c"), "--dense"])
+    assert c.exit_code == 0, c.output
+    assert c.stdout == a.stdout
+    dense = json.loads((tmp_path / "c" / "record.json").read_text())["dense"]
+    assert [(d["start"], d["end"]) for d in dense] == [(0, 7)] and dense[0]["points"] > 1000
 
 
 def test_readable_summary(clip, tmp_path):

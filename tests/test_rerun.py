@@ -16,7 +16,7 @@ rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
 from geocon_core.config import preset  # noqa: E402
-from geocon_core.dense_cloud import DenseCloudConfig  # noqa: E402
+from geocon_core.dense_cloud import DenseCloud, DenseCloudConfig, WindowCloud  # noqa: E402
 from geocon_core.diagnostics import OverlayWriter, read_overlays  # noqa: E402
 from geocon_core.record import read_record, write_record  # noqa: E402
 from geocon_core.scorer import score_clip  # noqa: E402
@@ -194,6 +194,30 @@ def test_sparse_cloud_when_the_record_has_no_dense_one(parallax_run, tmp_path):
     assert "/world/dense" not in rows and "/window/dense" not in rows
 
 
+def test_a_pair_without_parallax_says_so_in_the_3d_views(parallax_run, tmp_path):
+    record, _, _ = parallax_run
+    n = record.video.num_frames
+    empty = DenseCloud(
+        np.zeros((0, 3), np.float32),
+        np.zeros((0, 3), np.uint8),
+        np.zeros((0, 2), np.float32),
+        np.zeros(0, np.float32),
+        np.zeros(0, np.uint8),
+        "rotation only: the camera did not move, so there is no parallax and no depth",
+    )
+    rec = rr.RecordingStream("geocon-test")
+    rec.save(tmp_path / "world.rrd")
+    layers = RecordLayers(rec, 30.0, None)
+    layers._log_world(replace(record, dense=(WindowCloud(0, n - 1, empty), WindowCloud(0, 8, empty))))
+    rec.disconnect()
+    rows = _rows(tmp_path / "world.rrd")
+    assert "/world/dense" not in rows
+    (note,) = rows["/world/dense_note"]
+    assert "no parallax" in note["Points3D:labels"][0] and note["Points3D:show_labels"][0]
+    (window,) = [r for r in rows["/window/note"] if r.get("Points3D:labels") is not None]
+    assert window["frame"] == 0 and window["Points3D:labels"][0].startswith("frames 0-8: rotation only")
+
+
 def test_dense_clouds_first_last_in_world_and_each_window_on_the_timeline(parallax_run):
     record, _, rows = parallax_run
     first, windows = record.dense[0], record.dense[1:]
@@ -297,8 +321,13 @@ def test_cli_score_rrd_and_view(synth_dir, tmp_path):
         timeout=600,
     )
     assert res.returncode == 0, res.stderr
-    assert json.loads(res.stdout)["config_hash"] == read_record(tmp_path / "rec").config_hash
+    record = read_record(tmp_path / "rec")
+    assert json.loads(res.stdout)["config_hash"] == record.config_hash
     assert (tmp_path / "a.rrd").stat().st_size > 10_000
+    # a recording comes with the dense clouds; a still camera's are empty, and the 3D view says why
+    assert record.dense and all(len(w.cloud) == 0 for w in record.dense)
+    (note,) = _rows(tmp_path / "a.rrd")["/world/dense_note"]
+    assert "no parallax" in note["Points3D:labels"][0] and note["Points3D:show_labels"] is not None
     res = subprocess.run(
         [str(geocon), "view", str(tmp_path / "rec"), "--headless", "--save", str(tmp_path / "b.rrd")],
         capture_output=True,

@@ -333,13 +333,13 @@ def score(
         typer.Option(help="SAM-2 model configuration the checkpoint was made for (default sam2.1_hiera_t)."),
     ] = None,
     dense: Annotated[
-        bool,
+        Optional[bool],
         typer.Option(
             "--dense/--no-dense",
             help="Also make the dense point clouds (first/last pair and gate windows, coloured by residual) for "
-            "the viewers; no score depends on them.",
+            "the viewers; no score depends on them (default: with --rrd).",
         ),
-    ] = True,
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the clip summary as JSON on stdout.")] = False,
     rrd: Annotated[
         Optional[Path],
@@ -382,7 +382,7 @@ def score(
             quiet=as_json,
             rrd=rrd,
             flow_checkpoint=raft_checkpoint,
-            dense=dense,
+            dense=rrd is not None if dense is None else dense,
             sam2_checkpoint=sam2_checkpoint,
             dust3r_checkpoint=dust3r_checkpoint,
             dust3r_path=dust3r_path,
