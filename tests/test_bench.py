@@ -208,6 +208,7 @@ def test_invalid_dataset_exits_2_listing_problems(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow  # the full report with its bootstrap (about 20 s)
 def test_report_is_self_contained_and_names_its_config(results, tmp_path):
     import re
 

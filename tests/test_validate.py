@@ -70,6 +70,7 @@ def test_metrics_count_every_case_in_its_row_and_leave_the_gray_zone_out():
     assert (objects.hits, objects.n) == (0, 1)  # 3 tracks > 1.5 * 0 + 1
 
 
+@pytest.mark.slow  # a whole quick validation run (about 20 s); `geocon validate` itself runs it in full
 def test_quick_run_table_matches_its_records_and_the_planted_failure(tmp_path):
     out = tmp_path / "val"
     args = ["validate", "--quick", "--out", str(out), "--heights", "256", "--codecs", "png", "--families", "C4"]
