@@ -252,8 +252,14 @@ def test_the_cli_checks_its_sam2_options(tmp_path) -> None:
     runner = CliRunner()
     res = runner.invoke(app, ["score", str(clip), "--masks", "sam2", "--out", str(tmp_path / "o")])
     assert res.exit_code != 0 and "--masks sam2 needs --sam2-checkpoint PATH" in res.output
-    res = runner.invoke(app, ["score", str(clip), "--sam2-checkpoint", str(clip), "--out", str(tmp_path / "o")])
-    assert res.exit_code != 0 and "--sam2-checkpoint and --sam2-config are used with --masks sam2" in res.output
+    said = "--sam2-checkpoint, --sam2-config and --sam2-size are used with --masks sam2"
+    for extra in (["--sam2-checkpoint", str(clip)], ["--sam2-size", "256"]):
+        res = runner.invoke(app, ["score", str(clip), *extra, "--out", str(tmp_path / "o")])
+        assert res.exit_code != 0 and said in res.output
+    res = runner.invoke(
+        app, ["score", str(clip), "--masks", "sam2", "--sam2-checkpoint", str(clip), "--sam2-size", "100"]
+    )
+    assert res.exit_code != 0 and "multiple of 32" in res.output
     res = runner.invoke(app, ["score", str(clip), "--masks", "sam2", "--no-masks", "--out", str(tmp_path / "o")])
     assert res.exit_code != 0 and "exclude each other" in res.output
 
@@ -346,12 +352,13 @@ def test_score_masks_sam2_end_to_end(checkpoint, synth_clips, tmp_path) -> None:
     clip = synth_clips([ClipPlan("C4")], seed=0, width=320, height=180, num_frames=12) / "c4_objects.mp4"
     out = tmp_path / "out"
     args = ["score", str(clip), "--preset", "fast", "--no-dense", "--out", str(out), "--json"]
-    res = CliRunner().invoke(app, [*args, "--masks", "sam2", "--sam2-checkpoint", str(checkpoint)])
+    sam2 = ["--masks", "sam2", "--sam2-checkpoint", str(checkpoint), "--sam2-size", "256"]
+    res = CliRunner().invoke(app, [*args, *sam2])
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout)
     record = read_record(out)
     assert record.masks_source == "sam2" and summary["masks"] == "sam2"
-    assert record.config.masks == "sam2" and record.config.sam2 == Sam2Config(image_size=512)
+    assert record.config.masks == "sam2" and record.config.sam2 == Sam2Config(image_size=256)
     assert len(record.masked_share) == 12
     ids = {o.object_id for o in record.objects}
     assert ids and ids <= {1, 2}  # ids of the motion segmentation's movers (C4: a disc and a card)

@@ -192,6 +192,7 @@ def _config(
     sam2: bool = False,
     sam2_checkpoint: Path | None = None,
     sam2_config: str | None = None,
+    sam2_size: int | None = None,
 ) -> Any:
     from dataclasses import replace
 
@@ -216,10 +217,14 @@ def _config(
         if sam2_checkpoint is None:
             raise ValueError("--masks sam2 needs --sam2-checkpoint PATH (a SAM-2 .pt file; nothing is downloaded)")
         overrides["masks"] = "sam2"
+        sam2_cfg = cfg.sam2
         if sam2_config is not None:
-            overrides["sam2"] = replace(cfg.sam2, model=sam2_config)
-    elif sam2_checkpoint is not None or sam2_config is not None:
-        raise ValueError("--sam2-checkpoint and --sam2-config are used with --masks sam2")
+            sam2_cfg = replace(sam2_cfg, model=sam2_config)
+        if sam2_size is not None:
+            sam2_cfg = replace(sam2_cfg, image_size=sam2_size)
+        overrides["sam2"] = sam2_cfg
+    elif sam2_checkpoint is not None or sam2_config is not None or sam2_size is not None:
+        raise ValueError("--sam2-checkpoint, --sam2-config and --sam2-size are used with --masks sam2")
     if overrides:
         cfg = cfg.with_(**overrides)
     make_matcher(cfg.matcher)
@@ -332,6 +337,13 @@ def score(
         Optional[str],
         typer.Option(help="SAM-2 model configuration the checkpoint was made for (default sam2.1_hiera_t)."),
     ] = None,
+    sam2_size: Annotated[
+        Optional[int],
+        typer.Option(
+            help="Side (px, a multiple of 32) SAM-2 sees the frames at (default 1024; the fast preset 512); "
+            "smaller is faster on a CPU."
+        ),
+    ] = None,
     dense: Annotated[
         Optional[bool],
         typer.Option(
@@ -367,6 +379,7 @@ def score(
             sam2=sam2,
             sam2_checkpoint=sam2_checkpoint,
             sam2_config=sam2_config,
+            sam2_size=sam2_size,
         )
         cfg = _pose_settings(cfg, pose, pose_log, dust3r_checkpoint, dust3r_path)
         check_inputs(target, pose_log=pose_log, masks=mask_path, rrd=rrd)
