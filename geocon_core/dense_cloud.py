@@ -50,6 +50,8 @@ __all__ = [
 KIND_INLIER, KIND_OUTLIER, KIND_OBJECT = 0, 1, 2
 MIN_BASELINE = 1e-6
 """A translation shorter than this (unit mean scene distance) is no baseline at all."""
+NO_PARALLAX = "rotation only: the camera did not move, so there is no parallax and no depth"
+"""The note of a pair whose pose has no translation."""
 MIN_SIDE = 16
 """Frames narrower or lower than this (px, reduced) get no dense cloud."""
 
@@ -79,6 +81,18 @@ class DenseCloud:
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
+
+    def take(self, rows: np.ndarray) -> "DenseCloud":
+        """The cloud of the points ``rows`` (indices or a mask), with the same note."""
+        return DenseCloud(
+            self.xyz[rows],
+            self.rgb[rows],
+            self.pixel[rows],
+            self.residual[rows],
+            self.kind[rows],
+            self.note,
+            self.tau_px,
+        )
 
     def share(self, kind: int) -> float:
         """Share of the background points (kinds 0 and 1) that are of ``kind``."""
@@ -178,7 +192,7 @@ def triangulate_flow(
     composed flow grow with its square root)."""
     R, c = np.asarray(T_cam0_camT, float)[:3, :3], np.asarray(T_cam0_camT, float)[:3, 3]
     if not np.linalg.norm(c) > MIN_BASELINE:
-        return _empty("rotation only: the camera did not move, so there is no parallax and no depth")
+        return _empty(NO_PARALLAX)
     h, w = field.reliable.shape
     keep = field.reliable.copy()
     if content is not None:
@@ -250,7 +264,7 @@ def dense_cloud(
     image content; ``labels0`` (H, W) object ids of the first frame."""
     c = np.asarray(T_cam0_camT, float)[:3, 3]
     if not np.linalg.norm(c) > MIN_BASELINE:  # no flow is needed to say so
-        return _empty("rotation only: the camera did not move, so there is no parallax and no depth")
+        return _empty(NO_PARALLAX)
     return triangulate_flow(
         rgb0,
         chained_flow(flow, grays),
@@ -267,16 +281,7 @@ def dense_cloud(
 def _subset(cloud: DenseCloud, limit: int, rng: np.random.Generator) -> DenseCloud:
     if len(cloud) <= limit:
         return cloud
-    keep = np.sort(rng.choice(len(cloud), size=limit, replace=False))
-    return DenseCloud(
-        cloud.xyz[keep],
-        cloud.rgb[keep],
-        cloud.pixel[keep],
-        cloud.residual[keep],
-        cloud.kind[keep],
-        cloud.note,
-        cloud.tau_px,
-    )
+    return cloud.take(np.sort(rng.choice(len(cloud), size=limit, replace=False)))
 
 
 class DenseCloudBuilder:

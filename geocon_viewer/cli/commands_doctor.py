@@ -112,14 +112,22 @@ def checks() -> list[Check]:
     return out_checks
 
 
+def _unmet(torch_ok: bool, torch_text: str, modules: tuple[str, ...], install: str) -> str | None:
+    """Why a torch backend cannot run here (torch, or the ``modules`` it imports, are missing, and
+    ``install`` gets them), or None."""
+    if not torch_ok:
+        return torch_text
+    missing = [m for m in modules if not _have(m)]
+    return f"needs {', '.join(missing)}: {install}" if missing else None
+
+
 def _sam2(torch_ok: bool, torch_text: str) -> Check:
     """Whether SAM-2's video predictor imports (it also needs torch), and how to get it."""
     from geocon_core.masks.sam2 import SAM2_INSTALL, sam2_config_names
 
-    missing = [m for m in ("sam2", "hydra", "iopath") if not _have(m)]
-    if not torch_ok or missing:
-        need = torch_text if not torch_ok else f"needs {', '.join(missing)}: {SAM2_INSTALL}"
-        return Check("masks", "sam2", False, need)
+    unmet = _unmet(torch_ok, torch_text, ("sam2", "hydra", "iopath"), SAM2_INSTALL)
+    if unmet is not None:
+        return Check("masks", "sam2", False, unmet)
     try:
         import sam2.build_sam  # noqa: F401  (hydra and the model code: what a broken install fails on)
     except Exception as exc:
@@ -139,10 +147,9 @@ def _dust3r(torch_ok: bool, torch_text: str) -> Check:
     from geocon_core.pose.dust3r import DUST3R_INSTALL
 
     elsewhere = "; or run DUSt3R elsewhere and pass --pose-log"
-    missing = [m for m in ("mini_dust3r", "einops", "beartype", "huggingface_hub") if not _have(m)]
-    if not torch_ok or missing:
-        need = torch_text if not torch_ok else f"needs {', '.join(missing)}: {DUST3R_INSTALL}"
-        return Check("pose", "dust3r", False, need + elsewhere)
+    unmet = _unmet(torch_ok, torch_text, ("mini_dust3r", "einops", "beartype", "huggingface_hub"), DUST3R_INSTALL)
+    if unmet is not None:
+        return Check("pose", "dust3r", False, unmet + elsewhere)
     try:
         from geocon_core.pose.dust3r import import_model_class
 
