@@ -12,23 +12,27 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
-import shutil
 import socket
 import time
-import traceback
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
+from .bench_clip import (
+    MAX_CRASHES,
+    BenchError,
+    RecordRenderer,
+    crashed_status,
+    score_one,
+    score_to_folder,
+)
 from .config import ScoreConfig, config_hash
 from .dataset import ClipEntry, load_dataset
 from .layout import (
     BENCH_FORMAT,
     CLIPS_DIR,
-    RRD_NAME,
-    STATUS_FORMAT,
     clip_dir,
     lock_path,
     manifest_path,
@@ -40,11 +44,13 @@ from .layout import (
 from .lockfile import FolderLock, LockHeld
 from .paths import OutPathError, check_out_dir
 from .procs import die_with_parent
-from .record import ClipRecord
 from .tables import write_tables
-from .verdict import is_flagged
+
+if TYPE_CHECKING:
+    from .bench_ray import RayOptions
 
 __all__ = [
+    "EXECUTORS",
     "BenchError",
     "BenchSummary",
     "RecordRenderer",
@@ -52,13 +58,8 @@ __all__ = [
     "score_to_folder",
 ]
 
-MAX_CRASHES = 2
-"""A clip in flight when a worker process dies this many times is recorded as failed."""
-
-
-class BenchError(ValueError):
-    """A results folder that cannot be used for this run (one sentence): a path that cannot be a
-    folder, another configuration, another run writing into it."""
+EXECUTORS = ("pool", "ray")
+"""How ``geocon bench`` runs clips: a local process pool, or Ray tasks (one machine or a cluster)."""
 
 
 @dataclass(frozen=True)
@@ -73,122 +74,6 @@ class BenchSummary:
     failed: int
     seconds: float
     tables: tuple[Path, ...] = field(default_factory=tuple)
-
-
-def _flagged(record: ClipRecord, expected_model: str | None) -> bool:
-    """Whether a scored clip gets an audit recording (:func:`geocon_core.verdict.is_flagged`)."""
-    return is_flagged(
-        consistent=record.background.consistent,
-        pose_present=record.gate.pose_present,
-        gate_model=record.gate.model,
-        expected_model=expected_model,
-    )
-
-
-def score_to_folder(
-    clip: Path,
-    cfg: ScoreConfig,
-    out_dir: Path,
-    *,
-    masks: Path | None = None,
-    pose_log: Path | None = None,
-    flow_checkpoint: Path | None = None,
-    sam2_checkpoint: Path | None = None,
-    dust3r_checkpoint: Path | None = None,
-    dust3r_path: Path | None = None,
-    progress: Callable[[int, int], None] | None = None,
-    sinks: list[Callable[[Path], Any]] = (),  # type: ignore[assignment]
-    dense: Any = None,
-):
-    """Score ``clip`` and write its record and overlays into ``out_dir``, all at once
-    (:func:`~geocon_core.staging.staged_record`: a failed or killed run leaves the previous record
-    in ``out_dir`` as it was). ``dense``: a :class:`~geocon_core.dense_cloud.DenseCloudConfig` to
-    add the dense point clouds to the record. ``sinks`` are factories called with the first frame's arrival and
-    the staging folder; each made sink receives every frame, ``finish(record)`` once the record is
-    in place, and ``abort()`` (where it has one) when scoring fails."""
-    from .diagnostics import OverlayWriter
-    from .record import write_record
-    from .scorer import score_clip
-    from .staging import staged_record
-
-    made: list = []
-
-    def on_frame(fd) -> None:
-        if not made:
-            made.append(OverlayWriter(stage))
-            made.extend(factory(stage) for factory in sinks)
-        for sink in made:
-            sink(fd)
-
-    try:
-        with staged_record(out_dir) as stage:
-            record = score_clip(
-                clip,
-                cfg,
-                pose_log=pose_log,
-                masks=masks,
-                flow_checkpoint=flow_checkpoint,
-                sam2_checkpoint=sam2_checkpoint,
-                dust3r_checkpoint=dust3r_checkpoint,
-                dust3r_path=dust3r_path,
-                dense=dense,
-                on_frame=on_frame,
-                progress=progress,
-            )
-            made[0].close()
-            write_record(record, stage)
-        for sink in made[1:]:
-            sink.finish(record)
-    except BaseException:
-        for sink in made[1:]:
-            if hasattr(sink, "abort"):
-                sink.abort()
-        raise
-    return record
-
-
-RecordRenderer = Callable[[Path, Path], Any]
-"""Renders a saved record: called as ``render(record_dir, output_path)``. Passed to worker
-processes, so it must be picklable (a module-level function)."""
-
-
-def _score_one(
-    entry: ClipEntry, cfg_dict: dict[str, Any], folder: str, renderer: RecordRenderer | None, threads: int
-) -> dict[str, Any]:
-    """Worker: score one clip into its folder and write its status (ok or failed)."""
-    import cv2
-
-    from .dataset import EXPECTED_MODEL
-
-    cv2.setNumThreads(threads)
-    cfg = ScoreConfig.from_dict(cfg_dict)
-    out = Path(folder)
-    shutil.rmtree(out, ignore_errors=True)  # leftovers of a run killed while this clip was in flight
-    out.mkdir(parents=True)
-    start = time.perf_counter()
-    status: dict[str, Any] = {
-        "format": STATUS_FORMAT,
-        "clip_id": entry.clip_id,
-        "status": "ok",
-        "error": None,
-        "traceback": None,
-        "config_hash": config_hash(cfg),
-        "meta": entry.meta,
-        "video": str(entry.video),
-        "rrd": None,
-        "warnings": [],
-    }
-    try:
-        record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
-        status["warnings"] = list(record.warnings)
-        if renderer is not None and _flagged(record, EXPECTED_MODEL.get(entry.category)):
-            renderer(out, out / RRD_NAME)
-            status["rrd"] = RRD_NAME
-    except Exception as exc:  # every failure is recorded with its reason, never dropped
-        status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
-    status["seconds"] = round(time.perf_counter() - start, 3)
-    write_status(out, status)
-    return status
 
 
 def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
@@ -235,8 +120,14 @@ def run_bench(
     on_clip: Callable[[dict[str, Any], int, int, int], None] | None = None,
     on_start: Callable[[int, int], None] | None = None,
     tables: bool = True,
+    executor: str = "pool",
+    ray: "RayOptions | None" = None,
+    on_note: Callable[[str], None] | None = None,
 ) -> BenchSummary:
-    """Score every clip of ``dataset`` into ``results`` with ``workers`` processes.
+    """Score every clip of ``dataset`` into ``results`` with ``workers`` processes
+    (``executor="pool"``), or as Ray tasks (``executor="ray"``, :mod:`geocon_core.bench_ray`;
+    ``ray`` says where, and a local instance gets ``workers`` CPUs). Both leave the same results
+    folder, so a run started with one can be resumed with the other.
 
     ``rrd_renderer`` (a module-level function, called as ``f(record_dir, rrd_path)``) writes a Rerun
     recording for flagged clips (:func:`geocon_core.verdict.is_flagged`). ``on_start(to_score, skipped)``
@@ -245,16 +136,25 @@ def run_bench(
     ``results`` is checked (:func:`geocon_core.paths.check_out_dir`) before the dataset is read, and
     held with a lock file (:func:`geocon_core.layout.lock_path`) for the whole run, so a second run
     into the same folder is refused naming the first one's PID (a lock of a dead run is taken over).
-    The worker processes exit when this process dies (:func:`geocon_core.procs.die_with_parent`)."""
+    The worker processes exit when this process dies (:func:`geocon_core.procs.die_with_parent`).
+    ``on_note(sentence)`` hears what the executor has to say (where it runs, a clip scored again)."""
     cfg = config or ScoreConfig()
     if workers < 1:
         raise BenchError(f"--workers must be at least 1, got {workers}")
+    if executor not in EXECUTORS:
+        raise BenchError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    note = on_note or (lambda _msg: None)
     data, out = Path(dataset), Path(results)
     try:
         check_out_dir(out)
     except OutPathError as exc:
         raise BenchError(str(exc)) from None
     entries = load_dataset(data)
+    if executor == "ray":
+        from .bench_ray import RayOptions, preflight
+
+        ray = ray or RayOptions(local_cpus=workers)
+        preflight(ray)  # Ray installed, the cluster answers: refused before the results folder is made
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -280,7 +180,13 @@ def run_bench(
             if on_clip is not None:
                 on_clip(status, done, len(entries), failed)
 
-        _score_all(todo, out, cfg, workers, rrd_renderer, finished)
+        if executor == "ray" and todo:
+            from .bench_ray import score_all_ray
+
+            assert ray is not None
+            score_all_ray(todo, out, cfg, rrd_renderer, finished, ray, note)
+        else:
+            _score_all(todo, out, cfg, workers, rrd_renderer, finished)
         paths: tuple[Path, ...] = ()
         if tables:
             paths = write_tables(out)
@@ -347,7 +253,7 @@ def _score_all(
                 while queue and len(inflight) < limit and not broken:
                     entry = queue.pop(0)
                     fut = pool.submit(
-                        _score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), rrd_renderer, threads
+                        score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), rrd_renderer, threads
                     )
                     inflight[fut] = entry
                 if not inflight:
@@ -378,18 +284,6 @@ def _score_all(
 def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any]:
     folder = clip_dir(results, entry.clip_id)
     folder.mkdir(parents=True, exist_ok=True)
-    status = {
-        "format": STATUS_FORMAT,
-        "clip_id": entry.clip_id,
-        "status": "failed",
-        "traceback": None,
-        "rrd": None,
-        "error": f"the worker process died {MAX_CRASHES} times while scoring this clip "
-        "(out of memory or a crash in a native library)",
-        "config_hash": config_hash(cfg),
-        "meta": entry.meta,
-        "video": str(entry.video),
-        "seconds": None,
-    }
+    status = crashed_status(entry, cfg)
     write_status(folder, status)
     return status

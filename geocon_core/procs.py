@@ -19,11 +19,12 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
 
-__all__ = ["PARENT_POLL_S", "die_with_parent", "pid_alive"]
+__all__ = ["PARENT_POLL_S", "die_with_parent", "pid_alive", "reap_when_gone", "start_reaper"]
 
 PARENT_POLL_S = 0.5
 """Seconds between two checks of the watchdog thread that the parent is still alive."""
@@ -69,3 +70,69 @@ def pid_alive(pid: int) -> bool:
     except PermissionError:  # alive, owned by another user
         return True
     return True
+
+
+def start_reaper(roots: list[int]) -> subprocess.Popen:
+    """Start a watchdog process (in a session of its own, so it outlives this one) that kills
+    ``roots`` and every process they start once this process dies, ``kill -9`` included, or once
+    the roots are gone. For services that outlive a killed owner: Ray's node processes die with the
+    driver that started them, but the agents they started are left running."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "geocon_core.procs", str(os.getpid()), *map(str, roots)],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+
+
+def reap_when_gone(owner_pid: int, roots: list[int], poll_s: float = PARENT_POLL_S) -> int:
+    """Body of :func:`start_reaper`'s watchdog: remember ``roots`` and their descendants (pid and
+    start time) while ``owner_pid`` and a root live, then kill those still running. Returns how
+    many it killed."""
+    import psutil
+
+    seen: dict[int, float] = {}
+
+    def remember(proc) -> None:
+        try:
+            seen[proc.pid] = proc.create_time()
+            for child in proc.children(recursive=True):
+                seen[child.pid] = child.create_time()
+        except psutil.Error:
+            pass
+
+    def alive(proc) -> bool:
+        try:
+            return proc.is_running() and proc.status() != psutil.STATUS_ZOMBIE
+        except psutil.Error:
+            return False
+
+    try:
+        owner = psutil.Process(owner_pid)
+    except psutil.Error:
+        owner = None
+    tracked = []
+    for pid in roots:
+        try:
+            tracked.append(psutil.Process(pid))
+        except psutil.Error:
+            pass
+    while owner is not None and alive(owner) and any(alive(p) for p in tracked):
+        for proc in tracked:
+            remember(proc)
+        time.sleep(poll_s)
+    killed = 0
+    for pid, created in seen.items():
+        try:
+            proc = psutil.Process(pid)
+            if proc.create_time() == created and alive(proc):
+                proc.kill()
+                killed += 1
+        except psutil.Error:
+            pass
+    return killed
+
+
+if __name__ == "__main__":  # the watchdog of start_reaper: OWNER_PID ROOT_PID...
+    reap_when_gone(int(sys.argv[1]), [int(v) for v in sys.argv[2:]])

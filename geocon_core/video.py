@@ -29,7 +29,10 @@ class Mp4Writer:
         self.width, self.height = width, height
         self._container: Any = av.open(str(self.path), mode="w", format="mp4")
         rate = Fraction(fps).limit_denominator(1001)
-        self._stream = self._container.add_stream("libx264", rate=rate, options={"crf": str(crf), "preset": "medium"})
+        # x264's macroblock-tree rate control gave different bytes for the same frames from run to
+        # run (seen with PyAV 18.1 / libx264 in its wheel); without it the output is reproducible.
+        options = {"crf": str(crf), "preset": "medium", "x264-params": "mbtree=0"}
+        self._stream = self._container.add_stream("libx264", rate=rate, options=options)
         self._stream.width, self._stream.height = width, height
         self._stream.pix_fmt = "yuv420p"
         self._stream.thread_count = 1

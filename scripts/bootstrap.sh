@@ -47,6 +47,10 @@ if [ ! -f "$stamp" ]; then
     log=".venv/pip-install.log"
     if ! .venv/bin/python -m pip install -e "$spec" >"$log" 2>&1; then
         tail -n 40 "$log" >&2
+        if grep -q "No space left on device" "$log"; then
+            echo "geocon: pip install failed: the disk is full ($(df -h --output=avail . | tail -n 1 | tr -d ' ')" \
+                "free here; the full test environment needs about 4 GB, torch and Open3D most of it)" >&2
+        fi
         echo "geocon: pip install failed; full log in $log" >&2
         exit 1
     fi

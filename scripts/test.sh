@@ -7,7 +7,7 @@
 # The lint and type checks run first and stop the run on the first finding.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-bash scripts/bootstrap.sh viewer bench test neural
+bash scripts/bootstrap.sh viewer bench test neural distributed
 
 step() {
     local what="$1" hint="$2"

@@ -7,6 +7,7 @@ Everything is rendered from a seed, so the same call gives the same bytes."""
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from collections.abc import Sequence
 from fractions import Fraction
@@ -16,6 +17,7 @@ import cv2
 import numpy as np
 
 __all__ = [
+    "broken_bench_clip",
     "texture",
     "pan_frames",
     "write_video",
@@ -240,3 +242,29 @@ def snapshot(root: str | Path) -> dict[str, str]:
             else:
                 found[rel] = "special"
     return found
+
+
+def broken_bench_clip(root: Path) -> None:
+    """A clip whose first frames decode (so it passes validation) but whose third frame is
+    corrupt: scoring fails, and the failure must be recorded, not dropped."""
+    folder = root / "broken" / "frames-c1"
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    img = (rng.random((90, 160, 3)) * 255).astype(np.uint8)
+    for t in range(4):
+        cv2.imwrite(str(folder / f"{t:03d}.png"), np.roll(img, t, axis=1))
+    (folder / "002.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    meta = {
+        "clip_id": "broken-c1",
+        "prompt": "a corrupt upload",
+        "model": "broken",
+        "model_version": "1",
+        "seed": 0,
+        "resolution": [160, 90],
+        "fps": 24,
+        "duration": 4 / 24,
+        "masks_path": None,
+        "category": "C1",
+        "scene_id": "C1-seed0",
+    }
+    (root / "broken" / "frames-c1.meta.json").write_text(json.dumps(meta))

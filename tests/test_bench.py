@@ -21,45 +21,18 @@ from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa:
 from geocon_core.tables import COLUMNS, read_tables  # noqa: E402
 from geocon_core.verdict import is_flagged  # noqa: E402
 
+from .bad_inputs import broken_bench_clip  # noqa: E402
 from .proc_group import kill_parent_alone  # noqa: E402
 
 GEOCON = [sys.executable, "-m", "geocon_viewer.cli"]
 BENCH_ARGS = ["--workers", "2", "--working-size", "640x360"]
 
 
-def _broken_clip(root: Path) -> None:
-    """A clip whose first frames decode (so it passes validation) but whose third frame is
-    corrupt: scoring fails, and the failure must be recorded, not dropped."""
-    import cv2
-
-    folder = root / "broken" / "frames-c1"
-    folder.mkdir(parents=True)
-    rng = np.random.default_rng(0)
-    img = (rng.random((90, 160, 3)) * 255).astype(np.uint8)
-    for t in range(4):
-        cv2.imwrite(str(folder / f"{t:03d}.png"), np.roll(img, t, axis=1))
-    (folder / "002.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
-    meta = {
-        "clip_id": "broken-c1",
-        "prompt": "a corrupt upload",
-        "model": "broken",
-        "model_version": "1",
-        "seed": 0,
-        "resolution": [160, 90],
-        "fps": 24,
-        "duration": 4 / 24,
-        "masks_path": None,
-        "category": "C1",
-        "scene_id": "C1-seed0",
-    }
-    (root / "broken" / "frames-c1.meta.json").write_text(json.dumps(meta))
-
-
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("bench-data")
     write_benchmark(root, plan_benchmark(families=("C1", "C3", "C4"), scenes=2), width=320, height=180, num_frames=12)
-    _broken_clip(root)
+    broken_bench_clip(root)
     return root
 
 

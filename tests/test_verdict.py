@@ -12,7 +12,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from geocon_core.bench import _flagged as bench_flagged
+from geocon_core.bench_clip import _flagged as bench_flagged
 from geocon_core.config import ScoreConfig
 from geocon_core.models import FAMILIES, family_spec
 from geocon_core.results import ResultClip, ResultsIndex

@@ -34,7 +34,38 @@ def bench(
         str,
         typer.Option("--preset", help="Named settings (`paper`: the paper's protocol); see `geocon presets`."),
     ] = DEFAULT_PRESET,
-    workers: Annotated[int, typer.Option(min=1, help="Worker processes scoring clips in parallel.")] = 1,
+    workers: Annotated[
+        int,
+        typer.Option(min=1, help="Worker processes scoring clips in parallel (with --executor ray: the local CPUs)."),
+    ] = 1,
+    executor: Annotated[
+        str,
+        typer.Option(
+            "--executor",
+            help="pool: worker processes on this machine; ray: one Ray task per clip, on this machine or a cluster "
+            "(--ray-address; needs the distributed extra). Either can resume the other's run.",
+        ),
+    ] = "pool",
+    ray_address: Annotated[
+        Optional[str],
+        typer.Option(
+            "--ray-address",
+            help="Ray cluster to run on (the address `ray start --head` prints); default: a private local "
+            "instance on 127.0.0.1. Every node must read the clips at the dataset's paths.",
+        ),
+    ] = None,
+    ray_cpus: Annotated[
+        float, typer.Option("--ray-cpus-per-clip", min=0.01, help="CPUs each clip's Ray task asks for.")
+    ] = 1.0,
+    ray_gpus: Annotated[
+        Optional[float],
+        typer.Option(
+            "--ray-gpus-per-clip",
+            min=0,
+            help="GPUs each clip's Ray task asks for (default: 1 when a neural backend is selected and the "
+            "cluster has a GPU, else 0).",
+        ),
+    ] = None,
     retry_failed: Annotated[
         bool, typer.Option("--retry-failed", help="Score clips that failed in an earlier run again.")
     ] = False,
@@ -61,6 +92,7 @@ def bench(
         cfg = preset(preset_name)
         if working_size is not None:
             cfg = cfg.with_(working_size=parse_size(working_size))
+        ray_options = _ray_options(executor, ray_address, workers, ray_cpus, ray_gpus)
     except ValueError as exc:
         raise fail(str(exc)) from None
     renderer = render_audit_rrd if rrd and has_viewer_extra("rerun") else None
@@ -88,6 +120,9 @@ def bench(
             )
         bar.update(task, completed=done, failed=failed)
 
+    def on_note(sentence: str) -> None:
+        (bar.console if bar.live.is_started else err).print(f"note: {sentence}", soft_wrap=True, highlight=False)
+
     try:
         try:
             summary = run_bench(
@@ -99,6 +134,9 @@ def bench(
                 retry_failed=retry_failed,
                 on_start=on_start,
                 on_clip=on_clip,
+                executor=executor,
+                ray=ray_options,
+                on_note=on_note,
             )
         finally:
             if bar.live.is_started:
@@ -118,6 +156,21 @@ def bench(
         f"records: {out_dir}/clips/<clip_id>/   tables: {out_dir}/tables/*.parquet   report: geocon report {out_dir}",
         soft_wrap=True,
     )
+
+
+def _ray_options(executor: str, address: str | None, workers: int, cpus: float, gpus: float | None) -> Any:
+    """The Ray settings of ``geocon bench`` (None for the process pool, which takes none of them)."""
+    from geocon_core.bench import EXECUTORS
+
+    if executor not in EXECUTORS:
+        raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if executor != "ray":
+        if address is not None:
+            raise ValueError("--ray-address needs --executor ray")
+        return None
+    from geocon_core.bench_ray import RayOptions
+
+    return RayOptions(address=address, local_cpus=workers, cpus_per_clip=cpus, gpus_per_clip=gpus)
 
 
 def report(
