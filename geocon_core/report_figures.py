@@ -5,9 +5,11 @@ it."""
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+import math
+import textwrap
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
@@ -17,6 +19,13 @@ from . import stats
 __all__ = [
     "Figure",
     "FigureBuilder",
+    "Overlap",
+    "tick_label_overlaps",
+    "fix_tick_labels",
+    "fig_summary_platforms",
+    "fig_summary_margins",
+    "fig_summary_failures",
+    "platform_order",
     "fig_tinf",
     "fig_margins",
     "fig_calibration",
@@ -31,17 +40,20 @@ _COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e
 
 @dataclass
 class Figure:
-    """One rendered figure of the report page."""
+    """One rendered figure of the report page; ``overlaps`` lists the tick labels that still
+    overlap after :func:`fix_tick_labels` (empty when the figure reads cleanly)."""
 
     name: str
     title: str
     caption: str
     png: bytes
+    overlaps: list["Overlap"] = field(default_factory=list)
 
 
 class FigureBuilder:
     """Collects the report's figures (PNG/SVG files plus the PNG bytes for the page) and tables;
-    ``gate_lines`` are the t_inf values drawn as vertical lines on the gate figures."""
+    ``gate_lines`` are the t_inf values drawn as vertical lines on the gate figures. Every figure is
+    checked for overlapping tick labels before it is written (:func:`fix_tick_labels`)."""
 
     def __init__(self, out: Path, footer: str, formats: Sequence[str], gate_lines: Sequence[float]) -> None:
         import matplotlib
@@ -56,24 +68,29 @@ class FigureBuilder:
         self.tables: list[Path] = []
         self.skipped: list[str] = []
 
-    def figure(self, ncols: int = 1, nrows: int = 1, size: tuple[float, float] = (7.0, 4.0)):
+    def figure(self, ncols: int = 1, nrows: int = 1, size: tuple[float, float] = (7.0, 4.0), **kw: Any):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=size, dpi=110, layout="constrained")
-        axes = fig.subplots(nrows, ncols, squeeze=False)
+        FigureCanvasAgg(fig)  # text extents for the tick-label check
+        axes = fig.subplots(nrows, ncols, squeeze=False, **kw)
         return fig, axes
 
     def save(self, fig, name: str, title: str, caption: str) -> None:
         fig.get_layout_engine().set(rect=(0, 0.035, 1, 0.965))  # room for the footer
         fig.text(0.995, 0.004, self.footer, ha="right", va="bottom", fontsize=6, color="#666666")
-        for fmt in self.formats:
-            path = self.out / "figures" / f"{name}.{fmt}"
-            meta = {"Software": None} if fmt == "png" else {"Date": None, "Creator": None}
-            fig.savefig(path, format=fmt, metadata=meta)
-            self.paths.append(path)
+        left = fix_tick_labels(fig)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", metadata={"Software": None})
-        self.figures.append(Figure(name, title, caption, buf.getvalue()))
+        for fmt in self.formats:
+            path = self.out / "figures" / f"{name}.{fmt}"
+            if fmt == "png":
+                path.write_bytes(buf.getvalue())
+            else:
+                fig.savefig(path, format=fmt, metadata={"Date": None, "Creator": None})
+            self.paths.append(path)
+        self.figures.append(Figure(name, title, caption, buf.getvalue(), left))
 
     def skip(self, title: str, reason: str) -> None:
         self.skipped.append(f"{title}: {reason}")
@@ -82,6 +99,209 @@ class FigureBuilder:
         path = self.out / "tables" / f"{name}.csv"
         df.to_csv(path, index=False)
         self.tables.append(path)
+
+
+# --- overlapping tick labels -------------------------------------------------------------------
+
+
+class Overlap(NamedTuple):
+    """Two tick labels of one axis whose drawn text boxes overlap."""
+
+    axes: str
+    """Which axes: its title, or ``axes <i>`` (0-based, in the figure's order) without one."""
+    axis: str
+    """``x`` or ``y``."""
+    first: str
+    second: str
+
+
+_OVERLAP_PX = 0.5
+"""Two labels overlap when their text boxes intersect by more than this (display px) across every
+separating direction: touching boxes and antialiasing slivers do not count."""
+_WRAP_MIN = 6
+"""The narrowest a wrapped tick label is made (characters), so that names stay readable."""
+_ROTATIONS = (30.0, 45.0, 60.0, 90.0)
+_SMALLEST_PT = 5.0
+
+
+def _axes_name(ax, i: int) -> str:
+    title = ax.get_title() or ax.get_title(loc="left")
+    return title if title else f"axes {i}"
+
+
+def _drawn_ticks(axis) -> list:
+    """The ticks a draw of ``axis`` shows (those inside its view interval)."""
+    update = getattr(axis, "_update_ticks", None)  # what Axis.draw itself calls (matplotlib >= 3.1)
+    if update is not None:
+        return list(update())
+    return list(axis.get_major_ticks())
+
+
+def _corners(label, renderer) -> np.ndarray:
+    """The four corners (4, 2) of ``label``'s drawn text box in display px, rotation included
+    (``get_window_extent`` gives the axis-aligned hull of a rotated box, which overlaps its
+    neighbour's hull long before the texts touch)."""
+    bb = label.get_window_extent(renderer)
+    angle = float(label.get_rotation()) % 180.0
+    if angle in (0.0, 90.0):
+        return np.array([[bb.x0, bb.y0], [bb.x1, bb.y0], [bb.x1, bb.y1], [bb.x0, bb.y1]], float)
+    label.set_rotation(0.0)
+    flat = label.get_window_extent(renderer)
+    label.set_rotation(angle)
+    th = math.radians(angle)
+    u = np.array([math.cos(th), math.sin(th)]) * flat.width / 2
+    v = np.array([-math.sin(th), math.cos(th)]) * flat.height / 2
+    c = np.array([(bb.x0 + bb.x1) / 2, (bb.y0 + bb.y1) / 2])  # a rotated box's hull shares its centre
+    return np.array([c - u - v, c + u - v, c + u + v, c - u + v])
+
+
+def _boxes_overlap(a: np.ndarray, b: np.ndarray, tol: float = _OVERLAP_PX) -> bool:
+    """Whether two convex quadrilaterals (4, 2) intersect by more than ``tol`` px (separating axes)."""
+    for poly in (a, b):
+        for k in range(4):
+            edge = poly[(k + 1) % 4] - poly[k]
+            n = np.array([-edge[1], edge[0]])
+            norm = float(np.hypot(*n))
+            if norm == 0:
+                continue
+            n /= norm
+            pa, pb = a @ n, b @ n
+            if min(pa.max(), pb.max()) - max(pa.min(), pb.min()) <= tol:
+                return False
+    return True
+
+
+def _axis_overlaps(axis, renderer) -> list[tuple[str, str]]:
+    labels = []
+    for tick in _drawn_ticks(axis):
+        for lab in (tick.label1, tick.label2):
+            if lab.get_visible() and lab.get_text().strip():
+                labels.append(lab)
+    boxes = [_corners(lab, renderer) for lab in labels]
+    found = []
+    for i in range(len(labels)):
+        for j in range(i + 1, len(labels)):
+            if _boxes_overlap(boxes[i], boxes[j]):
+                found.append((labels[i].get_text(), labels[j].get_text()))
+    return found
+
+
+def _overlaps(fig, draw: bool) -> list[tuple[Any, str, Overlap]]:
+    if draw:
+        fig.draw_without_rendering()
+    renderer = fig.canvas.get_renderer()
+    out = []
+    for i, ax in enumerate(fig.axes):
+        if not ax.get_visible():
+            continue
+        for name, axis in (("x", ax.xaxis), ("y", ax.yaxis)):
+            for a, b in _axis_overlaps(axis, renderer):
+                out.append((axis, name, Overlap(_axes_name(ax, i), name, a, b)))
+    return out
+
+
+def tick_label_overlaps(fig, *, draw: bool = True) -> list[Overlap]:
+    """Every pair of tick labels on one axis of ``fig`` whose drawn text boxes overlap (rotated
+    boxes compared as drawn), after laying the figure out (``draw``). Needs a canvas with a
+    renderer (Agg, as :meth:`FigureBuilder.figure` gives)."""
+    return [o for _, _, o in _overlaps(fig, draw)]
+
+
+def _wrap(text: str, width: int) -> str:
+    return "\n".join(
+        textwrap.fill(line, width, break_long_words=False, break_on_hyphens=True) if len(line) > width else line
+        for line in text.split("\n")
+    )
+
+
+def _wrap_width(labels: list, dpi: float) -> int | None:
+    """Characters per line that fit the narrowest spacing between the labels' centres (None when
+    no label is longer than that, or the labels are numbers: wrapping would not help)."""
+    if not any(c.isalpha() for lab in labels for c in lab.get_text()):
+        return None
+    xs = sorted((lab.get_window_extent().x0 + lab.get_window_extent().x1) / 2 for lab in labels)
+    gaps = [b - a for a, b in zip(xs, xs[1:], strict=False) if b - a > 0]
+    if not gaps:
+        return None
+    char_px = 0.6 * labels[0].get_fontsize() * dpi / 72
+    width = max(_WRAP_MIN, int(min(gaps) / char_px))
+    longest = max(len(line) for lab in labels for line in lab.get_text().split("\n"))
+    return width if longest > width else None
+
+
+def _wrapped(inner, width: int):
+    """A tick formatter that wraps the labels of ``inner`` to ``width`` characters per line."""
+    from matplotlib.ticker import Formatter
+
+    class Wrapped(Formatter):
+        def __call__(self, x, pos=None):
+            return _wrap(inner(x, pos), width)
+
+        def format_ticks(self, values):
+            return [_wrap(s, width) for s in inner.format_ticks(values)]
+
+        def set_locs(self, locs):
+            inner.set_locs(locs)
+
+    return Wrapped()
+
+
+_X_STEPS: tuple[str | float, ...] = ("wrap", *_ROTATIONS, "shrink")
+_Y_STEPS: tuple[str | float, ...] = ("shrink",)
+
+
+def _relieve(axis, name: str, state: dict[str, Any], dpi: float) -> bool:
+    """Make the labels of ``axis`` take less room with the next applicable step (``state`` holds
+    where the axis is): x labels are wrapped to the space between ticks; if that is not enough,
+    unwrapped and rotated 30, 45, 60, then 90 degrees; then shrunk. y labels are shrunk. False
+    when nothing is left to try."""
+    labels = [t.label1 for t in _drawn_ticks(axis) if t.label1.get_visible() and t.label1.get_text().strip()]
+    steps = _X_STEPS if name == "x" else _Y_STEPS
+    step = state.setdefault("step", 0)
+    while labels and step < len(steps):
+        action = steps[step]
+        state["step"] = step + 1
+        if action == "wrap":
+            width = _wrap_width(labels, dpi)
+            if width is not None:
+                state["unwrapped"] = axis.get_major_formatter()
+                axis.set_major_formatter(_wrapped(state["unwrapped"], width))
+                return True
+        elif action == "shrink":
+            size = labels[0].get_fontsize()
+            if size > _SMALLEST_PT:
+                axis.set_tick_params(labelsize=max(_SMALLEST_PT, size * 0.85))
+                state["step"] = step  # shrink again next time, down to the smallest size
+                return True
+        else:
+            if "unwrapped" in state:  # rotated names read best on one line
+                axis.set_major_formatter(state.pop("unwrapped"))
+            angle = float(action)
+            axis.set_tick_params(labelrotation=angle)
+            for tick in axis.get_major_ticks():
+                tick.label1.set_horizontalalignment("right" if angle < 90 else "center")
+                tick.label1.set_rotation_mode("anchor" if angle < 90 else "default")
+            return True
+        step += 1
+    return False
+
+
+def fix_tick_labels(fig, *, rounds: int = 16) -> list[Overlap]:
+    """Lay ``fig`` out and, while tick labels of an axis overlap (:func:`tick_label_overlaps`),
+    make them take less room: long names wrapped to the space between ticks, else rotated
+    (30-90 degrees, anchored at their tick), then smaller. Returns the overlaps that are left
+    (empty when the figure reads cleanly)."""
+    states: dict[int, dict[str, Any]] = {}
+    for _ in range(rounds):
+        found = _overlaps(fig, draw=True)
+        todo = {id(axis): (axis, name) for axis, name, _ in found if not states.get(id(axis), {}).get("spent")}
+        if not todo:
+            return [o for _, _, o in found]
+        for key, (axis, name) in todo.items():
+            state = states.setdefault(key, {})
+            if not _relieve(axis, name, state, fig.dpi):
+                state["spent"] = True
+    return tick_label_overlaps(fig)
 
 
 def _color(i: int) -> str:
@@ -101,6 +321,180 @@ def _violins(ax, groups: list[tuple[str, np.ndarray]]) -> None:
     for p, (_, v) in zip(pos, data, strict=True):
         ax.scatter(p + rng.uniform(-0.12, 0.12, v.size), v, s=8, color="k", alpha=0.6, zorder=3)
     ax.set_xticks(pos, [label for label, _ in data])
+
+
+# --- the first screen: one figure per question ------------------------------------------------
+
+SUMMARY_SIZE = (5.0, 3.5)
+"""Inches of each first-screen figure (three side by side on the page)."""
+NAME_WIDTH = 18
+"""Characters per line of a platform name on the first screen's axes (longer names wrap)."""
+THIN_MARGIN = 0.01
+"""A gate margin thinner than this (t_inf units) is a thin decision (as in
+:func:`geocon_core.stats.margin_summary`)."""
+
+
+def platform_order(ir_table: pd.DataFrame) -> list[str]:
+    """Platforms best first: by scene-balanced median IR (highest first, ties and missing values
+    by name)."""
+    if ir_table.empty:
+        return []
+    t = ir_table.assign(_m=ir_table["median"].astype(float).fillna(-np.inf))
+    return [str(m) for m in t.sort_values(["_m", "model"], ascending=[False, True], kind="stable")["model"]]
+
+
+def fig_summary_platforms(b: FigureBuilder, ir_table: pd.DataFrame, ir_gate: float, bootstrap: int) -> list[str]:
+    """Which platform is most consistent: the scene-balanced median IR per platform with its 95%
+    CI (``ir_table``: :func:`geocon_core.stats.scene_balanced_table` of ``ir`` by model), best at
+    the top, against the report gate's IR line. Returns the platforms best first."""
+    order = platform_order(ir_table)
+    if not order:
+        b.skip("Platform consistency", "no platform has a clip with an IR")
+        return order
+    t = ir_table.set_index("model").loc[order]
+    fin = np.isfinite(t["median"].astype(float).to_numpy())
+    if not fin.any():
+        b.skip("Platform consistency", "no platform has a clip with an IR")
+        return order
+    fig, ax = b.figure(size=SUMMARY_SIZE)
+    a = ax[0, 0]
+    y = np.arange(len(order))[::-1]
+    med, lo, hi = (t[c].astype(float).to_numpy() for c in ("median", "low", "high"))
+    below = med < ir_gate
+    for sel, col, label in ((~below, _color(0), "at or above the gate"), (below, _color(1), "below the gate")):
+        sel = sel & fin
+        if sel.any():
+            a.errorbar(
+                med[sel],
+                y[sel],
+                xerr=[med[sel] - lo[sel], hi[sel] - med[sel]],
+                fmt="o",
+                color=col,
+                capsize=3,
+                ms=6,
+                label=label,
+            )
+    a.axvline(ir_gate, color="k", ls="--", lw=1)
+    a.text(ir_gate, 1.0, f" gate {ir_gate:g}", transform=a.get_xaxis_transform(), fontsize=7, va="bottom")
+    for yi, m in zip(y, med, strict=True):
+        a.annotate(
+            f"{m:.3f}" if np.isfinite(m) else "no IR",
+            (1.0, yi),
+            xycoords=("axes fraction", "data"),
+            xytext=(4, 0),
+            textcoords="offset points",
+            va="center",
+            fontsize=7,
+        )
+    a.set_yticks(y, [_wrap(p, NAME_WIDTH) for p in order])
+    a.set_ylim(-0.7, len(order) - 0.3)
+    a.set(xlabel="scene-balanced median IR (95% CI)")
+    a.legend(fontsize=7, loc="lower left")
+    b.save(
+        fig,
+        "summary_platforms",
+        "Which platform is most consistent?",
+        f"Scene-balanced median inlier ratio per platform, best at the top, with 95% bootstrap CIs over scenes "
+        f"(B = {bootstrap}); dashed: the report gate's IR.",
+    )
+    return order
+
+
+def fig_summary_margins(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str]) -> None:
+    """Where the gate is thin: every clip's gate margin per platform (rows in ``order``), the thin
+    band shaded and each platform's share of thin decisions beside it."""
+    m_all = ok["margin"].to_numpy(float)
+    if not np.isfinite(m_all).any():
+        return b.skip("Gate margins (first screen)", "no clip has a pose")
+    rows = [p for p in order if p in set(ok["model"])] or sorted(ok["model"].unique())
+    fig, ax = b.figure(size=SUMMARY_SIZE)
+    a = ax[0, 0]
+    a.axvspan(-THIN_MARGIN, THIN_MARGIN, color=_color(4), alpha=0.18, lw=0, label=f"thin (|margin| < {THIN_MARGIN:g})")
+    a.axvline(0, color="k", lw=1)
+    rng = np.random.default_rng(0)
+    y = np.arange(len(rows))[::-1]
+    for yi, p in zip(y, rows, strict=True):
+        m = ok.loc[ok["model"] == p, "margin"].to_numpy(float)
+        m = m[np.isfinite(m)]
+        thin = np.abs(m) < THIN_MARGIN
+        jitter = rng.uniform(-0.18, 0.18, m.size)
+        a.scatter(m[~thin], yi + jitter[~thin], s=12, color="#555555", alpha=0.7, lw=0)
+        a.scatter(m[thin], yi + jitter[thin], s=16, color=_color(1), alpha=0.9, lw=0)
+        a.annotate(
+            f"{int(thin.sum())}/{m.size} thin" if m.size else "no pose",
+            (1.0, yi),
+            xycoords=("axes fraction", "data"),
+            xytext=(4, 0),
+            textcoords="offset points",
+            va="center",
+            fontsize=7,
+        )
+    a.set_yticks(y, [_wrap(p, NAME_WIDTH) for p in rows])
+    a.set_ylim(-0.7, len(rows) - 0.3)
+    a.set(xlabel="gate margin (t_inf units; 0 = on a threshold)")
+    a.legend(fontsize=7, loc="lower right")
+    b.save(
+        fig,
+        "summary_margins",
+        "Where is the gate thin?",
+        "Each clip's distance of t_inf to the nearer gate threshold; red dots in the shaded band are thin "
+        "decisions that a small pose error flips.",
+    )
+
+
+def fig_summary_failures(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str]) -> None:
+    """Which categories fail: per platform (rows in ``order``) and category, the share of clips
+    failing the report gate and the share whose translation gate contradicts the category (fail->F),
+    each cell labelled with its count."""
+    cats = sorted(ok["category"].dropna().unique())
+    if not cats:
+        return b.skip("Failures per category", "no scored clip has a category")
+    rows = [p for p in order if p in set(ok["model"])] or sorted(ok["model"].unique())
+    cover = stats.coverage_table(ok, by=("model", "category")).set_index(["model", "category"])
+    rates = stats.gate_rates(ok).set_index(["model", "category"])
+    panels = []
+    for title, count in (
+        ("fails the report gate", lambda k: int(cover.loc[k, "inconsistent"]) if k in cover.index else None),
+        (
+            "gate anomaly (fail\u2192F)",
+            lambda k: (
+                int(round(float(rates.loc[k, "anomaly_rate_fail_f"]) * int(rates.loc[k, "n_clips"])))
+                if k in rates.index
+                else None
+            ),
+        ),
+    ):
+        k = np.full((len(rows), len(cats)), np.nan)
+        n = np.zeros((len(rows), len(cats)), dtype=int)
+        for i, p in enumerate(rows):
+            for j, c in enumerate(cats):
+                got = count((p, c))
+                if got is not None:
+                    k[i, j] = got
+                    n[i, j] = int(cover.loc[(p, c), "n_clips"])
+        panels.append((title, k, n))
+    fig, ax = b.figure(2, 1, SUMMARY_SIZE, sharey=True)
+    for j, (title, k, n) in enumerate(panels):
+        a = ax[0, j]
+        share = np.where(n > 0, k / np.maximum(n, 1), np.nan)
+        a.imshow(np.ma.masked_invalid(share), cmap="Reds", vmin=0, vmax=1, aspect="auto")
+        a.set_facecolor("#eeeeee")
+        for r in range(len(rows)):
+            for c in range(len(cats)):
+                text = f"{int(k[r, c])}/{n[r, c]}" if n[r, c] else "\u2013"
+                dark = n[r, c] and share[r, c] > 0.6
+                a.text(c, r, text, ha="center", va="center", fontsize=7, color="white" if dark else "#222222")
+        a.set_xticks(np.arange(len(cats)), cats)
+        a.set_yticks(np.arange(len(rows)), [_wrap(p, NAME_WIDTH) for p in rows])
+        a.set_title(title, fontsize=9)
+        a.tick_params(length=0)
+    b.save(
+        fig,
+        "summary_failures",
+        "Which categories fail?",
+        "Per platform and category: clips failing the report gate (IR/GE), and clips whose translation gate "
+        "contradicts the category (C1/C2/C4 should gate H, C3/C5/C6 F; no pose counts as F).",
+    )
 
 
 def fig_tinf(b: FigureBuilder, ok: pd.DataFrame) -> None:

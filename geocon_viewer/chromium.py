@@ -1,5 +1,6 @@
 """Headless Chromium driven through the DevTools protocol over ``--remote-debugging-pipe`` (no
-websocket library needed): open a page on this machine, wait for it to render, capture a PNG.
+websocket library needed): open a page on this machine, wait for it to render (a fixed time, or
+screenshots taken until the caller finds one ready), capture a PNG.
 Chromium resolves no host but 127.0.0.1 and runs without a crash reporter, so every process it
 starts stays in its process group and goes with it (:func:`~geocon_viewer.processes.kill_group`)."""
 
@@ -254,9 +255,15 @@ def capture(
     deadline: float,
     what: str,
     alive: Callable[[], None] | None = None,
+    wait: Callable[[Callable[[], bytes]], bytes] | None = None,
 ) -> None:
     """Headless Chromium (profile inside ``workdir``) opens ``url``, waits ``settle_s`` after the
-    load event (calling ``alive()`` to check a server it depends on), and writes ``png_path``."""
+    load event (calling ``alive()`` to check a server it depends on), and writes ``png_path``.
+
+    Without ``wait`` the PNG is the one screenshot taken then. With it, ``wait(take)`` decides:
+    ``take()`` returns a fresh PNG of the page (checking Chromium and ``alive()`` first) and ``wait``
+    returns the PNG to save once the page looks ready, polling as often as it likes until the
+    deadline (see :func:`geocon_viewer.screenshot.poll_until_ready`)."""
     chromium = find_chromium()
     if chromium is None:
         raise ScreenshotError("Chromium is not installed (apt-get install chromium, or set $CHROMIUM).")
@@ -280,19 +287,29 @@ def capture(
             raise ScreenshotError(f"Chromium did not answer on the DevTools pipe: {log_tail(chrome_log)}") from exc
         session = _open_page(pipe, url, width, height, left)
         _settle(settle_s, chrome_proc, alive, left)
-        shot = pipe.call(
-            "Page.captureScreenshot",
-            {
-                "format": "png",
-                "fromSurface": True,
-                "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1},
-            },
-            session=session,
-            timeout=min(60.0, left()),
-        )
-        data = base64.b64decode(shot["data"])
-        if not data.startswith(b"\x89PNG"):
-            raise ScreenshotError("Chromium returned something that is not a PNG.")
+        running_pipe, running_proc = pipe, chrome_proc
+
+        def take() -> bytes:
+            if alive is not None:
+                alive()
+            if running_proc.poll() is not None:
+                raise ScreenshotError(f"Chromium exited early with code {running_proc.returncode}.")
+            shot = running_pipe.call(
+                "Page.captureScreenshot",
+                {
+                    "format": "png",
+                    "fromSurface": True,
+                    "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1},
+                },
+                session=session,
+                timeout=min(60.0, left()),
+            )
+            png = base64.b64decode(shot["data"])
+            if not png.startswith(b"\x89PNG"):
+                raise ScreenshotError("Chromium returned something that is not a PNG.")
+            return png
+
+        data = take() if wait is None else wait(take)
         png_path.parent.mkdir(parents=True, exist_ok=True)
         png_path.write_bytes(data)
     except ScreenshotError:
