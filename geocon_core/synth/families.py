@@ -3,13 +3,18 @@
 World coordinates are those of the first camera (x right, y down, z forward); every layout
 and trajectory is jittered by the seed. Camera motion is linear in time (constant velocity
 and angular rate) from the first frame to the last.
+
+:func:`build_scene` can replace a family's camera path by another linear one
+(``camera_end_center``, ``camera_end_angles``) and speed its objects up or down
+(``object_speed``) while keeping the family's layout, textures and object shapes; with the
+defaults the scene is exactly the family's.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -72,6 +77,13 @@ def _wall(
     w = 2 * (z * math.tan(min(half_x + ext, math.radians(80))) + reach)
     h = 2 * (z * math.tan(min(half_y + ext, math.radians(80))) + reach)
     return _panel(rng, "wall", K, (0.0, 0.0, z), (w, h), contrast=contrast)
+
+
+def _vec3(name: str, value: Sequence[float]) -> np.ndarray:
+    v = np.asarray(value, dtype=float)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be three finite numbers, got {value!r}")
+    return v
 
 
 def _jit(rng: np.random.Generator, scale: float) -> float:
@@ -144,10 +156,17 @@ def _object(
     return ObjectTrack(object_id=object_id, name=name, plane=plane, T_world_obj=np.stack(poses))
 
 
-def _objects(rng: np.random.Generator, K: np.ndarray, n: int) -> tuple[ObjectTrack, ...]:
+def _progress(n: int, speed: float) -> list[float]:
+    """How far along its path an object is at each of ``n`` frames: 0 at the first frame,
+    ``speed`` at the last (1: the family's path, exactly)."""
+    return [speed * i / max(1, n - 1) for i in range(n)]
+
+
+def _objects(rng: np.random.Generator, K: np.ndarray, n: int, speed: float = 1.0) -> tuple[ObjectTrack, ...]:
     """A disc crossing left to right while spinning in its plane, and a card moving
-    diagonally, receding and turning (both rigid)."""
-    us = [i / max(1, n - 1) for i in range(n)]
+    diagonally, receding and turning (both rigid); ``speed`` scales how far along their paths
+    they get (:func:`_progress`)."""
+    us = _progress(n, speed)
     y1, z1, spin = 0.25 + _jit(rng, 0.1), 3.0 + _jit(rng, 0.2), 40 + _jit(rng, 10)
     disc = [
         make_pose(rotation_xyz(roll_deg=spin * u), np.array((-1.1 + 2.2 * u, y1 + 0.1 * math.sin(math.pi * u), z1)))
@@ -163,31 +182,31 @@ def _objects(rng: np.random.Generator, K: np.ndarray, n: int) -> tuple[ObjectTra
     )
 
 
-def _c1(rng, K, W, H, n):
+def _c1(rng, K, W, H, n, speed=1.0):
     return _static_cams(n), _layers_far(rng, K, W, H, 5, 0.0), ()
 
 
-def _c2(rng, K, W, H, n):
+def _c2(rng, K, W, H, n, speed=1.0):
     angles = (rng.choice([-1, 1]) * rng.uniform(8, 14), rng.uniform(3, 6), rng.choice([-1, 1]) * rng.uniform(4, 8))
     return _moving_cams(n, np.zeros(3), angles), _layers_far(rng, K, W, H, 25, 0.0), ()
 
 
-def _c3(rng, K, W, H, n):
+def _c3(rng, K, W, H, n, speed=1.0):
     end = np.array([0.8 + _jit(rng, 0.1), 0.05 + _jit(rng, 0.05), 0.25 + _jit(rng, 0.1)])
     return _moving_cams(n, end, (0, 0, 0)), _layers_parallax(rng, K, W, H, 5, 1.2), ()
 
 
-def _c4(rng, K, W, H, n):
-    return _static_cams(n), _layers_far(rng, K, W, H, 5, 0.0), _objects(rng, K, n)
+def _c4(rng, K, W, H, n, speed=1.0):
+    return _static_cams(n), _layers_far(rng, K, W, H, 5, 0.0), _objects(rng, K, n, speed)
 
 
-def _c5(rng, K, W, H, n):
+def _c5(rng, K, W, H, n, speed=1.0):
     end = np.array([0.55 + _jit(rng, 0.1), -0.12 + _jit(rng, 0.05), 0.45 + _jit(rng, 0.1)])
     angles = (-9 + _jit(rng, 2), 3 + _jit(rng, 1), 2 + _jit(rng, 1))
     return _moving_cams(n, end, angles), _layers_parallax(rng, K, W, H, 20, 1.0), ()
 
 
-def _c6(rng, K, W, H, n):
+def _c6(rng, K, W, H, n, speed=1.0):
     """Stress: a low-texture wall, thin poles, a near occluder and an object passing behind it."""
     end = np.array([0.7 + _jit(rng, 0.1), _jit(rng, 0.05), 0.15 + _jit(rng, 0.05)])
     planes = [_wall(rng, K, W, H, 9.0 + _jit(rng, 0.8), 5, 1.0, contrast=0.06)]
@@ -199,7 +218,7 @@ def _c6(rng, K, W, H, n):
     for i, x in enumerate(np.linspace(-1.4, 1.6, 5) + rng.uniform(-0.1, 0.1, 5)):
         planes.append(_panel(rng, f"pole_{i}", K, (float(x), 0.0, 2.4 + 0.4 * i + _jit(rng, 0.1)), (0.05, 3.0)))
     planes.append(_panel(rng, "occluder", K, (0.9 + _jit(rng, 0.1), 0.55, 1.9 + _jit(rng, 0.1)), (0.9, 1.0), yaw=-10))
-    us = [i / max(1, n - 1) for i in range(n)]
+    us = _progress(n, speed)
     y, z = -0.1 + _jit(rng, 0.1), 3.1 + _jit(rng, 0.2)
     disc = [make_pose(rotation_xyz(roll_deg=30 * u), (-0.9 + 2.4 * u, y, z)) for u in us]
     objects = (_object(rng, K, 1, "disc", (0.6, 0.6), z, "disc", disc),)
@@ -212,6 +231,8 @@ class Family:
     slug: str
     title: str
     builder: Callable
+    """``builder(rng, K, W, H, n, speed)`` -> (camera poses, background planes, objects); ``speed``
+    scales the objects' progress along their paths (families without objects ignore it)."""
     slide_layer: str = "panel_mid"
 
 
@@ -247,8 +268,20 @@ def build_scene(
     num_frames: int = 48,
     fps: float = 24.0,
     fov_x_deg: float = 60.0,
+    camera_end_center: Sequence[float] | None = None,
+    camera_end_angles: Sequence[float] | None = None,
+    object_speed: float = 1.0,
 ) -> Scene:
-    """Build the scene of ``family`` (code or slug), deterministic in ``seed``."""
+    """Build the scene of ``family`` (code or slug), deterministic in ``seed``.
+
+    ``camera_end_center`` (x, y, z world units, first-camera coordinates) and
+    ``camera_end_angles`` (yaw, pitch, roll degrees, :func:`~geocon_core.geometry.rotation_xyz`)
+    replace the family's camera path by a linear one from the identity to that pose (a missing
+    one of the two is zero); ``object_speed`` (>= 0) scales how far the objects get along their
+    paths by the last frame (0: they stay at their first pose). The layout, textures and objects'
+    first poses are the family's whatever these are; with the defaults (None, None, 1.0) the
+    scene is exactly the family's. A family's walls are sized for its own camera motion: a much
+    larger one shows the grey sky past their edges."""
     fam = family_info(family)
     if width < 16 or height < 16:
         raise ValueError(f"size must be at least 16x16, got {width}x{height}")
@@ -256,9 +289,15 @@ def build_scene(
         raise ValueError(f"a clip needs at least 2 frames, got {num_frames}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
+    if not (math.isfinite(object_speed) and object_speed >= 0):
+        raise ValueError(f"object_speed must be a finite number >= 0, got {object_speed}")
     rng = np.random.default_rng([seed, int(fam.code[1])])
     K = intrinsics_from_fov(width, height, fov_x_deg)
-    cams, planes, objects = fam.builder(rng, K, width, height, num_frames)
+    cams, planes, objects = fam.builder(rng, K, width, height, num_frames, object_speed)
+    if camera_end_center is not None or camera_end_angles is not None:
+        center = np.zeros(3) if camera_end_center is None else _vec3("camera_end_center", camera_end_center)
+        angles = np.zeros(3) if camera_end_angles is None else _vec3("camera_end_angles", camera_end_angles)
+        cams = _moving_cams(num_frames, center, (float(angles[0]), float(angles[1]), float(angles[2])))
     return Scene(
         family=fam.code,
         seed=seed,

@@ -13,6 +13,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``presets``         the named scoring presets
 ``view``            a saved record in the Rerun viewer (:mod:`.commands_view`)
 ``serve``           a results folder in the Viser audit app
+``teach``           a synthetic scene in the Viser teaching app (:mod:`.commands_teach`)
 ``validate``        the validation report: synthetic grid and annotated real clips (:mod:`.commands_validate`)
 ``pose-log``        a pose log from a COLMAP model or a DUSt3R scene (:mod:`.commands_pose`)
 ``doctor``          which backends, viewers and extras are usable here (:mod:`.commands_doctor`)
@@ -34,6 +35,7 @@ from . import (
     commands_pose,
     commands_score,
     commands_synth,
+    commands_teach,
     commands_validate,
     commands_view,
 )
@@ -76,6 +78,7 @@ app.command("report")(commands_bench.report)
 app.command("presets")(commands_bench.presets)
 app.command("view")(commands_view.view)
 app.command("serve")(commands_view.serve)
+app.command("teach")(commands_teach.teach)
 app.command("validate")(commands_validate.validate)
 app.command("pose-log")(commands_pose.pose_log)
 app.command("doctor")(commands_doctor.doctor)
