@@ -376,18 +376,7 @@ def fig_summary_platforms(b: FigureBuilder, ir_table: pd.DataFrame, ir_gate: flo
             )
     a.axvline(ir_gate, color="k", ls="--", lw=1)
     a.text(ir_gate, 1.0, f" gate {ir_gate:g}", transform=a.get_xaxis_transform(), fontsize=7, va="bottom")
-    for yi, m in zip(y, med, strict=True):
-        a.annotate(
-            f"{m:.3f}" if np.isfinite(m) else "no IR",
-            (1.0, yi),
-            xycoords=("axes fraction", "data"),
-            xytext=(4, 0),
-            textcoords="offset points",
-            va="center",
-            fontsize=7,
-        )
-    a.set_yticks(y, [_wrap(p, NAME_WIDTH) for p in order])
-    a.set_ylim(-0.7, len(order) - 0.3)
+    _name_rows(a, y, order, [f"{m:.3f}" if np.isfinite(m) else "no IR" for m in med])
     a.set(xlabel="scene-balanced median IR (95% CI)")
     a.legend(fontsize=7, loc="lower left")
     b.save(
@@ -398,6 +387,23 @@ def fig_summary_platforms(b: FigureBuilder, ir_table: pd.DataFrame, ir_gate: flo
         f"(B = {bootstrap}); dashed: the report gate's IR.",
     )
     return order
+
+
+def _name_rows(a, y, names: Sequence[str], notes: Sequence[str]) -> None:
+    """Rows ``y`` of a summary chart labelled with (wrapped) ``names`` on the left and ``notes``
+    beside the axes on the right."""
+    for yi, note in zip(y, notes, strict=True):
+        a.annotate(
+            note,
+            (1.0, yi),
+            xycoords=("axes fraction", "data"),
+            xytext=(4, 0),
+            textcoords="offset points",
+            va="center",
+            fontsize=7,
+        )
+    a.set_yticks(y, [_wrap(p, NAME_WIDTH) for p in names])
+    a.set_ylim(-0.7, len(names) - 0.3)
 
 
 def fig_summary_margins(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str]) -> None:
@@ -413,6 +419,7 @@ def fig_summary_margins(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str]
     a.axvline(0, color="k", lw=1)
     rng = np.random.default_rng(0)
     y = np.arange(len(rows))[::-1]
+    notes: list[str] = []
     for yi, p in zip(y, rows, strict=True):
         m = ok.loc[ok["model"] == p, "margin"].to_numpy(float)
         m = m[np.isfinite(m)]
@@ -420,17 +427,8 @@ def fig_summary_margins(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str]
         jitter = rng.uniform(-0.18, 0.18, m.size)
         a.scatter(m[~thin], yi + jitter[~thin], s=12, color="#555555", alpha=0.7, lw=0)
         a.scatter(m[thin], yi + jitter[thin], s=16, color=_color(1), alpha=0.9, lw=0)
-        a.annotate(
-            f"{int(thin.sum())}/{m.size} thin" if m.size else "no pose",
-            (1.0, yi),
-            xycoords=("axes fraction", "data"),
-            xytext=(4, 0),
-            textcoords="offset points",
-            va="center",
-            fontsize=7,
-        )
-    a.set_yticks(y, [_wrap(p, NAME_WIDTH) for p in rows])
-    a.set_ylim(-0.7, len(rows) - 0.3)
+        notes.append(f"{int(thin.sum())}/{m.size} thin" if m.size else "no pose")
+    _name_rows(a, y, rows, notes)
     a.set(xlabel="gate margin (t_inf units; 0 = on a threshold)")
     a.legend(fontsize=7, loc="lower right")
     b.save(
