@@ -20,7 +20,7 @@ from typing import Any, Callable
 
 from .processes import ScreenshotError, kill_group, log_tail, private_env
 
-__all__ = ["find_chromium", "start_chromium", "check_capture", "capture"]
+__all__ = ["Page", "find_chromium", "start_chromium", "check_capture", "capture", "open_page"]
 
 _CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
 
@@ -324,3 +324,98 @@ def capture(
         kill_group(chrome_proc)
         if pipe is not None:
             pipe.close()
+
+
+class Page:
+    """A page open in headless Chromium, driven as a user drives it: JavaScript to read what the
+    page shows, key presses and typed text to change it, screenshots. Made by :func:`open_page`."""
+
+    def __init__(self, pipe: _DevToolsPipe, session: str, proc: subprocess.Popen[bytes], width: int, height: int):
+        self._pipe, self._session, self._proc = pipe, session, proc
+        self.width, self.height = width, height
+
+    def _call(self, method: str, params: dict[str, Any] | None = None, timeout: float = 30.0) -> dict[str, Any]:
+        if self._proc.poll() is not None:
+            raise ScreenshotError(f"Chromium exited early with code {self._proc.returncode}.")
+        return self._pipe.call(method, params, session=self._session, timeout=timeout)
+
+    def evaluate(self, expression: str, timeout: float = 30.0) -> Any:
+        """The value of a JavaScript ``expression`` in the page (JSON-serialisable values only)."""
+        reply = self._call(
+            "Runtime.evaluate", {"expression": expression, "returnByValue": True, "awaitPromise": True}, timeout
+        )
+        if "exceptionDetails" in reply:
+            raise ScreenshotError(f"JavaScript failed in the page: {reply['exceptionDetails'].get('text', '?')}.")
+        return reply.get("result", {}).get("value")
+
+    def wait_for(self, expression: str, timeout: float = 30.0, poll_s: float = 0.1) -> Any:
+        """Poll ``expression`` until it is truthy and return its value; ScreenshotError on timeout."""
+        end = time.monotonic() + timeout
+        while True:
+            value = self.evaluate(expression)
+            if value:
+                return value
+            if time.monotonic() > end:
+                raise ScreenshotError(f"The page never satisfied {expression!r} within {timeout:g} s.")
+            time.sleep(poll_s)
+
+    def type_text(self, text: str) -> None:
+        """Type ``text`` into the focused element."""
+        self._call("Input.insertText", {"text": text})
+
+    def press(self, key: str, code: str | None = None, key_code: int = 0) -> None:
+        """Press and release one key (``"Enter"``, ``"Tab"``, ``"ArrowRight"``...) on the focused element."""
+        params = {"key": key, "code": code or key, "windowsVirtualKeyCode": key_code, "nativeVirtualKeyCode": key_code}
+        self._call("Input.dispatchKeyEvent", {"type": "keyDown", **params})
+        self._call("Input.dispatchKeyEvent", {"type": "keyUp", **params})
+
+    def screenshot(self) -> bytes:
+        """A PNG of the page as it is now."""
+        shot = self._call(
+            "Page.captureScreenshot",
+            {
+                "format": "png",
+                "fromSurface": True,
+                "clip": {"x": 0, "y": 0, "width": self.width, "height": self.height, "scale": 1},
+            },
+        )
+        return base64.b64decode(shot["data"])
+
+
+@contextlib.contextmanager
+def open_page(url: str, *, width: int = 1600, height: int = 1000, timeout_s: float = 60.0):
+    """Open ``url`` in headless Chromium (a private profile, removed afterwards) and yield a
+    :class:`Page` once it has loaded; Chromium is stopped on exit."""
+    import tempfile
+
+    chromium = find_chromium()
+    if chromium is None:
+        raise ScreenshotError("Chromium is not installed (apt-get install chromium, or set $CHROMIUM).")
+    deadline = time.monotonic() + timeout_s
+
+    def left() -> float:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise ScreenshotError(f"Opening {url} timed out.")
+        return remaining
+
+    workdir = Path(tempfile.mkdtemp(prefix="geocon-page-"))
+    proc: subprocess.Popen[bytes] | None = None
+    pipe: _DevToolsPipe | None = None
+    try:
+        profile = workdir / "chromium-profile"
+        profile.mkdir()
+        proc, pipe = start_chromium(chromium, profile, width, height, workdir / "chromium.log")
+        pipe.call("Browser.getVersion", timeout=min(30.0, left()))
+        session = _open_page(pipe, url, width, height, left)
+        pipe.call("Runtime.enable", session=session, timeout=min(30.0, left()))
+        yield Page(pipe, session, proc, width, height)
+    finally:
+        if pipe is not None:
+            with contextlib.suppress(ScreenshotError, OSError):
+                if proc is not None and proc.poll() is None:
+                    pipe.call("Browser.close", timeout=3.0)
+        kill_group(proc)
+        if pipe is not None:
+            pipe.close()
+        shutil.rmtree(workdir, ignore_errors=True)

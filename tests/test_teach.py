@@ -1,7 +1,8 @@
 """`geocon teach`, the Viser teaching app, driven from Python as a student drives it with the
-sliders: moving the camera's translation across the hysteresis band flips the gate label shown
-from H to F, breathing lowers the strict (one-homography) IR shown, elasticity raises the disc's
-AdaDFRC shown, a newer change supersedes an older one, and headless Chromium renders the page.
+sliders, and in headless Chromium by typing into the sliders' number boxes: moving the camera's
+translation across the hysteresis band flips the gate label shown from H to F, breathing lowers the
+strict (one-homography) IR shown, elasticity raises the disc's AdaDFRC shown, and a newer change
+supersedes an older one.
 Each update's latency (slider move to numbers on the page) is printed, not asserted; the 2 s
 target is checked by benchmarks/bench_teach.py."""
 
@@ -130,16 +131,69 @@ def test_camera_and_object_speed_parameters_of_the_scene():
         build_scene("C4", object_speed=-1.0)
 
 
-def test_headless_chromium_renders_the_page(app, capsys, tmp_path):
-    from geocon_viewer.screenshot import find_chromium, screenshot_url
+_FOCUS = """((label) => {
+  const el = [...document.querySelectorAll('*')].find(e => e.childElementCount === 0 && e.textContent.trim() === label);
+  let row = el;
+  for (let i = 0; i < 8 && row && !row.querySelector('input[type=text]'); i++) row = row.parentElement;
+  const input = row && row.querySelector('input[type=text]');
+  if (!input) return null;
+  input.focus(); input.select(); return input.value;
+})(%s)"""
+"""Focus and select the number box of the slider labelled so (the box a user types a value into)."""
+
+
+def _type(page, app: TeachApp, capsys, label: str, name: str, value: float) -> str:
+    """Type ``value`` into the slider ``label`` in the browser, wait for the app's update with it and
+    for the page to show that update; returns the page's text."""
+    import json
+    import time
+
+    assert page.evaluate(_FOCUS % json.dumps(label)) is not None, f"no slider labelled {label!r} on the page"
+    page.type_text(f"{value:g}")
+    page.press("Enter", key_code=13)
+    end = time.monotonic() + 120
+    while not (app.last is not None and getattr(app.last.params, name) == value and app.last.record is not None):
+        assert time.monotonic() < end, f"no update with {name} = {value:g} arrived from the browser"
+        time.sleep(0.05)
+    u = app.last
+    page.wait_for(f"document.body.innerText.includes('update {u.index}:')", timeout=30)
+    _log(capsys, f"browser: {label} = {value:g}", u)
+    return str(page.evaluate("document.body.innerText"))
+
+
+def _number(text: str, pattern: str) -> float:
+    m = re.search(pattern, text)
+    assert m, (pattern, text[:600])
+    return float(m.group(1))
+
+
+def test_headless_chromium_drives_the_sliders(app, capsys):
+    """A user's browser: typing into the sliders' number boxes moves the translation across the
+    band (the gate label shown flips from H to F), raises breathing (the strict IR shown falls) and
+    elasticity (the disc's AdaDFRC shown rises); the page shows the frame and the controls."""
+    from geocon_viewer.chromium import open_page
+    from geocon_viewer.screenshot import find_chromium
 
     if find_chromium() is None:
         pytest.skip("no Chromium on this machine (bash scripts/bootstrap.sh test installs it)")
     import cv2
 
     _at(app, capsys, TeachParams())
-    png = screenshot_url(app.url, tmp_path / "teach.png", settle_s=3.0)
-    img = cv2.imread(str(png))
+    with open_page(app.url, timeout_s=120) as page:
+        page.wait_for("document.body.innerText.includes('camera translation')", timeout=60)
+        text = page.wait_for("document.body.innerText.includes('Gate H') && document.body.innerText")
+        strict = r"strict IR \(one homography, H\) ([0-9.]+)"
+        disc = r"disc \(deformed by the elasticity slider\): AdaDFRC ([0-9.]+)"
+        ir0, ada0 = _number(text, strict), _number(text, disc)
+        text = _type(page, app, capsys, "camera translation", "translation", 0.07)
+        assert "Gate F" in text and "Gate H" not in text
+        _type(page, app, capsys, "camera translation", "translation", 0.02)
+        text = _type(page, app, capsys, "background breathing (px)", "breathing_px", 12.0)
+        assert _number(text, strict) < ir0 - 0.02
+        _type(page, app, capsys, "background breathing (px)", "breathing_px", 0.0)
+        text = _type(page, app, capsys, "object elasticity (px)", "elastic_px", 20.0)
+        assert _number(text, disc) > ada0 + 0.2
+        img = cv2.imdecode(np.frombuffer(page.screenshot(), np.uint8), cv2.IMREAD_COLOR)
     assert img is not None and img.shape[:2] == (1000, 1600)
 
     def busy(region: np.ndarray) -> float:
