@@ -57,6 +57,7 @@ from .audit_views import (
     thumb,
 )
 from .processes import check_bind
+from .served import ServedApp
 
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 
@@ -64,7 +65,7 @@ DISPLAY_WIDTH = 640
 """Width (px) the frames are shown at."""
 
 
-class AuditApp(AuditPanels):
+class AuditApp(AuditPanels, ServedApp):
     """The audit app over ``results`` (a ``geocon bench`` folder or a ``geocon score`` record
     folder). Drive it from Python through its GUI handles (setting ``.value`` runs the callbacks),
     or open :attr:`url` in a browser. :meth:`stop` shuts the server down and frees its port.
@@ -107,18 +108,6 @@ class AuditApp(AuditPanels):
         self._player.start()
 
     # --- server ------------------------------------------------------------------------------
-    @property
-    def host(self) -> str:
-        return self.server.get_host()
-
-    @property
-    def port(self) -> int:
-        return self.server.get_port()
-
-    @property
-    def url(self) -> str:
-        return f"http://{self.host}:{self.port}"
-
     def stop(self) -> None:
         """Stop the background threads and the server (its port is free when this returns)."""
         self._stop.set()

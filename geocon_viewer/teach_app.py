@@ -47,6 +47,7 @@ from geocon_core.verdict import Thresholds
 
 from .audit_views import thumb
 from .processes import check_bind
+from .served import ServedApp
 from .teach_scene import FAMILY, SIZES, SLIDERS, TeachParams, mean_distance, render_teach_clip
 from .teach_views import (
     TeachUpdate,
@@ -83,7 +84,7 @@ class _Superseded(Exception):
     """A newer change arrived (or the app is stopping): the update in progress stops."""
 
 
-class TeachApp:
+class TeachApp(ServedApp):
     """The teaching app. ``host`` and ``port`` are checked before anything starts
     (:func:`~.processes.check_bind`); a busy port moves to the next free one. The first clip is
     rendered and scored in the background at once; :meth:`wait` returns when the newest change is
@@ -134,18 +135,6 @@ class TeachApp:
         self.request(self.params)
 
     # --- server --------------------------------------------------------------------------------
-    @property
-    def host(self) -> str:
-        return self.server.get_host()
-
-    @property
-    def port(self) -> int:
-        return self.server.get_port()
-
-    @property
-    def url(self) -> str:
-        return f"http://{self.host}:{self.port}"
-
     @property
     def last_update_s(self) -> float | None:
         """Seconds from the change on the page to its numbers (None before the first update)."""

@@ -3,14 +3,12 @@ when the command runs."""
 
 from __future__ import annotations
 
-import signal
-import time
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from .console import VIEWER_EXTRA, err, fail, has_viewer_extra, out
+from .console import VIEWER_EXTRA, err, fail, has_viewer_extra, out, reach, serve_until_stopped
 
 __all__ = ["teach"]
 
@@ -77,31 +75,14 @@ def teach(
     except OSError as exc:
         raise fail(f"could not serve on {host}:{port}: {exc}") from None
     try:
-
-        def on_term(*_: object) -> None:
-            raise KeyboardInterrupt
-
-        signal.signal(signal.SIGTERM, on_term)  # `kill` stops as cleanly as Ctrl-C
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # even when started with SIGINT ignored
-        reach = "this machine only" if app.host in ("127.0.0.1", "localhost", "::1") else "reachable from the network"
-        if port != 0 and app.port != port:
-            err.print(f"port {port} on {host} is in use: serving on port {app.port} instead", soft_wrap=True)
-        out.print(
-            f"GeoCon teach: {app.url}  ({reach}; the first clip is on its way; Ctrl-C to stop)",
-            soft_wrap=True,
+        serve_until_stopped(
+            app,
+            host=host,
+            port=port,
+            banner=f"GeoCon teach: {app.url}  ({reach(app.host)}; the first clip is on its way; Ctrl-C to stop)",
+            screenshot=screenshot,
+            before_shot=lambda: app.wait(timeout=300.0),
         )
-        if screenshot is not None:
-            from ..screenshot import ScreenshotError, screenshot_url
-
-            app.wait(timeout=300.0)
-            try:
-                screenshot_url(app.url, screenshot)
-            except ScreenshotError as exc:
-                raise fail(str(exc)) from None
-            out.print(f"screenshot: {screenshot}")
-            return
-        while True:
-            time.sleep(0.5)
     except KeyboardInterrupt:
         err.print("stopping")
     finally:

@@ -4,7 +4,6 @@ Viser audit app. The viewer modules load only when these commands run."""
 from __future__ import annotations
 
 import os
-import signal
 import time
 from pathlib import Path
 from typing import Annotated, Optional
@@ -14,7 +13,18 @@ import typer
 from geocon_core.config import DEFAULT_PRESET
 
 from .commands_score import is_input_error, score_with_progress
-from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, progress_bar, rerun_version
+from .console import (
+    VIEWER_EXTRA,
+    default_out,
+    err,
+    fail,
+    has_viewer_extra,
+    out,
+    progress_bar,
+    reach,
+    rerun_version,
+    serve_until_stopped,
+)
 
 __all__ = ["view", "serve"]
 
@@ -202,37 +212,17 @@ def serve(
                 raise fail(f"no clip {clip!r} in {results}")
             audit.clip.value = clip  # type: ignore[misc]  # viser setter typing gap
 
-        def on_term(*_: object) -> None:
-            raise KeyboardInterrupt
-
-        signal.signal(signal.SIGTERM, on_term)  # `kill` stops as cleanly as Ctrl-C
-        # Ctrl-C stops the server even when it was started with SIGINT ignored (a background job
-        # of a non-interactive shell inherits that, and Python then keeps it ignored)
-        signal.signal(signal.SIGINT, signal.default_int_handler)
         n = len(audit.index.clips)
-        reach = "this machine only" if audit.host in ("127.0.0.1", "localhost", "::1") else "reachable from the network"
         ready = time.perf_counter() - start
-        if port != 0 and audit.port != port:
-            err.print(f"port {port} on {host} is in use: serving on port {audit.port} instead", soft_wrap=True)
-        out.print(
-            f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {ready:.1f} s; {reach}; "
-            "Ctrl-C to stop)",
-            soft_wrap=True,
+        serve_until_stopped(
+            audit,
+            host=host,
+            port=port,
+            banner=f"GeoCon audit app: {audit.url}  ({n} clip{'s' if n != 1 else ''}, ready in {ready:.1f} s; "
+            f"{reach(audit.host)}; Ctrl-C to stop)",
+            screenshot=screenshot,
+            before_shot=lambda: audit.view is not None and audit.view.frames_ready.wait(60),
         )
-        if screenshot is not None:
-            from ..screenshot import ScreenshotError, screenshot_url
-
-            if audit.view is not None:
-                audit.view.frames_ready.wait(60)
-            try:
-                screenshot_url(audit.url, screenshot)
-            except ScreenshotError as exc:
-                raise fail(str(exc)) from None
-            out.print(f"screenshot: {screenshot}")
-            return
-
-        while True:
-            time.sleep(0.5)
     except KeyboardInterrupt:
         err.print("stopping")
     finally:

@@ -4,8 +4,10 @@ helpers."""
 from __future__ import annotations
 
 import importlib.util
+import signal
+import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import typer
 from rich.console import Console
@@ -24,6 +26,8 @@ __all__ = [
     "has_viewer_extra",
     "VIEWER_EXTRA",
     "progress_bar",
+    "reach",
+    "serve_until_stopped",
 ]
 
 err = Console(stderr=True)
@@ -113,3 +117,45 @@ def progress_bar(
     if eta:
         columns += [TextColumn("eta"), TimeRemainingColumn()]
     return Progress(*columns, console=err, **options)
+
+
+def reach(host: str) -> str:
+    """Who can open a page served on ``host``."""
+    return "this machine only" if host in ("127.0.0.1", "localhost", "::1") else "reachable from the network"
+
+
+def serve_until_stopped(
+    app: Any,
+    *,
+    host: str,
+    port: int,
+    banner: str,
+    screenshot: Path | None = None,
+    before_shot: Callable[[], object] = lambda: None,
+) -> None:
+    """Serve ``app`` (a :class:`~geocon_viewer.served.ServedApp`) until Ctrl-C or ``kill``
+    (raised as KeyboardInterrupt, even when started with SIGINT ignored, as a background job of a
+    non-interactive shell is), after printing ``banner`` and a note when ``port`` was busy; with
+    ``screenshot``, save a PNG of the page (after ``before_shot()``) and return instead. The caller
+    stops the app."""
+
+    def on_term(*_: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_term)  # `kill` stops as cleanly as Ctrl-C
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    if port != 0 and app.port != port:
+        err.print(f"port {port} on {host} is in use: serving on port {app.port} instead", soft_wrap=True)
+    out.print(banner, soft_wrap=True)
+    if screenshot is not None:
+        from ..screenshot import ScreenshotError, screenshot_url
+
+        before_shot()
+        try:
+            screenshot_url(app.url, screenshot)
+        except ScreenshotError as exc:
+            raise fail(str(exc)) from None
+        out.print(f"screenshot: {screenshot}")
+        return
+    while True:
+        time.sleep(0.5)
