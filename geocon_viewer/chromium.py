@@ -244,6 +244,17 @@ def _settle(
         time.sleep(min(0.5, max(0.0, end_settle - time.monotonic())))
 
 
+def _stop_chromium(proc: subprocess.Popen[bytes] | None, pipe: _DevToolsPipe | None) -> None:
+    """Close Chromium politely (Browser.close), then stop its process group and the pipe."""
+    if pipe is not None:
+        with contextlib.suppress(ScreenshotError, OSError):
+            if proc is not None and proc.poll() is None:
+                pipe.call("Browser.close", timeout=3.0)
+    kill_group(proc)
+    if pipe is not None:
+        pipe.close()
+
+
 def capture(
     url: str,
     png_path: Path,
@@ -317,13 +328,7 @@ def capture(
     except (OSError, KeyError, ValueError) as exc:
         raise ScreenshotError(f"Screenshot of {what} failed: {exc}.") from exc
     finally:
-        if pipe is not None:
-            with contextlib.suppress(ScreenshotError, OSError):
-                if chrome_proc is not None and chrome_proc.poll() is None:
-                    pipe.call("Browser.close", timeout=3.0)
-        kill_group(chrome_proc)
-        if pipe is not None:
-            pipe.close()
+        _stop_chromium(chrome_proc, pipe)
 
 
 class Page:
@@ -411,11 +416,5 @@ def open_page(url: str, *, width: int = 1600, height: int = 1000, timeout_s: flo
         pipe.call("Runtime.enable", session=session, timeout=min(30.0, left()))
         yield Page(pipe, session, proc, width, height)
     finally:
-        if pipe is not None:
-            with contextlib.suppress(ScreenshotError, OSError):
-                if proc is not None and proc.poll() is None:
-                    pipe.call("Browser.close", timeout=3.0)
-        kill_group(proc)
-        if pipe is not None:
-            pipe.close()
+        _stop_chromium(proc, pipe)
         shutil.rmtree(workdir, ignore_errors=True)
