@@ -364,7 +364,8 @@ def screenshot_web(
 ) -> Path:
     """Serve `rrd` with the `rerun` executable shipped in the rerun-sdk wheel (web viewer bound to 127.0.0.1,
     free ports), open it in headless Chromium (the web viewer takes no time cursor from its page URL, so
-    ``at`` is accepted for symmetry and not applied: the viewer follows the data to its last frame), and
+    ``at`` is accepted for symmetry and not applied: a recording with the stored layout, which pauses
+    the timeline, shows its first frame), and
     from ``settle_s`` after the page has loaded take screenshots until one shows what ``wait_for`` asks
     for (:func:`shot_ready`: by default a decoded video frame, the same in two screenshots in a row); save
     it (width x height) to `png` and return its path. Raises ScreenshotError (a RuntimeError subclass, with
