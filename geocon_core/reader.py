@@ -78,6 +78,7 @@ __all__ = [
     "probe_clip",
     "canvas_layout",
     "layout_of",
+    "to_working",
 ]
 
 
@@ -368,7 +369,7 @@ def iter_frames(info: ClipInfo) -> Iterator[Frame]:
         h, w = bgr.shape[:2]
         if n >= info.num_frames or (w, h) != info.source_size:
             raise ClipError(f"{name}: decodes differently than when it was probed (changed since?)")
-        rgb = _letterbox(bgr, layout, W, H)
+        rgb = to_working(bgr, layout, W, H)
         yield Frame(index=n, rgb=rgb, gray=cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), content=content)
         n += 1
     if n != info.num_frames:
@@ -399,8 +400,9 @@ def _scaled(source_size: tuple[int, int], scale: float, bound: tuple[int, int]) 
     return min(W, max(1, round(w * scale))), min(H, max(1, round(h * scale)))
 
 
-def _letterbox(bgr: np.ndarray, layout: _Layout, W: int, H: int) -> np.ndarray:
-    """(H, W, 3) uint8 RGB canvas holding the resized ``bgr`` (h, w, 3) at ``layout``."""
+def to_working(bgr: np.ndarray, layout: _Layout, W: int, H: int) -> np.ndarray:
+    """(H, W, 3) uint8 RGB canvas holding the resized ``bgr`` (h, w, 3) at ``layout``: a decoded
+    frame as :func:`iter_frames` gives it at working resolution."""
     sw, sh = layout.scaled_size
     ox, oy = layout.offset
     h, w = bgr.shape[:2]

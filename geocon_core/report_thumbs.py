@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from .decode import ClipError, image_frames, resolve_clip
-from .reader import ClipInfo, _letterbox, layout_of
+from .reader import ClipInfo, layout_of, to_working
 from .record import ClipRecord, PairRecord, read_record
 from .regate import pair_inliers
 from .verdict import Family, Thresholds
@@ -116,7 +116,7 @@ def read_frames(info: ClipInfo, wanted: Iterable[int]) -> dict[int, np.ndarray]:
     for t, bgr in source:
         if (bgr.shape[1], bgr.shape[0]) != info.source_size:
             raise ClipError(f"{info.path}: decodes differently than when it was scored (changed since?)")
-        got[t] = _letterbox(bgr, layout, W, H)
+        got[t] = to_working(bgr, layout, W, H)
     return got
 
 
