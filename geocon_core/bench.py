@@ -25,6 +25,7 @@ from .bench_clip import (
     BenchError,
     RecordRenderer,
     crashed_status,
+    install_clip,
     score_one,
     score_to_folder,
 )
@@ -39,7 +40,6 @@ from .layout import (
     read_manifest,
     read_status,
     write_manifest,
-    write_status,
 )
 from .lockfile import FolderLock, LockHeld
 from .paths import OutPathError, check_out_dir
@@ -269,7 +269,8 @@ def _score_all(
                         if crashes[entry.clip_id] < MAX_CRASHES:
                             queue.insert(0, entry)
                             continue
-                        status = _crashed(out, entry, cfg)
+                        status = crashed_status(entry, cfg)
+                        install_clip(clip_dir(out, entry.clip_id), status)
                     finished(status)
                 if broken and not inflight:
                     break
@@ -279,11 +280,3 @@ def _score_all(
             pool.shutdown(wait=False, cancel_futures=True)
             raise
         pool.shutdown(wait=True)
-
-
-def _crashed(results: Path, entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any]:
-    folder = clip_dir(results, entry.clip_id)
-    folder.mkdir(parents=True, exist_ok=True)
-    status = crashed_status(entry, cfg)
-    write_status(folder, status)
-    return status

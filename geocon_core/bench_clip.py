@@ -22,6 +22,7 @@ __all__ = [
     "RecordRenderer",
     "crashed_status",
     "failed_status",
+    "install_clip",
     "score_one",
     "score_to_folder",
 ]
@@ -169,3 +170,19 @@ def crashed_status(entry: ClipEntry, cfg: ScoreConfig) -> dict[str, Any]:
         f"the worker process died {MAX_CRASHES} times while scoring this clip "
         "(out of memory or a crash in a native library)",
     )
+
+
+def install_clip(folder: Path, status: dict[str, Any], files: dict[str, bytes] | None = None) -> None:
+    """Write a clip's ``files`` (relative path -> bytes) into its results folder and its status
+    last (the mark of a finished clip), replacing whatever a run killed while this clip was in
+    flight left there."""
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    root = folder.resolve()
+    for rel, data in (files or {}).items():
+        path = folder / rel
+        if root not in path.resolve().parents:
+            raise ValueError(f"a clip's file lies outside its clip folder: {rel}")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+    write_status(folder, status)

@@ -16,7 +16,6 @@ counted twice. Ray is imported only here, and only when this executor is chosen.
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 import subprocess
 import tempfile
@@ -26,10 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .bench_clip import MAX_CRASHES, BenchError, crashed_status, failed_status, score_one
+from .bench_clip import MAX_CRASHES, BenchError, crashed_status, failed_status, install_clip, score_one
 from .config import ScoreConfig
 from .dataset import ClipEntry
-from .layout import STATUS_NAME, clip_dir, write_status
+from .layout import STATUS_NAME, clip_dir
 from .procs import start_reaper
 
 __all__ = ["DISTRIBUTED_EXTRA", "RayOptions", "neural_backends", "preflight", "score_all_ray"]
@@ -114,20 +113,6 @@ def score_packed(
             if p.is_file() and p.name != STATUS_NAME
         }
     return status, files
-
-
-def install_clip(folder: Path, status: dict[str, Any], files: dict[str, bytes]) -> None:
-    """Write a clip's files into its results folder, ``status.json`` last (the mark of a finished
-    clip), replacing what a run killed while this clip was in flight left there."""
-    shutil.rmtree(folder, ignore_errors=True)
-    folder.mkdir(parents=True)
-    for rel, data in files.items():
-        path = folder / rel
-        if path.resolve().parent != folder.resolve() and folder.resolve() not in path.resolve().parents:
-            raise ValueError(f"a Ray task returned a file outside its clip folder: {rel}")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(data)
-    write_status(folder, status)
 
 
 LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
