@@ -274,7 +274,8 @@ def percentile_aligned(
     band: float = 10.0,
 ) -> pd.DataFrame:
     """Per group and percentile p: ``x_p`` (percentile p of x) and ``y_at`` (the median y over the
-    clips whose x lies between percentiles p - band and p + band of x)."""
+    clips whose x lies between percentiles p - band and p + band of x; NaN when no clip does, as
+    between two far-apart values of a small group)."""
     rows = []
     data = _ok(clips)
     data = data[np.isfinite(data[x].astype(float)) & np.isfinite(data[y].astype(float))]
@@ -289,7 +290,7 @@ def percentile_aligned(
                     **dict(zip(by, key, strict=True)),
                     "percentile": float(p),
                     f"{x}_p": float(np.percentile(xv, p)),
-                    f"{y}_at": float(np.median(yv[sel])),
+                    f"{y}_at": float(np.median(yv[sel])) if sel.any() else float("nan"),
                     "n": int(sel.sum()),
                 }
             )

@@ -322,12 +322,21 @@ class AuditApp(AuditPanels, ServedApp):
         self._render_table()
 
     def _decode_frames(self, view: ClipView) -> None:
+        """Decode the clip of ``view`` into its display frames, in a background thread.
+
+        Every write into the scene or the GUI happens under the app's lock and only while ``view``
+        is still the selected clip: a clip switch (or a pair switch, which rebuilds the frustums)
+        holds the same lock, so no write can reach a handle it removed. The thread stops as soon as
+        another clip is selected or the app stops."""
         from geocon_core.reader import ClipError, iter_frames
+
+        def current() -> bool:
+            return view is self.view and not view.cancel.is_set() and not self._stop.is_set()
 
         try:
             info = view.record.video
             for f in iter_frames(info):
-                if view.cancel.is_set() or self._stop.is_set():
+                if not current():
                     return
                 img = f.rgb
                 if view.display_scale < 1.0:
@@ -335,21 +344,19 @@ class AuditApp(AuditPanels, ServedApp):
                         img, None, fx=view.display_scale, fy=view.display_scale, interpolation=cv2.INTER_AREA
                     )
                 view.frames[f.index] = img
-                if view is not self.view:
-                    continue
-                if f.index in view.frustums:
-                    try:
-                        view.frustums[f.index].image = thumb(img)
-                    except RuntimeError:  # another clip was selected and removed this one's frustums meanwhile
-                        if view is self.view and not view.cancel.is_set():
-                            raise
-                        continue
-                if f.index == self.frame:
-                    self._render_frame()
+                with self._lock:
+                    if not current():
+                        return
+                    handle = view.frustums.get(f.index)
+                    if handle is not None:
+                        handle.image = thumb(img)
+                    if f.index == self.frame:
+                        self._render_frame()
         except (ClipError, OSError, ValueError) as exc:
             view.frames_error = f"frames not shown: {exc}"
-            if view is self.view:
-                self._render_frame()
+            with self._lock:
+                if current():
+                    self._render_frame()
         finally:
             view.frames_ready.set()
 

@@ -176,6 +176,31 @@ def test_selecting_a_clip_loads_its_point_cloud_and_frames(app, results):
         assert abs(float(handle.image.mean()) - float(frame.mean())) < 2.0, "the camera shows its own frame"
 
 
+def test_switching_clips_while_frames_decode_raises_in_no_thread(app, monkeypatch):
+    """Clips switched again and again while their frames decode: the decoder of a clip that is no
+    longer selected stops and never writes into the scene the switch rebuilt; the last clip is
+    shown whole."""
+    import threading
+    import time
+
+    raised: list[str] = []
+    monkeypatch.setattr(threading, "excepthook", lambda a: raised.append(f"{a.thread.name}: {a.exc_value!r}"))
+    clips = ["clean-c3_translation-s0", "elastic-c3_translation-s0", "breathing-c1_static-s0"]
+    decoders: list[threading.Thread] = []
+    for i in range(24):
+        app.clip.value = clips[i % len(clips)]
+        decoders.append(app._decoder)
+        time.sleep(0.002 * (i % 4))  # switch before, during and after the first frames are written
+    for thread in decoders:
+        thread.join(timeout=60)
+        assert not thread.is_alive()
+    assert raised == []
+    view = app.view
+    assert view.clip_id == clips[23 % len(clips)] and view.frames_ready.is_set() and view.frames_error is None
+    assert len(view.frames) == view.num_frames
+    assert all(handle.image is not None for handle in view.frustums.values()), "the shown cameras got their frames"
+
+
 def test_frame_slider_shows_the_pairs_inliers_under_the_thresholds(app, results):
     app.clip.value = "clean-c3_translation-s0"
     record = app.view.record
@@ -392,6 +417,34 @@ def dense_record(tmp_path_factory) -> Path:
     folder = data / "record"
     score_to_folder(data / f"{gt.clip_id}.mp4", ScoreConfig(), folder, dense=DenseCloudConfig())
     return folder
+
+
+def test_switching_pairs_while_frames_decode_raises_in_no_thread(dense_record, monkeypatch):
+    """The clip selected again and again, and its pairs switched (each switch rebuilds the
+    cameras) while its frames decode: no thread writes into a camera a switch removed, and the
+    cameras shown at the end carry their frames."""
+    import threading
+
+    raised: list[str] = []
+    monkeypatch.setattr(threading, "excepthook", lambda a: raised.append(f"{a.thread.name}: {a.exc_value!r}"))
+    audit = AuditApp(dense_record, port=0, preload=False)
+    try:
+        clip_id = audit.view.clip_id
+        options = list(audit.pair.options)
+        decoders = []
+        for _ in range(20):
+            audit._on_clip(clip_id)  # what selecting it in the list does: a new view, a new decoder
+            decoders.append(audit._decoder)
+            for value in options[1:] + options[:1]:
+                audit.pair.value = value
+        for thread in decoders:
+            thread.join(timeout=60)
+            assert not thread.is_alive()
+        assert raised == []
+        assert audit.view.frames_ready.is_set() and len(audit.view.frames) == audit.view.num_frames
+        assert all(handle.image is not None for handle in audit.view.frustums.values())
+    finally:
+        audit.stop()
 
 
 def test_the_scene_shows_the_dense_cloud_of_the_pair_picked_with_its_legend(dense_record):
