@@ -30,9 +30,19 @@ from .record import (
     MatchArrays,
     ObjectEntry,
     PairRecord,
+    ShotRecord,
 )
 from .rigidity import MASK_JUMP, ObjectPairScore, object_summaries
-from .verdict import ClipVerdict, Thresholds, family_verdict, gate_decision, summarize_family
+from .verdict import (
+    ClipVerdict,
+    Thresholds,
+    combine_shots,
+    deciding_shot,
+    family_verdict,
+    gate_decision,
+    gate_shot,
+    summarize_family,
+)
 
 __all__ = ["software_versions", "fit_summary", "assemble_record", "add_objects", "object_entries"]
 
@@ -121,6 +131,57 @@ def _background(
     )
 
 
+def _judge_shots(
+    cfg: ScoreConfig,
+    thresholds: Thresholds,
+    shot_poses: Sequence[tuple[tuple[int, int], PoseEstimate]],
+    scored: list[PairFits],
+) -> tuple[ClipVerdict, dict[str, FamilySummary], PoseEstimate, tuple[ShotRecord, ...]]:
+    """Each shot judged on its own pairs with its own gate; the combined verdict, the families
+    and pose of the shot that decides, and the shots' records."""
+    verdicts, families, records = [], [], []
+    for (start, end), est in shot_poses:
+        mine = [r for r in scored if start <= r.t0 and r.t1 <= end]
+        fam = {name: summarize_family(name, mine, cfg) for name in FAMILIES}
+        v = family_verdict(
+            fam["H"], fam["F"], t_inf=est.t_inf, pose_present=est.pose_present, thresholds=thresholds, tau_t=cfg.tau_t
+        )
+        note = "a single frame: nothing to judge" if end == start else _background(cfg, v, fam, est).choice_note
+        verdicts.append(v)
+        families.append(fam)
+        records.append(
+            ShotRecord(
+                start=start,
+                end=end,
+                label=v.label if est.pose_present else None,
+                t_inf=est.t_inf,
+                pose_present=est.pose_present,
+                pose_method=est.method if est.pose_present else None,
+                model=v.model,
+                ir=v.ir,
+                ge=v.ge,
+                consistent=v.consistent,
+                note=note,
+            )
+        )
+    gate = gate_shot([w for w, _ in shot_poses])
+    decides = deciding_shot(verdicts)
+    return combine_shots(verdicts, gate), families[decides], shot_poses[decides][1], tuple(records)
+
+
+def _shots_note(shots: tuple[ShotRecord, ...], verdict: ClipVerdict) -> str:
+    """The background's note for a clip with cuts: which shot decided, and how each one fared."""
+    judged = [s for s in shots if s.consistent is not None]
+    if not judged:
+        return f"none of the {len(shots)} shots could be judged (cuts split the clip)"
+    decides = next(s for s in shots if s.consistent == verdict.consistent and s.ir == verdict.ir and s.ge == verdict.ge)
+    state = {True: "consistent", False: "inconsistent"}[bool(verdict.consistent)]
+    return (
+        f"{len(shots)} shots judged on their own ({len(judged)} judged); shot {decides.start}-{decides.end} "
+        f"decides: {state} ({decides.note})"
+    )
+
+
 def _pair_record(i: int, r: PairFits) -> tuple[PairRecord, dict[str, np.ndarray]]:
     """A scored pair's record entry and its per-match arrays (zeros where a family has no fit)."""
     m = len(r.x1)
@@ -156,16 +217,28 @@ def assemble_record(
     timeline_poses: list[tuple[tuple[int, int], PoseEstimate]],
     windows: list[tuple[int, int]],
     scored: list[PairFits],
+    shot_poses: Sequence[tuple[tuple[int, int], PoseEstimate]] = (),
 ) -> ClipRecord:
     """The record of a clip's background: both families summarised over ``scored`` (sorted by
     gap, frame, scale), the verdict (:func:`~geocon_core.verdict.family_verdict`), the gate with
     its timeline (``timeline_poses`` of the ``windows``; the whole-clip window uses ``pose``), the
-    pairs and their per-match arrays, and the warnings; no objects or category yet."""
-    fam = {name: summarize_family(name, scored, cfg) for name in FAMILIES}
+    pairs and their per-match arrays, and the warnings; no objects or category yet.
+
+    A clip with hard cuts gives ``shot_poses``, the pose of each shot's first and last frame: each
+    shot is then judged on its own (its gate, its pairs), the clip's gate is that of its first
+    shot of two frames or more and its background that of the shot that decides
+    (:func:`~geocon_core.verdict.combine_shots`); the shots are in :attr:`ClipRecord.shots`."""
     thresholds = Thresholds.of(cfg)
-    verdict = family_verdict(
-        fam["H"], fam["F"], t_inf=pose.t_inf, pose_present=pose.pose_present, thresholds=thresholds, tau_t=cfg.tau_t
-    )
+    shots: tuple[ShotRecord, ...] = ()
+    if len(shot_poses) > 1:
+        verdict, fam, pose, shots = _judge_shots(cfg, thresholds, shot_poses, scored)
+        background = replace(_background(cfg, verdict, fam, pose), choice_note=_shots_note(shots, verdict))
+    else:
+        fam = {name: summarize_family(name, scored, cfg) for name in FAMILIES}
+        verdict = family_verdict(
+            fam["H"], fam["F"], t_inf=pose.t_inf, pose_present=pose.pose_present, thresholds=thresholds, tau_t=cfg.tau_t
+        )
+        background = _background(cfg, verdict, fam, pose)
     warnings: list[str] = list(info.warnings)  # frames lost to a damaged file, from the reader
     if not pose.pose_present:
         warnings.append(f"the first-last pose could not be recovered ({pose.reason}); the clip is gated F")
@@ -177,16 +250,21 @@ def assemble_record(
     if info.duplicates:
         warnings.append(f"{len(info.duplicates)} duplicated frame(s): pairs across them are not scored")
     if info.cuts:
-        warnings.append(f"{len(info.cuts)} hard cut(s) at frame(s) {list(info.cuts)}: pairs across them are not scored")
+        warnings.append(
+            f"{len(info.cuts)} hard cut(s) at frame(s) {list(info.cuts)}: pairs across them are not scored, and "
+            f"each of the {len(info.shots)} shots is judged on its own"
+        )
     pairs, arrays = zip(*(_pair_record(i, r) for i, r in enumerate(scored)), strict=True) if scored else ((), ())
+    gate_pose = shot_poses[gate_shot([w for w, _ in shot_poses])][1] if shots else pose
     return ClipRecord(
         clip=clip,
         video=info,
         config=cfg,
         config_hash=config_hash(cfg),
         versions=software_versions(),
-        gate=_gate_record(cfg, verdict, backend, pose, windows, timeline_poses, info.num_frames),
-        background=_background(cfg, verdict, fam, pose),
+        gate=_gate_record(cfg, verdict, backend, gate_pose, windows, timeline_poses, info.num_frames),
+        background=background,
+        shots=shots,
         pairs=tuple(pairs),
         matches=MatchArrays.concatenate(list(arrays)),
         intrinsics=[[float(v) for v in row] for row in K],

@@ -159,6 +159,14 @@ class ClipInfo:
         mask[y0:y1, x0:x1] = True
         return mask
 
+    @property
+    def shots(self) -> tuple[tuple[int, int], ...]:
+        """(first, last) frame of each shot, inclusive: the spans between :attr:`cuts`; one span
+        for a clip without cuts."""
+        starts = (0, *self.cuts)
+        ends = (*(c - 1 for c in self.cuts), self.num_frames - 1)
+        return tuple(zip(starts, ends, strict=True))
+
     def pair_skip_reason(self, t0: int, t1: int) -> SkipReason | None:
         """Why the frame pair (t0, t1), ``0 <= t0 < t1 < num_frames``, must not be scored:
         ``"duplicate_frame"`` if every frame in ``t0 + 1 .. t1`` duplicates its predecessor (the

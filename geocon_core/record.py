@@ -43,6 +43,7 @@ from .record_parts import (
     PointCloud,
     PointMaps,
     ScaleSummary,
+    ShotRecord,
 )
 from .record_parts import Family as Family  # these two re-exported only
 from .record_parts import GateWindow as GateWindow
@@ -108,6 +109,8 @@ class ClipRecord:
     dense: the dense clouds (:mod:`geocon_core.dense_cloud`) of the first/last pair, then of each
         gate window, when they were asked for (``score_clip(dense=...)``); empty otherwise.
     pointmaps: DUSt3R's point maps of the first/last pair (``--pose dust3r``), or None.
+    shots: a clip with hard cuts: each shot judged on its own (the gate is the first shot's and
+        ``background`` that of the shot that decides); empty for a clip of one shot.
     """
 
     clip: str
@@ -130,6 +133,7 @@ class ClipRecord:
     cloud: PointCloud | None = None
     dense: tuple[WindowCloud, ...] = ()
     pointmaps: PointMaps | None = None
+    shots: tuple[ShotRecord, ...] = ()
 
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
@@ -189,6 +193,24 @@ class ClipRecord:
             "config_hash": self.config_hash,
             "versions": self.versions,
             "warnings": list(self.warnings),
+            **(
+                {
+                    "shots": [
+                        {
+                            "frames": [s.start, s.end],
+                            "gate": s.label,
+                            "t_inf": s.t_inf,
+                            "model": s.model,
+                            "ir": s.ir,
+                            "ge": s.ge,
+                            "consistent": s.consistent,
+                        }
+                        for s in self.shots
+                    ]
+                }
+                if self.shots
+                else {}
+            ),
         }
 
     def to_json_dict(self) -> dict[str, Any]:
@@ -213,6 +235,7 @@ class ClipRecord:
             "cloud": None if self.cloud is None else {"points": int(self.cloud.xyz.shape[0]), "note": self.cloud.note},
             "pointmaps": None if self.pointmaps is None else self.pointmaps.to_json_dict(),
             "dense": [_dense_entry(w) for w in self.dense],
+            **({"shots": [asdict(s) for s in self.shots]} if self.shots else {}),
         }
 
 
@@ -474,4 +497,5 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         cloud=cloud,
         dense=_dense_from(d.get("dense", []), z),
         pointmaps=pointmaps,
+        shots=tuple(ShotRecord(**s) for s in d.get("shots", [])),
     )

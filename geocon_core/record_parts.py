@@ -22,6 +22,7 @@ __all__ = [
     "ScaleSummary",
     "FamilySummary",
     "BackgroundSummary",
+    "ShotRecord",
     "GateWindow",
     "GateRecord",
     "ObjectEntry",
@@ -327,6 +328,26 @@ class BackgroundSummary:
     chosen: FamilySummary
     other: FamilySummary
     choice_note: str
+
+
+@dataclass(frozen=True)
+class ShotRecord:
+    """One shot of a clip with hard cuts (frames ``start .. end``, inclusive), judged on its own:
+    the gate on its first and last frame (``label`` H / F / U, ``t_inf``, whether it had a pose
+    and how it was found), the family that gate chose, that family's IR (0..1) and GE (px) over
+    the shot's pairs, the report gate (None: not judged) and a note saying why."""
+
+    start: int
+    end: int
+    label: str | None
+    t_inf: float | None
+    pose_present: bool
+    pose_method: str | None
+    model: Family
+    ir: float | None
+    ge: float | None
+    consistent: bool | None
+    note: str
 
 
 @dataclass(frozen=True)

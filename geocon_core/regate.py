@@ -22,7 +22,16 @@ import numpy as np
 from .config import ScoreConfig
 from .models import FAMILIES, family_spec, inlier_mask, segment_inlier_stats, segment_order
 from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_matches, read_record_json
-from .verdict import ClipVerdict, Family, FitRow, Thresholds, aggregate_gap_arrays, family_verdict
+from .verdict import (
+    ClipVerdict,
+    Family,
+    FitRow,
+    Thresholds,
+    aggregate_gap_arrays,
+    combine_shots,
+    family_verdict,
+    gate_shot,
+)
 
 __all__ = [
     "Regated",
@@ -32,6 +41,7 @@ __all__ = [
     "sensitivity_scan",
     "Residuals",
     "ResidualArrays",
+    "ShotGate",
     "load_residuals",
     "regate_clip",
 ]
@@ -58,6 +68,8 @@ class PairTable:
     scale: np.ndarray
     index: np.ndarray
     judgeable: np.ndarray
+    t0: np.ndarray
+    t1: np.ndarray
     usable: dict[str, np.ndarray]
     order: dict[str, np.ndarray]
 
@@ -75,6 +87,8 @@ class PairTable:
             scale=np.array([p.scale for p in pairs], dtype=np.float64),
             index=np.array([p.index for p in pairs], dtype=np.int64),
             judgeable=np.array([p.skip is None for p in pairs], dtype=bool),
+            t0=np.array([p.t0 for p in pairs], dtype=np.int64),
+            t1=np.array([p.t1 for p in pairs], dtype=np.int64),
             usable=usable,
             order={
                 name: segment_order(getattr(matches, spec.residual_px), matches.offsets)
@@ -127,22 +141,30 @@ def pair_inliers(record: "ClipRecord | Residuals", index: int, family: Family, t
 
 
 def regate_family(
-    record: "ClipRecord | Residuals", family: Family, tau: float, *, min_inliers: int | None = None
+    record: "ClipRecord | Residuals",
+    family: Family,
+    tau: float,
+    *,
+    min_inliers: int | None = None,
+    frames: tuple[int, int] | None = None,
 ) -> Regated:
     """Re-gate one family of a record at threshold ``tau`` from its stored residuals (no
-    re-fitting: the models stay those of the scoring run); pairs as in :func:`regate_pairs`."""
+    re-fitting: the models stay those of the scoring run); pairs as in :func:`regate_pairs`.
+    ``frames`` (first, last), inclusive, keeps only the pairs inside them (one shot of a clip
+    with cuts)."""
     table, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
     cfg = record.config
+    keep = slice(None) if frames is None else (table.t0 >= frames[0]) & (table.t1 <= frames[1])
     per_gap, ir_c, ge_c = aggregate_gap_arrays(
-        table.gap,
-        table.scale,
-        valid,
-        ir,
-        ge,
+        table.gap[keep],
+        table.scale[keep],
+        valid[keep],
+        ir[keep],
+        ge[keep],
         gaps=cfg.gaps,
         scales=cfg.scales,
         aggregation=cfg.aggregation,
-        judgeable=table.judgeable,
+        judgeable=table.judgeable[keep],
         min_coverage=cfg.min_coverage,
     )
     return Regated(
@@ -179,6 +201,16 @@ def sensitivity_scan(
 # --- live re-gating of whole clips (the viewers' threshold controls) ---------------------------
 
 
+@dataclass(frozen=True)
+class ShotGate:
+    """What re-gating one shot of a clip with cuts needs: its frames (inclusive) and its gate."""
+
+    start: int
+    end: int
+    t_inf: float | None
+    pose_present: bool
+
+
 @dataclass(frozen=True, eq=False)
 class ResidualArrays:
     """The per-match residuals of a record, without coordinates (see :class:`MatchArrays`)."""
@@ -208,19 +240,22 @@ class Residuals:
         matches: "ResidualArrays | MatchArrays",
         t_inf: float | None,
         pose_present: bool,
+        shots: tuple[ShotGate, ...] = (),
     ) -> None:
         self.config = config
         self.pairs = pairs
         self.matches = matches
         self.t_inf = t_inf
         self.pose_present = pose_present
+        self.shots = shots
 
     def __repr__(self) -> str:
         return f"Residuals({len(self.pairs)} pairs, t_inf={self.t_inf}, pose_present={self.pose_present})"
 
     @classmethod
     def of(cls, record: ClipRecord) -> "Residuals":
-        return cls(record.config, record.pairs, record.matches, record.gate.t_inf, record.gate.pose_present)
+        shots = tuple(ShotGate(s.start, s.end, s.t_inf, s.pose_present) for s in record.shots)
+        return cls(record.config, record.pairs, record.matches, record.gate.t_inf, record.gate.pose_present, shots)
 
     @cached_property
     def table(self) -> PairTable:
@@ -239,7 +274,9 @@ def load_residuals(folder: str | Path) -> Residuals:
     arrays = ResidualArrays(**read_matches(path, ResidualArrays.NAMES))  # nothing unpickled; RecordError if bad
     pairs = pairs_from_json(d)
     gate = d["gate"]
-    return Residuals(ScoreConfig.from_dict(d["config"]), pairs, arrays, gate["t_inf"], bool(gate["pose_present"]))
+    shots = tuple(ShotGate(s["start"], s["end"], s["t_inf"], bool(s["pose_present"])) for s in d.get("shots", []))
+    cfg = ScoreConfig.from_dict(d["config"])
+    return Residuals(cfg, pairs, arrays, gate["t_inf"], bool(gate["pose_present"]), shots)
 
 
 def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipVerdict:
@@ -247,6 +284,18 @@ def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipV
     ``tau_h`` / ``tau_f``, then the gate and report rules (:func:`family_verdict`). At the recorded
     thresholds this is the record's verdict exactly."""
     res = source if isinstance(source, Residuals) else Residuals.of(source)
+    if res.shots:  # a clip with cuts: each shot on its own, combined as the scorer does
+        verdicts = [
+            family_verdict(
+                regate_family(res, "H", thresholds.tau("H"), frames=(s.start, s.end)),
+                regate_family(res, "F", thresholds.tau("F"), frames=(s.start, s.end)),
+                t_inf=s.t_inf,
+                pose_present=s.pose_present,
+                thresholds=thresholds,
+            )
+            for s in res.shots
+        ]
+        return combine_shots(verdicts, gate_shot([(s.start, s.end) for s in res.shots]))
     h = regate_family(res, "H", thresholds.tau("H"))
     f = regate_family(res, "F", thresholds.tau("F"))
     return family_verdict(h, f, t_inf=res.t_inf, pose_present=res.pose_present, thresholds=thresholds)

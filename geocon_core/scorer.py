@@ -41,6 +41,7 @@ from .masks import MaskSource, make_mask_source
 from .masks.external import check_masks_path
 from .models import FAMILIES, PairFits
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
+from .pose.base import failure as pose_failure
 from .pose.chain import chain_hops, compose_chain
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .record import ClipRecord, PointCloud, PointMaps
@@ -300,6 +301,34 @@ def _cloud(
     return PointCloud(xyz, rgb, note)
 
 
+def _shot_hops(shot: tuple[int, int], hop: int) -> list[tuple[int, int]]:
+    """The chain hops inside one shot (none when chains are off or the shot is one hop long)."""
+    start, end = shot
+    if hop == 0 or end - start < 1:
+        return []
+    return [(start + a, start + b) for a, b in chain_hops(end - start + 1, hop)]
+
+
+def _shot_pose(
+    shot: tuple[int, int],
+    by_window: dict[tuple[int, int], PoseEstimate],
+    hops: list[tuple[int, int]],
+    K: np.ndarray,
+    cfg: ScoreConfig,
+) -> PoseEstimate:
+    """The pose of a shot's first and last frame, composed from its hops when that pair failed
+    (as for a whole clip); a failure with reason ``single_frame`` for a shot of one frame."""
+    start, end = shot
+    if end == start:
+        return pose_failure("single_frame", 0, float(np.sqrt(K[0, 0] * K[1, 1])))
+    est: PoseEstimate = by_window[shot]
+    if not est.pose_present and hops:
+        est = (
+            compose_chain([(h, by_window[h]) for h in hops], end - start + 1, est, min_share=cfg.chain_min_share) or est
+        )
+    return est
+
+
 def _mask_source(
     cfg: ScoreConfig, info: ClipInfo, masks: str | Path | None, flow: FlowBackend | None, sam2_model: Any = None
 ):
@@ -439,7 +468,12 @@ def score_clip(
     stages = _Pipeline(
         info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None, dense=builder
     )
+    shots = info.shots if len(info.shots) > 1 and not first_last_only else ()
+    shot_hops = {shot: _shot_hops(shot, cfg.chain_hop) for shot in shots}
+    for shot in shots:
+        pose_windows += [w for w in (shot, *shot_hops[shot]) if w[1] > w[0] and w != (0, n - 1)]
     pose_windows += [h for h in hops if h not in pose_windows]
+    pose_windows = list(dict.fromkeys(pose_windows))
     emit = None if on_frame is None else partial(stages.emit, on_frame)
     workers = workers or min(2, os.cpu_count() or 1)
     object_gap = min(cfg.object_gap, max(1, n - 1))  # a clip shorter than the gap: its first and last frame
@@ -455,7 +489,8 @@ def score_clip(
     timeline = [(w, by_window[w]) for w in windows if w in by_window]
     scored = sorted(out.pairs, key=lambda r: (r.gap, r.t0, r.scale))
     objects = sorted(out.objects, key=lambda r: r.key)
-    record = assemble_record(str(path), info, cfg, K, backend.name, pose, timeline, windows, scored)
+    shot_poses = [(shot, _shot_pose(shot, by_window, shot_hops[shot], K, cfg)) for shot in shots]
+    record = assemble_record(str(path), info, cfg, K, backend.name, pose, timeline, windows, scored, shot_poses)
     if object_gap < cfg.object_gap and mask_source is not None:
         record = replace(
             record,

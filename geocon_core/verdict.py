@@ -17,7 +17,7 @@ Default thresholds are those of :class:`~geocon_core.config.ScoreConfig`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal, NamedTuple, Protocol, Sequence
 
 import numpy as np
@@ -46,6 +46,9 @@ __all__ = [
     "Scores",
     "family_verdict",
     "clip_verdict",
+    "gate_shot",
+    "deciding_shot",
+    "combine_shots",
     "flag_reasons",
     "is_flagged",
 ]
@@ -413,6 +416,37 @@ def clip_verdict(
     """:func:`family_verdict` from both families' IR and GE given as values."""
     h, f = Scores(ir_h, ge_h), Scores(ir_f, ge_f)
     return family_verdict(h, f, t_inf=t_inf, pose_present=pose_present, thresholds=thresholds, tau_t=tau_t)
+
+
+# --- clips with cuts: each shot judged on its own -------------------------------------------------
+
+
+def gate_shot(shots: Sequence[tuple[int, int]]) -> int:
+    """The shot whose gate is the clip's: the first with at least two frames (a cut is no camera
+    motion, so the gate must see the parallax of a shot, never across a cut); 0 when none has."""
+    return next((i for i, (start, end) in enumerate(shots) if end > start), 0)
+
+
+def deciding_shot(verdicts: Sequence[ClipVerdict]) -> int:
+    """The shot that decides a clip with cuts: of the shots that fail the report gate, the one
+    with the least headroom; else, of the judged shots, the one with the least headroom (the clip
+    is consistent when every judged shot is); else the first shot (nothing could be judged)."""
+    judged = [(v.report_margin if v.report_margin is not None else 0.0, i) for i, v in enumerate(verdicts)]
+    failing = [m for m in judged if verdicts[m[1]].consistent is False]
+    passing = [m for m in judged if verdicts[m[1]].consistent is True]
+    if failing:
+        return min(failing)[1]
+    if passing:
+        return min(passing)[1]
+    return 0
+
+
+def combine_shots(verdicts: Sequence[ClipVerdict], gate: int) -> ClipVerdict:
+    """A clip's verdict from its shots' verdicts (:func:`deciding_shot` gives the background:
+    family, IR, GE and report gate) with the gate label and margin of shot ``gate``
+    (:func:`gate_shot`). A cut is never a geometry failure: no pair across it is scored."""
+    d, g = verdicts[deciding_shot(verdicts)], verdicts[gate]
+    return replace(d, label=g.label, margin=g.margin, binary_label=g.binary_label)
 
 
 # --- clips worth an audit ----------------------------------------------------------------------

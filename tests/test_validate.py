@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -55,8 +56,15 @@ def test_metrics_count_every_case_in_its_row_and_leave_the_gray_zone_out():
         _row(case_id="c", truth_gate=None, gate="F"),  # gray zone: not in gate accuracy
         _row(case_id="d", failure="slide", level="middle", verdict="inconsistent"),
         _row(case_id="e", failure="slide", level="middle", height=1080),
-        _row(case_id="f", kind="real", source="real", verdict="inconsistent", truth_movers=0, objects=3),
-    ]
+        _row(case_id="f", kind="real", source="real", verdict="inconsistent", truth_movers=0, objects=3, group="tune"),
+        _row(case_id="g", kind="real", source="real", verdict="not judged", group="tune"),
+        _row(case_id="h", kind="real", source="real", verdict="consistent", group="check"),
+        _row(case_id="i", kind="real", source="generated", verdict="inconsistent", group="check",
+             artifact_kinds=("morphing",)),
+        _row(case_id="j", kind="real", source="generated", verdict="consistent", group="check",
+             artifact_kinds=("watermark",)),
+        _row(case_id="k", kind="real", source="generated", verdict="inconsistent", group="check"),
+    ]  # fmt: skip
     table = {(m.metric, m.subset): m for m in compute_metrics(rows)}
     gate = table["gate accuracy", "synthetic"]
     assert (gate.hits, gate.n) == (3, 4)  # a, d, e right; b wrong; c left out
@@ -65,9 +73,26 @@ def test_metrics_count_every_case_in_its_row_and_leave_the_gray_zone_out():
     assert ff.detail == "256: 0/2  1080: 1/1"
     det = table["detection", "slide middle (8 px)"]
     assert (det.hits, det.n, det.ok) == (1, 2, False)
-    assert table["false flags", "real-camera clips"].hits == 1
+    # real cameras: only "inconsistent" is a false flag; "cannot judge" is its own row; per half
+    tune = table["false flags", "real-camera clips, tune half"]
+    assert (tune.hits, tune.n, tune.ok, tune.detail) == (1, 2, False, "f")
+    assert (
+        table["cannot judge", "real-camera clips, tune half"].hits,
+        table["cannot judge", "real-camera clips, tune half"].n,
+    ) == (1, 2)
+    assert (
+        table["false flags", "real-camera clips, check half"].hits,
+        table["false flags", "real-camera clips, check half"].n,
+    ) == (0, 1)
+    assert ("false flags", "real-camera clips, ../shared/data (rules chosen on it earlier)") not in table  # no case
+    flagged = {s: (m.hits, m.n) for (metric, s), m in table.items() if metric == "flagged inconsistent"}
+    assert flagged == {
+        "generated, visible artifact, check half": (1, 2),
+        "generated, geometric artifact, check half": (1, 1),
+        "generated, clean-looking, check half": (1, 1),
+    }
     objects = table["object count", "real clips, annotated"]
-    assert (objects.hits, objects.n) == (0, 1)  # 3 tracks > 1.5 * 0 + 1
+    assert (objects.hits, objects.n) == (5, 6)  # f: 3 tracks > 1.5 * 0 + 1; the others 2 <= 1.5 * 2 + 1
 
 
 @pytest.mark.slow  # a whole quick validation run (about 20 s); `geocon validate` itself runs it in full
@@ -122,12 +147,109 @@ def test_plan_covers_the_grid():
 def test_every_real_clip_is_annotated():
     notes = read_annotations(ANNOTATIONS_PATH)
     clips = {p.relative_to(SHARED_DATA).as_posix() for p in real_clips(SHARED_DATA)}
-    assert clips == set(notes)
+    assert clips == {a.clip for a in notes.values() if a.root == "data"}
+    real2 = SHARED_DATA.parent / "real2"
+    if real2.is_dir():
+        assert {p.name for p in real_clips(real2)} == {a.clip for a in notes.values() if a.root == "real2"}
     assert "made by looking at frames" in Path(ANNOTATIONS_PATH).read_text().lower()
     for note in notes.values():
         assert note.source in ("real", "rendered", "generated")
-        assert note.regime in ("static", "rotation", "zoom", "translation")
+        assert note.regime in ("static", "rotation", "zoom", "translation", "")
         assert note.gate is None or note.gate == ("F" if note.regime == "translation" else "H")
+        assert note.camera in ("still", "handheld", "drone", "vehicle", "walkthrough", "orbit", "pan", "zoom")
+        assert note.mover_size in ("none", "small", "large")
+        if note.source == "generated":
+            assert note.generator, note.key
+        if note.root != "data":  # where it came from, so the footage can be fetched again and checked
+            assert note.repo.count("/") == 1 and len(note.commit) == 40 and note.path and note.licence, note.key
+            assert len(note.sha256) == 64, note.key
+
+
+@pytest.mark.skipif(not SHARED_DATA.is_dir(), reason="needs ../shared/data")
+def test_shared_clips_hash_as_annotated():
+    """The annotation names the bytes it was made from: a clip replaced under the same name is caught."""
+    import hashlib
+
+    roots = {"data": SHARED_DATA, "real2": SHARED_DATA.parent / "real2"}
+    for note in read_annotations(ANNOTATIONS_PATH).values():
+        path = roots.get(note.root, Path("/nonexistent")) / note.clip
+        if note.sha256 and path.is_file():
+            assert hashlib.sha256(path.read_bytes()).hexdigest() == note.sha256, note.key
+
+
+def test_the_split_is_seeded_balanced_and_fixed():
+    from collections import Counter
+
+    from geocon_core.validation import split_of
+    from geocon_core.validation.cases import SPLIT_SEED
+
+    assert SPLIT_SEED == "geocon-validation-split/2026-11-26"  # changing it re-deals every clip
+    assert split_of("real2:skv_bikes.mp4") == split_of("real2:skv_bikes.mp4")
+    notes = [a for a in read_annotations(ANNOTATIONS_PATH).values() if a.root != "data" and not a.exclude]
+    for source in ("real", "generated"):
+        halves = Counter(a.split for a in notes if a.source == source)
+        total = sum(halves.values())
+        assert total >= 60 and min(halves["tune"], halves["check"]) >= 0.4 * total, (source, halves)
+
+
+def test_plan_takes_annotated_clips_of_every_root_and_one_half(tmp_path):
+    from geocon_core.validation import Annotation, missing_clips
+
+    def note(root: str, clip: str) -> Annotation:
+        return Annotation(clip, "static", "H", 0, True, "real", True, "C1", "", "", root=root)
+
+    for root in ("data", "real2", "footage"):
+        (tmp_path / root).mkdir()
+    for name in ("a.mp4", "b.mp4"):
+        (tmp_path / "data" / name).write_bytes(b"x")
+    (tmp_path / "real2" / "c.mp4").write_bytes(b"x")
+    notes = {n.key: n for n in (note("data", "a.mp4"), note("real2", "c.mp4"), note("footage", "gone.mp4"))}
+    plan = ValidationPlan(data=tmp_path / "data", real2=tmp_path / "real2", footage=tmp_path / "footage")
+    cases = plan_cases(replace(plan, synthetic=False), notes)
+    assert [c.case_id for c in cases] == ["real__a.mp4", "real__b.mp4", "real2__c.mp4"]
+    assert cases[1].annotation is None and cases[2].annotation == notes["real2:c.mp4"]
+    assert [a.key for a in missing_clips(plan, notes)] == ["footage:gone.mp4"]
+    half = notes["real2:c.mp4"].split
+    other = "check" if half == "tune" else "tune"
+    only_other = plan_cases(replace(plan, synthetic=False, split=other), notes)
+    assert [c.case_id for c in only_other] == ["real__a.mp4", "real__b.mp4"]  # data is never split
+
+
+def test_footage_is_filled_from_a_clone_and_checked(tmp_path):
+    import hashlib
+    import subprocess
+
+    from geocon_core.validation import Annotation
+    from geocon_core.validation.footage import fill_footage, footage_status
+
+    repo = tmp_path / "sources" / "someone+clips"
+    repo.mkdir(parents=True)
+    run = dict(cwd=repo, check=True, capture_output=True)
+    subprocess.run(["git", "init", "-q"], **run)
+    (repo / "v").mkdir()
+    (repo / "v" / "clip.mp4").write_bytes(b"frames")
+    subprocess.run(["git", "add", "."], **run)
+    env = ["-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run(["git", *env, "commit", "-q", "-m", "x"], **run)
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], **run, text=True).stdout.strip()
+    good = hashlib.sha256(b"frames").hexdigest()
+
+    def note(clip: str, sha: str, repo_name: str = "someone/clips") -> Annotation:
+        return Annotation(
+            clip, "static", "H", 0, True, "real", True, "C1", "", "", root="footage",
+            repo=repo_name, commit=commit, path="v/clip.mp4", sha256=sha,
+        )  # fmt: skip
+
+    cache = tmp_path / "cache"
+    notes = [note("real/ok.mp4", good), note("real/bad.mp4", "0" * 64), note("real/none.mp4", good, "other/repo")]
+    assert [i.state for i in footage_status(notes, cache)] == ["missing"] * 3
+    states = {i.annotation.clip: i for i in fill_footage(notes, cache, tmp_path / "sources")}
+    assert states["real/ok.mp4"].state == "filled" and (cache / "real/ok.mp4").read_bytes() == b"frames"
+    assert states["real/bad.mp4"].state == "wrong bytes" and not (cache / "real/bad.mp4").exists()
+    assert states["real/none.mp4"].state == "no clone" and "git clone --bare https://github.com/other/repo" in (
+        states["real/none.mp4"].detail
+    )
+    assert {i.annotation.clip: i.state for i in footage_status(notes, cache)}["real/ok.mp4"] == "present"
 
 
 def test_worst_pair_note_names_the_lowest_ir_pair_and_how_far_its_outliers_lie(synth_dir, scored_clip):
@@ -158,9 +280,12 @@ def test_report_lists_flagged_clean_and_real_camera_clips_as_exceptions(tmp_path
     report = ValidationReport((), rows, "audit", "0", 0.0, 0.0, ValidationPlan(), len(rows))
     md, _ = write_report(report, tmp_path)
     text = md.read_text()
-    section = text.split("## Exceptions")[1].split("## Cases")[0]
+    section = text.split("## Exceptions")[1].split("## ")[0]
     assert "clean-flagged" in section and "pair (0, 8), gap 8: IR 0.950" in section and "real-flagged" in section
     assert "clean-ok" not in section and "damaged" not in section and "generated-flagged" not in section
+    # a flagged clean-looking generated clip is listed among the most confident flags, to be explained
+    confident = text.split("## The five most confident flags of clean-looking generated clips")[1].split("## ")[0]
+    assert "generated-flagged" in confident and "real-flagged" not in confident
 
 
 def test_seed_option_renders_other_scenes_for_a_held_out_check(tmp_path):

@@ -42,7 +42,7 @@ class PoseEstimate:
         DUSt3R point maps, :mod:`geocon_core.pose.dust3r`) or ``"none"``.
     reason: reason code when not present (``"too_few_matches"``, ``"too_few_inliers"``,
         ``"degenerate"``, ``"no_cheirality"``, ``"log_no_pose"``, ``"too_few_points"``,
-        ``"needs_frames"``), else None.
+        ``"needs_frames"``, ``"single_frame"`` for a shot of one frame), else None.
     n_matches: finite matches given to the backend.
     n_inliers: inliers of the model used (0 for logs and for failures before any fit).
     rotation_deg: rotation angle of the relative pose, degrees (None when unknown).

@@ -9,7 +9,8 @@ annotation (``assets/validation/annotations.csv``), and summarises them in one t
 
 Modules: :mod:`.cases` (what to run), :mod:`.prepare` (rendering and cutting clips, cached),
 :mod:`.runner` (scoring, resumable), :mod:`.results` (one row per case from its record),
-:mod:`.metrics` (the table), :mod:`.report` (the run and its written report).
+:mod:`.metrics` (the table), :mod:`.report` (the run and its written report), :mod:`.footage`
+(the cache of annotated clips taken from public repositories).
 """
 
 from .cases import (
@@ -22,9 +23,11 @@ from .cases import (
     Annotation,
     CaseSpec,
     ValidationPlan,
+    missing_clips,
     plan_cases,
     read_annotations,
     real_clips,
+    split_of,
 )
 from .metrics import MetricRow, compute_metrics, detected
 from .report import REPORT_JSON, REPORT_MD, ValidationReport, format_value, metric_cells, run_validation, write_report
@@ -41,6 +44,8 @@ __all__ = [
     "CaseSpec",
     "ValidationPlan",
     "plan_cases",
+    "missing_clips",
+    "split_of",
     "read_annotations",
     "real_clips",
     "MetricRow",

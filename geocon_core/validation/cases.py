@@ -8,6 +8,7 @@ A case names what to score and what is expected of it; :mod:`.prepare` makes its
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,13 @@ __all__ = [
     "SEVERITIES",
     "ValidationPlan",
     "plan_cases",
+    "missing_clips",
+    "split_of",
+    "ROOTS",
+    "SPLITS",
+    "SPLIT_SEED",
+    "GEOMETRIC_ARTIFACTS",
+    "OTHER_ARTIFACTS",
     "read_annotations",
     "real_clips",
     "width_for",
@@ -76,9 +84,40 @@ def width_for(height: int) -> int:
     return int(round(height * 16 / 9 / 2)) * 2
 
 
+ROOTS: tuple[str, ...] = ("data", "real2", "footage")
+"""Where an annotated clip lies: ``data`` (``--data``, the shared test footage), ``real2`` (the
+shared folder of further real-camera clips beside it) or ``footage`` (the footage cache that
+:mod:`geocon_core.validation.footage` fills from the repositories the annotation names)."""
+
+SPLIT_SEED = "geocon-validation-split/2026-11-26"
+"""Seed of the tune/check split (:func:`split_of`). Fixed once: changing it re-deals every clip."""
+
+SPLITS: tuple[str, ...] = ("tune", "check")
+
+GEOMETRIC_ARTIFACTS: tuple[str, ...] = ("melting", "stretching", "morphing", "sliding", "breathing", "warping")
+"""Artifact kinds that break the scene's geometry (an object or the background changes shape)."""
+OTHER_ARTIFACTS: tuple[str, ...] = ("blur", "watermark", "text", "flicker")
+"""Artifact kinds a geometric check is not meant to see."""
+
+
+def split_of(key: str) -> str:
+    """``tune`` or ``check``: the half a clip belongs to, from a seeded hash of its key
+    (``root:clip``). Rules and thresholds are chosen on the tune half only; the check half is
+    looked at once per change."""
+    digest = hashlib.sha256(f"{SPLIT_SEED}:{key}".encode()).digest()
+    return SPLITS[digest[0] & 1]
+
+
 @dataclass(frozen=True)
 class Annotation:
-    """A person's expectations for one real clip (see the header of the annotation file)."""
+    """A person's expectations for one clip, made by looking at its frames (see the header of the
+    annotation file), with where it came from.
+
+    ``cuts``: 0-based first frames of new shots over the whole clip; ``fades`` those of them that
+    are fades. ``dynamic``: non-rigid background a person sees (``water 40%``; empty: none).
+    ``artifact_kinds``: the kinds of visible generation artifacts (:data:`GEOMETRIC_ARTIFACTS`,
+    :data:`OTHER_ARTIFACTS`; empty: none seen). ``exclude``: why the clip is left out of the
+    measures (empty: it counts)."""
 
     clip: str
     regime: str
@@ -90,6 +129,43 @@ class Annotation:
     category: str | None
     artifacts: str
     note: str
+    root: str = "data"
+    camera: str = ""
+    mover_size: str = ""
+    cuts: tuple[int, ...] = ()
+    fades: tuple[int, ...] = ()
+    dynamic: str = ""
+    artifact_kinds: tuple[str, ...] = ()
+    artifact_frames: str = ""
+    generator: str = ""
+    pose_file: str = ""
+    pose_path: str = ""
+    repo: str = ""
+    commit: str = ""
+    path: str = ""
+    licence: str = ""
+    sha256: str = ""
+    exclude: str = ""
+
+    @property
+    def key(self) -> str:
+        """``root:clip``, unique over the annotation file."""
+        return f"{self.root}:{self.clip}"
+
+    @property
+    def split(self) -> str:
+        """The half this clip belongs to (:func:`split_of`)."""
+        return split_of(self.key)
+
+    @property
+    def geometric_artifact(self) -> bool:
+        """A visible artifact of a geometric kind (an object or the background changes shape)."""
+        return any(k in GEOMETRIC_ARTIFACTS for k in self.artifact_kinds)
+
+    @property
+    def visible_artifact(self) -> bool:
+        """Any visible generation artifact (geometric or not)."""
+        return bool(self.artifact_kinds) or bool(self.artifacts)
 
 
 @dataclass(frozen=True)
@@ -129,6 +205,14 @@ class ValidationPlan:
     seed: int = 0
     data: Path | None = None
     synthetic: bool = True
+    real2: Path | None = None
+    """The shared folder of further real-camera clips (annotated rows of root ``real2``)."""
+    footage: Path | None = None
+    """The footage cache (annotated rows of root ``footage``); clips missing from it are listed,
+    not scored (:func:`missing_clips`)."""
+    split: str = "all"
+    """``all``, ``tune`` or ``check``: the clips of ``real2`` and ``footage`` in that half only
+    (:func:`split_of`); synthetic cases and the clips of ``data`` are not split."""
 
     def __post_init__(self) -> None:
         for name, values, valid in (
@@ -144,6 +228,8 @@ class ValidationPlan:
             raise ValueError(f"heights must be even and at least 16 px, got {list(self.heights)}")
         if self.frames < 2 or self.max_frames < 2:
             raise ValueError("a clip needs at least 2 frames")
+        if self.split not in ("all", *SPLITS):
+            raise ValueError(f"unknown split {self.split!r}; valid: all, {', '.join(SPLITS)}")
 
 
 def _synthetic_cases(plan: ValidationPlan) -> list[CaseSpec]:
@@ -163,7 +249,7 @@ def _synthetic_cases(plan: ValidationPlan) -> list[CaseSpec]:
     return cases
 
 
-_CLIP_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif")
+_CLIP_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv", ".m4v")
 
 
 def real_clips(data: Path) -> list[Path]:
@@ -178,20 +264,59 @@ def real_clips(data: Path) -> list[Path]:
     return sorted(clips)
 
 
-def _real_cases(data: Path, annotations: dict[str, Annotation]) -> list[CaseSpec]:
+def _case_id(root: str, rel: str) -> str:
+    prefix = "real" if root == "data" else root
+    return f"{prefix}__" + rel.replace("/", "__")
+
+
+def _roots(plan: ValidationPlan) -> dict[str, Path]:
+    roots = {"data": plan.data, "real2": plan.real2, "footage": plan.footage}
+    return {name: path for name, path in roots.items() if path is not None}
+
+
+def _in_split(plan: ValidationPlan, key: str) -> bool:
+    """Whether the clip ``key`` is in the plan's half. The clips of ``data`` are not split: the
+    earlier validation chose its rules on them, so they are reported as a set of their own."""
+    return plan.split == "all" or key.startswith("data:") or split_of(key) == plan.split
+
+
+def _real_cases(plan: ValidationPlan, annotations: dict[str, Annotation]) -> list[CaseSpec]:
+    """Every clip of ``plan.data`` (annotated or not), then the annotated clips of the other roots
+    that are present; excluded rows and clips of the other half are left out."""
     cases = []
-    for clip in real_clips(data):
-        rel = clip.relative_to(data).as_posix()
-        cid = "real__" + rel.replace("/", "__")
-        cases.append(CaseSpec(cid, "real", source=str(clip), annotation=annotations.get(rel)))
+    roots = _roots(plan)
+    if plan.data is not None:
+        for clip in real_clips(plan.data):
+            rel = clip.relative_to(plan.data).as_posix()
+            note = annotations.get(f"data:{rel}")
+            if (note is None or not note.exclude) and _in_split(plan, f"data:{rel}"):
+                cases.append(CaseSpec(_case_id("data", rel), "real", source=str(clip), annotation=note))
+    for note in sorted(annotations.values(), key=lambda a: a.key):
+        if note.root == "data" or note.root not in roots or note.exclude or not _in_split(plan, note.key):
+            continue
+        clip = roots[note.root] / note.clip
+        if clip.exists():
+            cases.append(CaseSpec(_case_id(note.root, note.clip), "real", source=str(clip), annotation=note))
     return cases
 
 
+def missing_clips(plan: ValidationPlan, annotations: dict[str, Annotation]) -> list[Annotation]:
+    """Annotated clips of the plan's roots (other than ``data``) that are not where they should
+    be: a footage cache not filled yet, or a shared folder that lacks them."""
+    roots = _roots(plan)
+    return [
+        a
+        for a in sorted(annotations.values(), key=lambda a: a.key)
+        if a.root != "data" and a.root in roots and not a.exclude and not (roots[a.root] / a.clip).exists()
+    ]
+
+
 def plan_cases(plan: ValidationPlan, annotations: dict[str, Annotation] | None = None) -> list[CaseSpec]:
-    """The cases of ``plan``: the synthetic grid, then the real clips of ``plan.data``."""
+    """The cases of ``plan``: the synthetic grid, then the clips of ``plan.data`` and the annotated
+    clips of ``plan.real2`` and ``plan.footage``."""
     cases = _synthetic_cases(plan) if plan.synthetic else []
-    if plan.data is not None:
-        cases += _real_cases(plan.data, annotations if annotations is not None else read_annotations())
+    if _roots(plan):
+        cases += _real_cases(plan, annotations if annotations is not None else read_annotations())
     return cases
 
 
@@ -204,8 +329,43 @@ def _yes_no(value: str, where: str) -> bool | None:
     return v == "yes"
 
 
+def _frames_list(value: str, where: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """``no`` / blank, or ``12;30;88fade``: (first frames of new shots, those that are fades)."""
+    v = value.strip().lower()
+    if v in ("", "no"):
+        return (), ()
+    cuts, fades = [], []
+    for part in v.split(";"):
+        p = part.strip()
+        fade = p.endswith("fade")
+        p = p.removesuffix("fade").strip()
+        if not p.isdigit():
+            raise ValueError(f"{where}: cut must be 'no' or frame numbers separated by ';', got {value!r}")
+        cuts.append(int(p))
+        if fade:
+            fades.append(int(p))
+    return tuple(cuts), tuple(fades)
+
+
+def _artifact_kinds(value: str, where: str) -> tuple[str, ...]:
+    kinds = tuple(k.strip().lower() for k in value.split(";") if k.strip() and k.strip().lower() != "none")
+    valid = GEOMETRIC_ARTIFACTS + OTHER_ARTIFACTS
+    bad = [k for k in kinds if k not in valid]
+    if bad:
+        raise ValueError(f"{where}: unknown artifact kind {bad[0]!r}; valid: none, {', '.join(valid)}")
+    return kinds
+
+
+_TEXT_COLUMNS = (
+    "camera", "mover_size", "dynamic", "artifact_frames", "generator", "pose_file", "pose_path", "repo", "commit",
+    "path", "licence", "sha256", "exclude",
+)  # fmt: skip
+
+
 def read_annotations(path: str | Path = ANNOTATIONS_PATH) -> dict[str, Annotation]:
-    """The annotation file (CSV; lines starting with ``#`` are its header notes), by clip path."""
+    """The annotation file (CSV; lines starting with ``#`` are its header notes), by
+    :attr:`Annotation.key` (``root:clip``). Columns the file lacks take their defaults (an older
+    file: every clip in ``data``)."""
     p = Path(path)
     text = "".join(line for line in p.read_text().splitlines(keepends=True) if not line.startswith("#"))
     out: dict[str, Annotation] = {}
@@ -214,8 +374,12 @@ def read_annotations(path: str | Path = ANNOTATIONS_PATH) -> dict[str, Annotatio
         gate = row["gate"].strip().upper() or None
         if gate not in (None, "H", "F"):
             raise ValueError(f"{where}: gate must be H, F or blank, got {row['gate']!r}")
+        root = (row.get("root") or "data").strip()
+        if root not in ROOTS:
+            raise ValueError(f"{where}: root must be one of {', '.join(ROOTS)}, got {root!r}")
         movers = row["movers"].strip()
-        out[row["clip"].strip()] = Annotation(
+        cuts, fades = _frames_list(row.get("cut") or "", where)
+        note = Annotation(
             clip=row["clip"].strip(),
             regime=row["regime"].strip(),
             gate=gate,
@@ -226,5 +390,13 @@ def read_annotations(path: str | Path = ANNOTATIONS_PATH) -> dict[str, Annotatio
             category=row["category"].strip() or None,
             artifacts=row["artifacts"].strip(),
             note=row["note"].strip(),
+            root=root,
+            cuts=cuts,
+            fades=fades,
+            artifact_kinds=_artifact_kinds(row.get("artifact_kind") or "", where),
+            **{c: (row.get(c) or "").strip() for c in _TEXT_COLUMNS},
         )
+        if note.key in out:
+            raise ValueError(f"{where}: {note.key} is annotated twice")
+        out[note.key] = note
     return out

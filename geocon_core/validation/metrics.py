@@ -117,9 +117,16 @@ def _gate_rows(rows: list[CaseResult]) -> list[MetricRow]:
     return out
 
 
+REAL_GROUPS: tuple[tuple[str, str], ...] = (
+    ("data", "../shared/data (rules chosen on it earlier)"),
+    ("tune", "tune half"),
+    ("check", "check half"),
+)
+"""The sets annotated clips are reported in, with their names in the table."""
+
+
 def _false_flag_rows(rows: list[CaseResult]) -> list[MetricRow]:
     clean = [r for r in rows if r.clean]
-    real = [r for r in rows if r.kind == "real" and r.source == "real"]
     out = [_share("false flags", "clean synthetic", clean, lambda r: r.flagged, "0", lambda v: v == 0.0, True)]
     codecs: dict[str, list[CaseResult]] = defaultdict(list)
     for r in clean:
@@ -127,7 +134,87 @@ def _false_flag_rows(rows: list[CaseResult]) -> list[MetricRow]:
     if len(codecs) > 1:
         by_codec = "  ".join(f"{c}: {sum(r.flagged for r in g)}/{len(g)}" for c, g in codecs.items())
         out[0] = replace(out[0], detail=f"{out[0].detail};  {by_codec}")
-    out.append(_share("false flags", "real-camera clips", real, lambda r: r.flagged, "<= 10%", lambda v: v <= 0.1))
+    for group, name in REAL_GROUPS:
+        real = [r for r in rows if r.kind == "real" and r.source == "real" and r.group == group]
+        out.append(
+            _share(
+                "false flags", f"real-camera clips, {name}", real, lambda r: r.false_flag, "<= 5%", lambda v: v <= 0.05
+            )
+        )
+        if real:
+            named = [r.case_id.split("__", 1)[-1] for r in real if r.false_flag]
+            out[-1] = replace(out[-1], detail=", ".join(named))
+        out.append(
+            _share(
+                "cannot judge",
+                f"real-camera clips, {name}",
+                real,
+                lambda r: r.verdict == "not judged",
+                "<= 15%",
+                lambda v: v <= 0.15,
+            )
+        )
+    return out
+
+
+def _generated_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    """Flag rates of generated clips with a visible artifact against clean-looking ones, per set:
+    how well the verdict follows what people see."""
+    out = []
+    for group, name in REAL_GROUPS:
+        gen = [r for r in rows if r.kind == "real" and r.source == "generated" and r.group == group]
+        for subset, pick in (
+            ("visible artifact", lambda r: r.artifact),
+            ("geometric artifact", lambda r: r.geometric_artifact),
+            ("clean-looking", lambda r: not r.artifact),
+        ):
+            group_rows = [r for r in gen if pick(r)]
+            row = _share(
+                "flagged inconsistent",
+                f"generated, {subset}, {name}",
+                group_rows,
+                lambda r: r.verdict == "inconsistent",
+                "reported",
+                None,
+            )
+            judged = sum(r.verdict == "not judged" for r in group_rows)
+            out.append(replace(row, detail=f"{judged} not judged" if group_rows else ""))
+    return out
+
+
+def _cut_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    """Annotated cuts within the scored frames that the reader found (a cut is judged per shot,
+    never as a geometry failure), and clips with a cut that were flagged inconsistent."""
+    annotated = [r for r in rows if r.kind == "real" and r.truth_cuts is not None and r.cuts is not None]
+    with_cut = [r for r in annotated if r.truth_cuts]
+    found = sum(len(set(r.truth_cuts or ()) & set(r.cuts or ())) for r in with_cut)
+    total = sum(len(r.truth_cuts or ()) for r in with_cut)
+    spurious = sum(len(set(r.cuts or ()) - set(r.truth_cuts or ())) for r in annotated)
+    out = []
+    if total:
+        out.append(
+            MetricRow(
+                "cuts found",
+                "annotated clips",
+                found / total,
+                found,
+                total,
+                "all",
+                found == total,
+                f"{spurious} cuts found where none is annotated (over {len(annotated)} clips)",
+            )
+        )
+    real_cut = [r for r in with_cut if r.source == "real"]
+    out.append(
+        _share(
+            "flagged for a cut",
+            "real-camera clips with a cut",
+            real_cut,
+            lambda r: r.false_flag,
+            "0",
+            lambda v: v == 0.0,
+        )
+    )
     return out
 
 
@@ -294,6 +381,8 @@ def compute_metrics(rows: list[CaseResult]) -> list[MetricRow]:
         _identity_rows,
         _category_rows,
         _pose_rows,
+        _generated_rows,
+        _cut_rows,
     ):
         table += [row for row in part(rows) if row.n > 0]
     return table

@@ -124,17 +124,48 @@ def _case_cells(r: CaseResult) -> list[str]:
 
 
 def _exceptions(cases: tuple[CaseResult, ...]) -> list[str]:
-    """A section listing the clips that should pass and did not (clean synthetic, real camera),
-    each with the pair where its background fits worst, so every exception can be explained."""
-    rows = [r for r in cases if r.flagged and (r.clean or (r.kind == "real" and r.source == "real"))]
-    if not rows:
-        return []
-    lines = ["## Exceptions: clean or real-camera clips not called consistent", ""]
-    lines += _md_table(
-        ["case", "verdict", "IR", "GE", "worst pair"],
-        [[r.case_id, r.verdict, _fmt(r.ir, ".3f"), _fmt(r.ge, ".2f"), r.worst_pair or r.error or "-"] for r in rows],
-    )
-    return lines + [""]
+    """Sections listing the clips that should pass and did not (clean synthetic, real camera),
+    each with the pair where its background fits worst, so every exception can be explained;
+    then the real-camera clips that could not be judged, with why; then the most confident flags
+    of clean-looking generated clips."""
+    lines: list[str] = []
+    rows = [r for r in cases if (r.clean and r.flagged) or (r.kind == "real" and r.source == "real" and r.false_flag)]
+    if rows:
+        lines += ["## Exceptions: clean or real-camera clips called inconsistent", ""]
+        lines += _md_table(
+            ["case", "set", "verdict", "IR", "GE", "worst pair"],
+            [
+                [r.case_id, r.group, r.verdict, _fmt(r.ir, ".3f"), _fmt(r.ge, ".2f"), r.worst_pair or r.error or "-"]
+                for r in rows
+            ],
+        )
+        lines.append("")
+    unjudged = [r for r in cases if r.kind == "real" and r.source == "real" and r.verdict == "not judged"]
+    if unjudged:
+        lines += ["## Real-camera clips that could not be judged", ""]
+        lines += _md_table(["case", "set", "why"], [[r.case_id, r.group, r.verdict_note or "-"] for r in unjudged])
+        lines.append("")
+    clean_flags = [r for r in cases if r.source == "generated" and not r.artifact and r.verdict == "inconsistent"]
+    if clean_flags:
+        top = sorted(clean_flags, key=lambda r: r.report_margin if r.report_margin is not None else 0.0)[:5]
+        lines += ["## The five most confident flags of clean-looking generated clips", ""]
+        lines += _md_table(
+            ["case", "set", "margin", "IR", "GE", "gate", "worst pair"],
+            [
+                [
+                    r.case_id,
+                    r.group,
+                    _fmt(r.report_margin, ".2f"),
+                    _fmt(r.ir, ".3f"),
+                    _fmt(r.ge, ".2f"),
+                    r.gate or "-",
+                    r.worst_pair or "-",
+                ]
+                for r in top
+            ],
+        )
+        lines.append("")
+    return lines
 
 
 def _md_table(header: tuple[str, ...] | list[str], rows: list[list[str]]) -> list[str]:

@@ -73,6 +73,25 @@ class CaseResult:
     track_coverage: float | None = None
     """Synthetic clips with movers: over the true movers, the least share of visible frames that a
     single track covers (:func:`track_coverage`); None without true masks or saved labels."""
+    group: str = "synthetic"
+    """Which set the case is reported in: ``synthetic``, ``data`` (the shared test footage, on
+    which earlier rules were chosen), ``tune`` or ``check`` (the halves of the other annotated
+    clips, :func:`~.cases.split_of`), or ``unannotated``."""
+    camera: str = ""
+    mover_size: str = ""
+    dynamic: str = ""
+    artifact_kinds: tuple[str, ...] = ()
+    """Annotated: the camera, how large the movers are, the non-rigid background and the kinds of
+    visible generation artifacts (:class:`~.cases.Annotation`)."""
+    truth_cuts: tuple[int, ...] | None = None
+    """Annotated first frames of new shots within the scored frames (None: not annotated)."""
+    cuts: tuple[int, ...] | None = None
+    """The cuts the reader found (first frames of new shots)."""
+    report_margin: float | None = None
+    """Headroom of the background to the report gate (negative when it fails,
+    :func:`~geocon_core.verdict.report_margin`): how confident a flag is."""
+    verdict_note: str | None = None
+    """Why the background could not be judged, or what decided the verdict (the record's note)."""
 
     @property
     def flagged(self) -> bool:
@@ -82,6 +101,22 @@ class CaseResult:
     @property
     def clean(self) -> bool:
         return self.kind == "synthetic" and self.failure is None
+
+    @property
+    def false_flag(self) -> bool:
+        """Called inconsistent (or failed to score): what a clip that obeys geometry must never be."""
+        return self.verdict in ("inconsistent", "failed")
+
+    @property
+    def artifact(self) -> bool:
+        """A generated clip with any visible artifact annotated."""
+        return bool(self.artifact_kinds)
+
+    @property
+    def geometric_artifact(self) -> bool:
+        from .cases import GEOMETRIC_ARTIFACTS
+
+        return any(k in GEOMETRIC_ARTIFACTS for k in self.artifact_kinds)
 
 
 def worst_pair_note(rec: ClipRecord) -> str | None:
@@ -169,6 +204,12 @@ def _coverage_of(folder: Path, truth_path: str | None, rec: ClipRecord) -> float
     return track_coverage(labels, [truth.labels(t) for t in range(len(labels))])
 
 
+def _report_margin(rec: ClipRecord) -> float | None:
+    from ..verdict import report_margin
+
+    return report_margin(rec.background.ir, rec.background.ge, rec.config.ir_gate, rec.config.ge_gate)
+
+
 def _verdict(consistent: bool | None) -> str:
     return "not judged" if consistent is None else ("consistent" if consistent else "inconsistent")
 
@@ -191,9 +232,11 @@ def _expected(case: dict[str, Any], truth_path: str | None) -> dict[str, Any]:
     ann = case.get("annotation")
     if ann is None:
         return dict.fromkeys(("truth_gate", "truth_category", "truth_movers", "static_camera", "stable_scene")) | {
-            "source": "unannotated"
+            "source": "unannotated",
+            "group": "unannotated",
         }
-    a = Annotation(**ann)
+    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in ann.items()}
+    a = Annotation(**fields)
     return {
         "source": a.source,
         "truth_gate": a.gate,
@@ -201,7 +244,21 @@ def _expected(case: dict[str, Any], truth_path: str | None) -> dict[str, Any]:
         "truth_movers": a.movers,
         "static_camera": a.static_camera,
         "stable_scene": a.stable_scene,
+        "group": "data" if a.root == "data" else a.split,
+        "camera": a.camera,
+        "mover_size": a.mover_size,
+        "dynamic": a.dynamic,
+        "artifact_kinds": a.artifact_kinds,
     }
+
+
+def _scored_cuts(case: dict[str, Any], frames: int) -> tuple[int, ...] | None:
+    """The annotated cuts that fall inside the scored frames (a real clip is cut to its first
+    frames), or None when the clip is not annotated."""
+    ann = case.get("annotation")
+    if ann is None:
+        return None
+    return tuple(int(c) for c in ann.get("cuts", ()) if 1 <= int(c) < frames)
 
 
 def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = None) -> CaseResult:
@@ -226,6 +283,10 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
     verdict = _verdict(rec.background.consistent)
     return CaseResult(
         **base,
+        truth_cuts=_scored_cuts(case, rec.video.num_frames) if case["kind"] == "real" else None,
+        cuts=rec.video.cuts,
+        report_margin=_report_margin(rec),
+        verdict_note=rec.background.choice_note,
         verdict=verdict,
         gate=rec.gate.label,
         t_inf=rec.gate.t_inf,

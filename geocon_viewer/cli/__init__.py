@@ -15,6 +15,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``serve``           a results folder in the Viser audit app
 ``teach``           a synthetic scene in the Viser teaching app (:mod:`.commands_teach`)
 ``validate``        the validation report: synthetic grid and annotated real clips (:mod:`.commands_validate`)
+``footage``         the footage cache of the validation: status, fill from local clones
 ``pose-log``        a pose log from a COLMAP model or a DUSt3R scene (:mod:`.commands_pose`)
 ``doctor``          which backends, viewers and extras are usable here (:mod:`.commands_doctor`)
 ==================  ============================================================================
@@ -80,6 +81,7 @@ app.command("view")(commands_view.view)
 app.command("serve")(commands_view.serve)
 app.command("teach")(commands_teach.teach)
 app.command("validate")(commands_validate.validate)
+app.command("footage")(commands_validate.footage)
 app.command("pose-log")(commands_pose.pose_log)
 app.command("doctor")(commands_doctor.doctor)
 

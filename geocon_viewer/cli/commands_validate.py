@@ -16,9 +16,10 @@ if TYPE_CHECKING:
     from geocon_core.config import ScoreConfig
     from geocon_core.validation import Annotation, ValidationPlan, ValidationReport
 
-__all__ = ["validate", "print_report"]
+__all__ = ["validate", "footage", "print_report"]
 
 _DEFAULT_DATA = Path("../shared/data")
+_DEFAULT_REAL2 = Path("../shared/real2")
 
 
 def _ints(text: str | None, name: str) -> tuple[int, ...] | None:
@@ -94,7 +95,35 @@ def validate(
             "chosen at seed 0; another seed shows them on scenes they were not tuned on.",
         ),
     ] = 0,
-    real: Annotated[bool, typer.Option("--real/--no-real", help="Score the real clips of --data.")] = True,
+    real2: Annotated[
+        Path, typer.Option(help="Folder of further real-camera clips (the annotated rows of root real2).")
+    ] = _DEFAULT_REAL2,
+    footage_dir: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--footage",
+            help="The footage cache (annotated rows of root footage; default $GEOCON_FOOTAGE or "
+            "~/.cache/geocon/footage). Clips missing from it are listed, not scored.",
+        ),
+    ] = None,
+    footage_from: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--footage-from",
+            help="Fill the footage cache first from the clones of the annotated repositories in this folder "
+            "(owner+name, bare or not); nothing is downloaded.",
+        ),
+    ] = None,
+    split: Annotated[
+        str,
+        typer.Option(
+            help="all, tune or check: score only that half of the annotated clips of real2 and the footage cache "
+            "(the clips of --data and the synthetic grid are not split). Rules are chosen on the tune half.",
+        ),
+    ] = "all",
+    real: Annotated[
+        bool, typer.Option("--real/--no-real", help="Score the real clips of --data, real2 and the footage cache.")
+    ] = True,
     synthetic: Annotated[bool, typer.Option("--synthetic/--no-synthetic", help="Score the synthetic grid.")] = True,
     jobs: Annotated[int, typer.Option(min=1, help="Worker processes.")] = 1,
     report_only: Annotated[
@@ -107,6 +136,7 @@ def validate(
     one table and writes validation.md and validation.json into --out."""
     from geocon_core.config import DEFAULT_PRESET, preset
     from geocon_core.validation import QUICK, ValidationPlan, read_annotations
+    from geocon_core.validation.footage import DEFAULT_FOOTAGE
 
     try:
         cfg = preset(preset_name or DEFAULT_PRESET)  # the validation measures the default
@@ -120,12 +150,26 @@ def validate(
             "max_frames": max_frames or (QUICK.max_frames if quick else None),
         }
         chosen: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
-        plan = replace(ValidationPlan(), **chosen, seed=seed, data=data if real else None, synthetic=synthetic)
+        cache_dir = footage_dir or DEFAULT_FOOTAGE
+        plan = replace(
+            ValidationPlan(),
+            **chosen,
+            seed=seed,
+            data=data if real else None,
+            synthetic=synthetic,
+            real2=real2 if real and real2.is_dir() else None,
+            footage=cache_dir if real else None,
+            split=split,
+        )
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
     except (ValueError, OSError) as exc:
         raise fail(str(exc)) from None
     if real and not data.is_dir():
         raise fail(f"{data}: no such folder of real clips (give --data, or --no-real)")
+    if real and footage_from is not None:
+        _fill(notes, cache_dir, footage_from)
+    if real:
+        _say_missing(plan, notes)
     report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only)
     if report_only and len(report.cases) < report.planned:
         out.print(
@@ -135,6 +179,75 @@ def validate(
         )
     print_report(report)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
+
+
+def _say_missing(plan: ValidationPlan, notes: dict[str, Annotation]) -> None:
+    from geocon_core.validation import missing_clips
+
+    missing = missing_clips(plan, notes)
+    if missing:
+        where = sorted({a.root for a in missing})
+        out.print(
+            f"[yellow]{len(missing)} annotated clips are not scored: not found in {', '.join(where)}[/] "
+            f"(fill the footage cache with `geocon footage fill --from DIR`; `geocon footage status` lists them)"
+        )
+
+
+def _fill(notes: dict[str, Annotation], cache: Path, sources: Path) -> None:
+    from geocon_core.validation.footage import fill_footage
+
+    if not sources.is_dir():
+        raise fail(f"{sources}: no such folder of repository clones (--footage-from)")
+    items = fill_footage(notes, cache, sources)
+    filled = sum(i.state == "filled" for i in items)
+    bad = [i for i in items if i.state not in ("present", "filled")]
+    out.print(f"footage cache {cache}: {filled} clips filled, {len(items) - len(bad)} of {len(items)} present")
+    for item in bad[:20]:
+        out.print(f"  [yellow]{item.annotation.clip}[/]: {item.state}: {item.detail}")
+    if len(bad) > 20:
+        out.print(f"  ... and {len(bad) - 20} more (`geocon footage status`)")
+
+
+def footage(
+    action: Annotated[str, typer.Argument(help="status (what the cache holds) or fill (copy what is missing).")],
+    cache: Annotated[
+        Optional[Path],
+        typer.Option("--footage", help="The footage cache (default $GEOCON_FOOTAGE or ~/.cache/geocon/footage)."),
+    ] = None,
+    sources: Annotated[
+        Optional[Path],
+        typer.Option("--from", help="fill: folder of clones of the annotated repositories (owner+name, bare or not)."),
+    ] = None,
+    annotations: Annotated[
+        Optional[Path], typer.Option(help="Annotation CSV (default: assets/validation/annotations.csv).")
+    ] = None,
+) -> None:
+    """The footage cache of `geocon validate`: clips of public repositories that the annotation file
+    names and the project never commits. `status` checks each one against its annotated SHA-256;
+    `fill --from DIR` copies the missing ones out of local clones of their repositories (git show
+    COMMIT:PATH; nothing is downloaded) and prints the `git clone` line for a repository with no
+    clone."""
+    from geocon_core.validation import read_annotations
+    from geocon_core.validation.footage import DEFAULT_FOOTAGE, footage_status
+
+    if action not in ("status", "fill"):
+        raise fail(f"unknown action {action!r}; valid: status, fill")
+    try:
+        notes = read_annotations(annotations) if annotations is not None else read_annotations()
+    except (ValueError, OSError) as exc:
+        raise fail(str(exc)) from None
+    cache_dir = cache or DEFAULT_FOOTAGE
+    if action == "fill":
+        if sources is None:
+            raise fail("fill needs --from DIR: a folder of clones of the annotated repositories")
+        _fill(notes, cache_dir, sources)
+        return
+    items = footage_status(notes, cache_dir)
+    present = sum(i.state == "present" for i in items)
+    out.print(f"footage cache {cache_dir}: {present} of {len(items)} annotated clips present")
+    for item in items:
+        if item.state != "present":
+            out.print(f"  [yellow]{item.annotation.clip}[/]: {item.detail}")
 
 
 def _run(
