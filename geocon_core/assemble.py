@@ -91,17 +91,30 @@ def _gate_record(
     )
 
 
+INVALID_TEXT = {
+    "independent_motion": "more than half of the background matches move on their own (movers the masks did not "
+    "cover whole, or a dynamic background)",
+    "too_few_inliers": "too few matches fit the background model",
+    "too_few_matches": "too few matches (little texture, a fast camera or a dynamic background)",
+    "model_failed": "no background model could be fitted",
+}
+"""Why pairs could not be judged, in words, by reason code (the codes of ``invalid_reasons``)."""
+
+
 def coverage_note(summary: FamilySummary, min_coverage: float) -> str | None:
     """Why a family's background cannot be judged, or which gaps the coverage rule left out of
-    its headline (None when every gap was judged)."""
+    its headline (None when every gap was judged); the commonest reason a pair was invalid is
+    named in words."""
+    reasons = {k: v for k, v in summary.invalid_reasons.items() if k in INVALID_TEXT}
+    why = f"; most invalid pairs: {INVALID_TEXT[max(reasons, key=lambda k: reasons[k])]}" if reasons else ""
     if summary.valid_pairs == 0:
-        return "no valid pair: the background could not be judged"
+        return f"no valid pair: the background could not be judged{why}"
     out = [g for g in summary.per_gap if not g.judged and g.judgeable_pairs]  # a gap longer than the clip: no pair
     if not out:
         return None
     parts = ", ".join(f"gap {g.gap}: {g.valid_pairs} of {g.judgeable_pairs}" for g in out)
     head = "the background could not be judged" if summary.ir is None else "left out of the headline"
-    return f"too few valid pair-scales ({parts}; the coverage rule needs {min_coverage:.0%}): {head}"
+    return f"too few valid pair-scales ({parts}; the coverage rule needs {min_coverage:.0%}{why}): {head}"
 
 
 def _background(
@@ -129,6 +142,16 @@ def _background(
         other=other,
         choice_note=note,
     )
+
+
+def _independent_share(scored: list[PairFits], family: str) -> float:
+    """Median over the scored pairs with a model of the share of matches that moved on their own."""
+    shares = []
+    for r in scored:
+        fit = r.fit(family)
+        if fit is not None and fit.model is not None and len(r.x1):
+            shares.append(fit.n_independent / len(r.x1))
+    return float(np.median(shares)) if shares else 0.0
 
 
 def _judge_shots(
@@ -191,6 +214,8 @@ def _pair_record(i: int, r: PairFits) -> tuple[PairRecord, dict[str, np.ndarray]
         arrays[spec.inliers] = np.zeros(m, bool) if fit is None else fit.inliers
         arrays[spec.residual_px] = np.zeros(m, np.float32) if fit is None else fit.residuals_px
         arrays[spec.residual] = np.zeros(m, np.float32) if fit is None else fit.residuals  # H: the same column
+        ind = None if fit is None else fit.independent
+        arrays[spec.independent] = np.zeros(m, bool) if ind is None else ind
     h, f = r.fit("H"), r.fit("F")
     pair = PairRecord(
         index=i,
@@ -247,6 +272,12 @@ def assemble_record(
     coverage = coverage_note(fam[verdict.model], cfg.min_coverage)
     if coverage:
         warnings.append(coverage)
+    moving = _independent_share(scored, verdict.model)
+    if moving >= 0.01:
+        warnings.append(
+            f"independent motion: {moving:.0%} of the background matches (median over the scored pairs) move on their "
+            "own, away from the background around them (movers the masks did not cover whole), and are left out of IR"
+        )
     if info.duplicates:
         warnings.append(f"{len(info.duplicates)} duplicated frame(s): pairs across them are not scored")
     if info.cuts:
@@ -305,6 +336,19 @@ def object_entries(scores: Sequence[ObjectPairScore]) -> tuple[list[ObjectEntry]
     return entries, cells
 
 
+DYNAMIC_NOTE_SHARE = 0.05
+"""A dynamic background covering at least this median share of the frame is named in the warnings."""
+
+
+def _dynamic_share(mask_source: MaskSource | None, n: int) -> tuple[float, ...]:
+    """Per frame, the share of the frame the motion segmentation found moving incoherently
+    outside the objects (``MotionSegmenter.dynamic``); empty for a source that does not measure it."""
+    dynamic = getattr(mask_source, "dynamic", None)
+    if not dynamic:
+        return ()
+    return tuple(float(dynamic.get(t, 0.0)) for t in range(n))
+
+
 def add_objects(
     record: ClipRecord,
     scores: list[ObjectPairScore],
@@ -338,6 +382,13 @@ def add_objects(
             f"{sum(jumped.values())} object pair(s) left out of AdaDFRC because the mask's area jumped by more than "
             f"{cfg.max_mask_jump:.0%} against its neighbouring frames (a segmentation glitch): object (pairs) {listed}"
         )
+    dynamic = _dynamic_share(mask_source, len(masked_share))
+    if dynamic and float(np.median(dynamic)) >= DYNAMIC_NOTE_SHARE:
+        warnings.append(
+            f"a dynamic background (water, fire, smoke, foliage in wind) moves on its own in about "
+            f"{float(np.median(dynamic)):.0%} of the frame (median over frames): its texture re-forms from frame to "
+            "frame and obeys no camera"
+        )
     thin = [o.object_id for o in summaries if o.adadfrc is None]
     if thin:
         ids = ", ".join(map(str, thin[:12])) + (" ..." if len(thin) > 12 else "")
@@ -349,6 +400,7 @@ def add_objects(
         record,
         masks_source=source,
         masked_share=tuple(float(v) for v in masked_share),
+        dynamic_share=dynamic,
         objects=tuple(summaries),
         object_entries=tuple(entries),
         cells=CellArrays.concatenate(cells),

@@ -19,6 +19,7 @@ from .stage_configs import (
     CutConfig,
     Dust3rConfig,
     FlowConfig,
+    IndependentConfig,
     MotionConfig,
     PoseConfig,
     Sam2Config,
@@ -28,6 +29,7 @@ from .stage_configs import (
 SUB_CONFIGS: dict[str, type] = {
     "bars": BarConfig,
     "cuts": CutConfig,
+    "independent": IndependentConfig,
     "flow_params": FlowConfig,
     "motion": MotionConfig,
     "sam2": Sam2Config,
@@ -182,6 +184,28 @@ class ScoreConfig:
     chain_hop: int = 0
     """When the first-last pose fails, the gate composes the poses of consecutive hops of this
     many frames (:mod:`geocon_core.pose.chain`); 0 (the paper) leaves such a clip to fail->F."""
+    chain_longest: int = 0
+    """With a chain, also hops of 2, 4, ... times ``chain_hop`` frames up to this many, the
+    longest with a pose taken at each frame (:func:`~geocon_core.pose.chain.select_hops`): hops of
+    one frame see a pixel of parallax or less and read a translating camera as a rotation. 0 (or
+    at most ``chain_hop``): hops of ``chain_hop`` frames only."""
+    judge_shots: bool = False
+    """A clip with hard cuts is judged shot by shot: each shot's gate on its own first and last
+    frame, each shot's background on its own pairs, the clip's verdict the worst shot's
+    (:func:`~geocon_core.verdict.combine_shots`). False (the paper): one gate on the clip's first
+    and last frame; pairs across a cut are skipped either way."""
+    still_share: float = 0.0
+    """Still-camera test of the gate (:mod:`geocon_core.pose.still`): when at least this share
+    (0..1) of the content, moving objects left out, moves by at most ``still_px`` between the
+    first and last frame (dense flow at ``motion.analysis_size``), the camera is still and the
+    gate takes that pose wherever its own would not gate H (movers that hold most of the matches
+    read as a translation). 0 (the paper): never."""
+    still_px: float = 1.0
+    """Largest motion (px at ``motion.analysis_size``) of a pixel that counts as still."""
+    still_keep_px: float = 0.5
+    """A still camera is judged on its still pixels: a pair's match on a pixel that moved between
+    the first and last frame is left out of IR and GE (a mover), unless it lies within this many
+    px (the pair's scale) of the background model in that pair (the mover stood still there)."""
     chain_min_share: float = 0.5
     """Least share (0..1) of the clip's frame steps the hops with a pose must span for a chain
     to stand in for the first-last pose."""
@@ -192,6 +216,8 @@ class ScoreConfig:
     """Burned-in bars and the content box (reader)."""
     cuts: CutConfig = field(default_factory=CutConfig)
     """Hard-cut detection (reader)."""
+    independent: IndependentConfig = field(default_factory=IndependentConfig)
+    """Independent motion left out of the background fits' IR (off in ``paper``)."""
     flow_params: FlowConfig = field(default_factory=FlowConfig)
     """Settings of the dense flow backend."""
     motion: MotionConfig = field(default_factory=MotionConfig)
@@ -232,10 +258,7 @@ class ScoreConfig:
             raise ValueError(f"min_inliers must be at least 1, got {self.min_inliers}")
         if self.aggregation not in ("median", "worst"):
             raise ValueError(f"aggregation must be 'median' or 'worst', got {self.aggregation!r}")
-        if self.chain_hop < 0 or not 0.0 < self.chain_min_share <= 1.0:
-            raise ValueError("chain_hop must be >= 0 and chain_min_share in (0, 1]")
-        if not self.tau_t_low <= self.tau_t_high:
-            raise ValueError("tau_t_low must not exceed tau_t_high")
+        self._check_gate()
         if not 0.0 <= self.gross_match_share < 1.0 or self.gross_match_neighbours < 3:
             raise ValueError("gross_match_share must be in [0, 1) and gross_match_neighbours at least 3")
         if min(self.working_size) < 32:
@@ -246,6 +269,15 @@ class ScoreConfig:
                 f"the field of view (fov_x_deg, --fov) must be between {lo:g} and {hi:g} degrees, "
                 f"got {self.fov_x_deg:g}"
             )
+
+    def _check_gate(self) -> None:
+        """The gate's settings: thresholds in order, chains and the still-camera test."""
+        if not self.tau_t_low <= self.tau_t_high:
+            raise ValueError("tau_t_low must not exceed tau_t_high")
+        if self.chain_hop < 0 or self.chain_longest < 0 or not 0.0 < self.chain_min_share <= 1.0:
+            raise ValueError("chain_hop and chain_longest must be >= 0 and chain_min_share in (0, 1]")
+        if not 0.0 <= self.still_share <= 1.0 or self.still_px <= 0 or self.still_keep_px < 0:
+            raise ValueError("still_share must be in [0, 1], still_px positive and still_keep_px >= 0")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able nested dict (tuples become lists); :meth:`from_dict` inverts it exactly."""
@@ -291,8 +323,11 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "structure) are dropped before the background fits; AdaDFRC scores object pairs 4 frames apart "
         "(flow composed hop by hop), where a slow deformation exceeds the flow's noise, leaving out the "
         "object pixels within 8 px of the mask's edge, where the flow mixes the object's motion with "
-        "the background's; the default of "
-        "`geocon score` and `geocon bench`",
+        "the background's; background outliers that jump away from the background around them (a mover "
+        "the masks did not cover whole) are left out of IR and counted; a camera whose frame stays still "
+        "between its first and last frame (dense flow, 15% of the content or more, movers left out) is "
+        "gated as still and judged on its still pixels; clips with hard cuts are judged shot by shot; "
+        "the default of `geocon score` and `geocon bench`",
         ScoreConfig(
             preset="audit",
             working_size=(1920, 1080),
@@ -306,6 +341,9 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             refine_object_masks=True,
             object_gap=4,
             object_edge_px=8,
+            independent=IndependentConfig(enabled=True),
+            still_share=0.15,
+            judge_shots=True,
         ),
     ),
     "fast": (

@@ -26,6 +26,8 @@ __all__ = [
     "hartley_normalisation",
     "inlier_mask",
     "inlier_stats",
+    "independent_motion",
+    "with_independent",
     "segment_order",
     "segment_inlier_stats",
     "FamilySpec",
@@ -47,7 +49,8 @@ class ModelFit:
     residuals_px: (N,) float32 residual in pixels (H: same as ``residuals``; F: Sampson
         distance of the denormalised F on pixel coordinates).
     inliers: (N,) bool, exactly ``residuals <= tau``.
-    ir: inlier ratio; ge: median of ``residuals_px`` over the inliers (px).
+    ir: inlier ratio (of the matches that are not ``independent``); ge: median of
+        ``residuals_px`` over the inliers (px).
     tau_px: the pixel equivalent of ``tau`` (H: tau itself; F: tau divided by the geometric
         mean of the two images' Hartley scales).
     valid: False when the pair cannot be judged (``reason`` says why).
@@ -64,10 +67,17 @@ class ModelFit:
     ge: float | None
     tau: float
     tau_px: float | None
+    independent: np.ndarray | None = None
+    """(N,) bool: outliers that move on their own (:func:`independent_motion`), left out of
+    ``ir`` (None: none were looked for)."""
 
     @property
     def n_inliers(self) -> int:
         return int(np.count_nonzero(self.inliers))
+
+    @property
+    def n_independent(self) -> int:
+        return 0 if self.independent is None else int(np.count_nonzero(self.independent))
 
 
 def inlier_mask(residuals: np.ndarray, tau: float) -> np.ndarray:
@@ -76,16 +86,74 @@ def inlier_mask(residuals: np.ndarray, tau: float) -> np.ndarray:
 
 
 def inlier_stats(
-    residuals: np.ndarray, residuals_px: np.ndarray, tau: float
+    residuals: np.ndarray, residuals_px: np.ndarray, tau: float, exclude: np.ndarray | None = None
 ) -> tuple[np.ndarray, float | None, float | None]:
-    """Inlier mask (:func:`inlier_mask`), IR and GE from stored float32 residuals at threshold ``tau``."""
+    """Inlier mask (:func:`inlier_mask`), IR and GE from stored float32 residuals at threshold
+    ``tau``; matches marked in ``exclude`` (independent motion) count neither as inliers nor in
+    the ratio's denominator."""
     inl = inlier_mask(residuals, tau)
     n = residuals.shape[0]
-    if n == 0:
+    if exclude is not None:
+        inl &= ~exclude
+        n -= int(np.count_nonzero(exclude))
+    if n <= 0:
         return inl, None, None
     k = int(np.count_nonzero(inl))
     ge = float(np.median(residuals_px[inl])) if k else None
     return inl, k / n, ge
+
+
+def independent_motion(
+    x: np.ndarray,
+    residuals_px: np.ndarray,
+    inliers: np.ndarray,
+    *,
+    neighbours: int,
+    jump: float,
+    floor_px: float = 0.05,
+) -> np.ndarray:
+    """(N,) bool: the outliers of a background fit that move on their own: a mover the object
+    masks did not cover whole (SPEC section 2 leaves incomplete masks to the scorer).
+
+    ``x``: (N, 2) positions in the first frame (px); ``residuals_px``: (N,) the family's residual
+    in pixels; ``inliers``: (N,) the fit's inlier mask. An outlier is independent when its
+    residual is at least ``jump`` times the median residual of its ``neighbours`` nearest inliers
+    (at least ``floor_px``): the background around it fits the model, it does not, so a motion
+    boundary lies between them. A background that bends (breathing, warping) fails smoothly: its
+    outliers lie just past the threshold beside inliers almost as far off, are not independent,
+    and count against the inlier ratio, as its inliers' spread counts in GE. Deterministic (exact
+    nearest neighbours)."""
+    out = ~inliers
+    mask = np.zeros(len(x), bool)
+    k = min(neighbours, int(np.count_nonzero(inliers)))
+    if k < 1 or not out.any() or jump <= 0:
+        return mask
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(x, np.float64)
+    _, near = cKDTree(pts[inliers]).query(pts[out], k=k)
+    local = np.median(residuals_px[inliers][np.reshape(near, (int(np.count_nonzero(out)), k))], axis=1)
+    mask[np.flatnonzero(out)[residuals_px[out] >= jump * np.maximum(local, floor_px)]] = True
+    return mask
+
+
+def with_independent(fit: ModelFit, independent: np.ndarray, *, min_inliers: int, max_share: float) -> ModelFit:
+    """``fit`` with the matches of ``independent`` left out of its inlier ratio. The pair cannot
+    be judged (``independent_motion``) when more than ``max_share`` of its matches move on
+    their own: the background left is not the scene's."""
+    if fit.model is None:
+        return fit
+    inl, ir, ge = inlier_stats(fit.residuals, fit.residuals_px, fit.tau, exclude=independent)
+    k = int(np.count_nonzero(inl))
+    n = len(independent)
+    valid: bool = k >= min_inliers
+    reason: str | None = None if valid else "too_few_inliers"
+    if n and np.count_nonzero(independent) > max_share * n:
+        valid, reason = False, "independent_motion"
+    return ModelFit(
+        fit.family, valid, reason, fit.model, fit.residuals, fit.residuals_px, inl, ir, ge, fit.tau, fit.tau_px,
+        independent,
+    )  # fmt: skip
 
 
 def segment_order(residuals_px: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -97,19 +165,30 @@ def segment_order(residuals_px: np.ndarray, offsets: np.ndarray) -> np.ndarray:
 
 
 def segment_inlier_stats(
-    residuals: np.ndarray, residuals_px: np.ndarray, offsets: np.ndarray, tau: float, *, order: np.ndarray | None = None
+    residuals: np.ndarray,
+    residuals_px: np.ndarray,
+    offsets: np.ndarray,
+    tau: float,
+    *,
+    order: np.ndarray | None = None,
+    exclude: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`inlier_stats` of many pairs at once: the matches of pair ``i`` are rows
     ``offsets[i]:offsets[i + 1]``. Returns the inlier counts, the match counts and GE per pair
     (NaN where a pair has no inlier), equal to the per-pair results bit for bit (same float32
     inlier rule, same float32 median) without a Python loop over pairs. ``order`` is
-    :func:`segment_order` of the same arrays (computed here when not given)."""
+    :func:`segment_order` of the same arrays (computed here when not given); ``exclude`` marks
+    matches left out of both counts (independent motion, :func:`inlier_stats`)."""
     offsets = np.asarray(offsets, dtype=np.int64)
     n = np.diff(offsets)
     if order is None:
         order = segment_order(residuals_px, offsets)
     vals = residuals_px[order]
     inl = inlier_mask(residuals[order], tau)  # a permutation within pairs: counts per pair unchanged
+    if exclude is not None:
+        inl &= ~exclude[order]
+        gone = np.concatenate(([0], np.cumsum(exclude, dtype=np.int64)))
+        n = n - (gone[offsets[1:]] - gone[offsets[:-1]])
     cum = np.concatenate(([0], np.cumsum(inl, dtype=np.int64)))
     k = cum[offsets[1:]] - cum[offsets[:-1]]
     ge = np.full(len(n), np.nan)
@@ -301,9 +380,10 @@ def fit_fundamental(
 class FamilySpec:
     """Where one background family's rule lives: ``threshold`` names its inlier threshold in
     :class:`~geocon_core.config.ScoreConfig` (and re-gating ``Thresholds``), ``fit`` is its robust
-    fitter, ``residual`` / ``residual_px`` / ``inliers`` name its columns of the record's
-    ``MatchArrays`` (the inlier rule's residual, the residual in pixels, the fit's inlier mask),
-    and ``attr`` names its fit on a pair (``PairRecord.h`` / ``.f``, :attr:`PairFits.h` / ``.f``)."""
+    fitter, ``residual`` / ``residual_px`` / ``inliers`` / ``independent`` name its columns of the
+    record's ``MatchArrays`` (the inlier rule's residual, the residual in pixels, the fit's inlier
+    mask, the outliers that move on their own), and ``attr`` names its fit on a pair
+    (``PairRecord.h`` / ``.f``, :attr:`PairFits.h` / ``.f``)."""
 
     name: Family
     threshold: str
@@ -312,11 +392,12 @@ class FamilySpec:
     residual_px: str
     inliers: str
     attr: str
+    independent: str
 
 
 FAMILIES: dict[str, FamilySpec] = {
-    "H": FamilySpec("H", "tau_h", fit_homography, "h_res", "h_res", "h_inl", "h"),
-    "F": FamilySpec("F", "tau_f", fit_fundamental, "f_res", "f_res_px", "f_inl", "f"),
+    "H": FamilySpec("H", "tau_h", fit_homography, "h_res", "h_res", "h_inl", "h", "h_ind"),
+    "F": FamilySpec("F", "tau_f", fit_fundamental, "f_res", "f_res_px", "f_inl", "f", "f_ind"),
 }
 """The background families, in scoring order."""
 

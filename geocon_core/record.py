@@ -111,6 +111,9 @@ class ClipRecord:
     pointmaps: DUSt3R's point maps of the first/last pair (``--pose dust3r``), or None.
     shots: a clip with hard cuts: each shot judged on its own (the gate is the first shot's and
         ``background`` that of the shot that decides); empty for a clip of one shot.
+    dynamic_share: per frame, the share (0..1) of the content the motion segmentation found
+        moving incoherently outside the objects (water, fire, smoke, foliage); empty when the
+        mask source does not measure it.
     """
 
     clip: str
@@ -134,6 +137,7 @@ class ClipRecord:
     dense: tuple[WindowCloud, ...] = ()
     pointmaps: PointMaps | None = None
     shots: tuple[ShotRecord, ...] = ()
+    dynamic_share: tuple[float, ...] = ()
 
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
@@ -188,6 +192,7 @@ class ClipRecord:
                 for o in self.objects
             ],
             "masks": self.masks_source,
+            **({"dynamic_background": float(np.median(self.dynamic_share))} if self.dynamic_share else {}),
             "category": None if self.category is None else self.category.label,
             "preset": self.config.preset,
             "config_hash": self.config_hash,
@@ -236,6 +241,7 @@ class ClipRecord:
             "pointmaps": None if self.pointmaps is None else self.pointmaps.to_json_dict(),
             "dense": [_dense_entry(w) for w in self.dense],
             **({"shots": [asdict(s) for s in self.shots]} if self.shots else {}),
+            **({"dynamic_share": list(self.dynamic_share)} if self.dynamic_share else {}),
         }
 
 
@@ -266,6 +272,8 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
     arrays = {name: getattr(record.matches, name) for name in MatchArrays.NAMES}
+    if record.matches.any_independent:
+        arrays.update({name: getattr(record.matches, name) for name in MatchArrays.OPTIONAL})
     if record.cells is not None:
         arrays.update({f"cells_{name}": getattr(record.cells, name) for name in CellArrays.NAMES})
     if record.cloud is not None:
@@ -439,7 +447,9 @@ def read_record(path: str | Path) -> ClipRecord:
     dense_names = tuple(f"dense_{name}" for name in (*DENSE_NAMES, "offsets"))
     pointmaps_names = tuple(f"pointmaps_{name}" for name in PointMaps.NAMES)
     z = read_matches(
-        folder, MatchArrays.NAMES, (*cells_names, "cloud_xyz", "cloud_rgb", *dense_names, *pointmaps_names)
+        folder,
+        MatchArrays.NAMES,
+        (*MatchArrays.OPTIONAL, *cells_names, "cloud_xyz", "cloud_rgb", *dense_names, *pointmaps_names),
     )
     try:
         return _record_from(d, z)
@@ -453,7 +463,7 @@ def read_record(path: str | Path) -> ClipRecord:
 
 def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
     """The :class:`ClipRecord` of a parsed ``record.json`` and its ``matches.npz`` arrays."""
-    matches = MatchArrays(**{name: z[name] for name in MatchArrays.NAMES})
+    matches = MatchArrays(**{name: z[name] for name in (*MatchArrays.NAMES, *MatchArrays.OPTIONAL) if name in z})
     cells = CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES}) if "cells_offsets" in z else None
     cloud = None
     if d.get("cloud") is not None:
@@ -498,4 +508,5 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         dense=_dense_from(d.get("dense", []), z),
         pointmaps=pointmaps,
         shots=tuple(ShotRecord(**s) for s in d.get("shots", [])),
+        dynamic_share=tuple(float(v) for v in d.get("dynamic_share", [])),
     )

@@ -50,6 +50,8 @@ class FitSummary:
     tau: float
     tau_px: float | None
     model: list[list[float]] | None
+    n_independent: int = 0
+    """Outliers that move on their own, left out of ``ir`` (:attr:`MatchArrays.h_ind`)."""
 
 
 @dataclass(frozen=True)
@@ -83,6 +85,9 @@ class MatchArrays:
     f_res: (M,) float32 Sampson distance in Hartley-normalised units.
     f_res_px: (M,) float32 Sampson distance of the denormalised F (px).
     h_inl, f_inl: (M,) bool inlier masks at the recorded thresholds.
+    h_ind, f_ind: (M,) bool, outliers of each family's fit that move on their own (a mover the
+        masks missed, :func:`~geocon_core.models.independent_motion`), left out of IR; all False
+        when the preset does not look for them (then not written to ``matches.npz``).
     """
 
     offsets: np.ndarray
@@ -93,11 +98,18 @@ class MatchArrays:
     f_res_px: np.ndarray
     h_inl: np.ndarray
     f_inl: np.ndarray
+    h_ind: np.ndarray | None = None
+    f_ind: np.ndarray | None = None
 
     NAMES = ("offsets", "x1", "x2", "h_res", "f_res", "f_res_px", "h_inl", "f_inl")
+    OPTIONAL = ("h_ind", "f_ind")
+    """Arrays that older records (and presets that do not look for independent motion) lack."""
 
     def __post_init__(self) -> None:
         m = int(self.offsets[-1]) if len(self.offsets) else 0
+        for name in self.OPTIONAL:
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.zeros(m, bool))
         shapes = {
             "x1": (m, 2),
             "x2": (m, 2),
@@ -106,6 +118,8 @@ class MatchArrays:
             "f_res_px": (m,),
             "h_inl": (m,),
             "f_inl": (m,),
+            "h_ind": (m,),
+            "f_ind": (m,),
         }
         for name, shape in shapes.items():
             if getattr(self, name).shape != shape:
@@ -117,7 +131,12 @@ class MatchArrays:
     def pair(self, index: int) -> dict[str, np.ndarray]:
         """All arrays of one pair (views)."""
         sl = self.rows(index)
-        return {name: getattr(self, name)[sl] for name in self.NAMES[1:]}
+        return {name: getattr(self, name)[sl] for name in (*self.NAMES[1:], *self.OPTIONAL)}
+
+    @property
+    def any_independent(self) -> bool:
+        """Whether any match was found to move on its own (the optional arrays are worth writing)."""
+        return any(bool(a is not None and a.any()) for a in (self.h_ind, self.f_ind))
 
     @classmethod
     def concatenate(cls, per_pair: list[dict[str, np.ndarray]]) -> "MatchArrays":
@@ -132,8 +151,10 @@ class MatchArrays:
             ("f_res_px", np.float32, (0,)),
             ("h_inl", bool, (0,)),
             ("f_inl", bool, (0,)),
+            ("h_ind", bool, (0,)),
+            ("f_ind", bool, (0,)),
         ):
-            parts = [np.asarray(p[name], dtype) for p in per_pair]
+            parts = [np.asarray(p[name], dtype) if name in p else np.zeros(len(p["x1"]), dtype) for p in per_pair]
             cat[name] = np.concatenate(parts) if parts else np.zeros(shape, dtype)
         return cls(offsets=offsets, **cat)
 

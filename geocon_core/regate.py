@@ -113,9 +113,13 @@ def _regate_arrays(
     m = record.matches
     res, px = getattr(m, spec.residual), getattr(m, spec.residual_px)
     table = _pair_table(record)
-    k, n, ge = segment_inlier_stats(res, px, m.offsets, tau, order=table.order[family])
+    independent = getattr(m, spec.independent, None)
+    k, n, ge = segment_inlier_stats(res, px, m.offsets, tau, order=table.order[family], exclude=independent)
     k, n, ge = k[table.index], n[table.index], ge[table.index]
     valid = table.usable[family] & (n > 0) & (k >= need) & (k > 0)
+    if independent is not None and independent.any():  # a pair whose background mostly moves on its own
+        total = np.diff(np.asarray(m.offsets, dtype=np.int64))[table.index]
+        valid &= (total - n) <= record.config.independent.max_share * total
     ir = np.where(valid, k / np.maximum(n, 1), np.nan)
     return table, valid, ir, np.where(valid, ge, np.nan)
 
@@ -219,8 +223,11 @@ class ResidualArrays:
     h_res: np.ndarray
     f_res: np.ndarray
     f_res_px: np.ndarray
+    h_ind: np.ndarray | None = None
+    f_ind: np.ndarray | None = None
 
     NAMES = ("offsets", "h_res", "f_res", "f_res_px")
+    OPTIONAL = ("h_ind", "f_ind")
 
     def rows(self, index: int) -> slice:
         """The rows of pair ``index`` (as :meth:`MatchArrays.rows`)."""
@@ -271,7 +278,7 @@ class Residuals:
 def load_residuals(folder: str | Path) -> Residuals:
     """:class:`Residuals` of the record in ``folder``, reading no coordinates, cells or cloud."""
     path, d = read_record_json(folder)
-    arrays = ResidualArrays(**read_matches(path, ResidualArrays.NAMES))  # nothing unpickled; RecordError if bad
+    arrays = ResidualArrays(**read_matches(path, ResidualArrays.NAMES, ResidualArrays.OPTIONAL))  # nothing unpickled
     pairs = pairs_from_json(d)
     gate = d["gate"]
     shots = tuple(ShotGate(s["start"], s["end"], s["t_inf"], bool(s["pose_present"])) for s in d.get("shots", []))

@@ -39,10 +39,12 @@ from .flow import FlowBackend, chained_flow, make_flow_backend
 from .geometry import scale_intrinsics, two_view_cloud
 from .masks import MaskSource, make_mask_source
 from .masks.external import check_masks_path
-from .models import FAMILIES, PairFits
+from .models import FAMILIES, ModelFit, PairFits, independent_motion, with_independent
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .pose.base import failure as pose_failure
-from .pose.chain import chain_hops, compose_chain
+from .pose.base import focal_of
+from .pose.chain import chain_hops, chain_lengths, compose_chain, select_hops
+from .pose.still import still_pose, still_share
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .record import ClipRecord, PointCloud, PointMaps
 from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, refine_object_mask
@@ -104,6 +106,12 @@ class _Pipeline:
         self.content_px = max(1, int(np.count_nonzero(self.content)))
         self.masked_share = np.zeros(info.num_frames)
         self.object_share: dict[int, dict[int, float]] = {}
+        self.still_frames: frozenset[int] = frozenset()
+        """Frames the still-camera test compares (each shot's first and last)."""
+        self.still: dict[int, tuple[np.ndarray, np.ndarray | None]] = {}
+        """Those frames' content at the motion analysis size (grey) and their object masks."""
+        self.still_maps: dict[tuple[int, int], np.ndarray] = {}
+        """Per span (clip or shot) of a still camera, its pixels that did not move (test size)."""
 
     # --- masks (the mask lane) -----------------------------------------------------------------
     def push(self, frame: Frame) -> None:
@@ -143,6 +151,27 @@ class _Pipeline:
             self.timer.add("dense", start)
         if self.anchor_rgb is not None and frame.index in (0, self.info.num_frames - 1):
             self.anchor_rgb[frame.index] = frame.rgb
+        if frame.index in self.still_frames:
+            self.still[frame.index] = _reduced(frame.gray, labels, self.info, self.config.motion.analysis_size)
+
+    def still_test(self, span: tuple[int, int], est: PoseEstimate, K: np.ndarray) -> PoseEstimate:
+        """The still-camera test of frames ``span`` (``ScoreConfig.still_share``): when it passes,
+        the span's still pixels are kept (:attr:`still_maps`) and, where the gate would not call
+        ``est`` H, the still pose replaces it; otherwise ``est``."""
+        cfg = self.config
+        start, end = span
+        if end == start or start not in self.still or end not in self.still:
+            return est
+        (g0, m0), (g1, m1) = self.still[start], self.still[end]
+        ignore = None if m0 is None or m1 is None else (m0 | m1)
+        test = still_share(g0, g1, still_px=cfg.still_px, ignore=ignore)
+        if test.share < cfg.still_share:
+            return est
+        self.still_maps[span] = test.still
+        if est.pose_present and est.t_inf is not None and est.t_inf <= cfg.tau_t_low:
+            return est
+        x0, _, x1, _ = self.info.content_box
+        return still_pose(test.share, test.motion_px, (x1 - x0) / g0.shape[1], focal_of(K), span)
 
     # --- work on the pool ----------------------------------------------------------------------
     def extract(self, frame: Frame, labels: np.ndarray | None) -> dict[float, FeatureSet]:
@@ -183,6 +212,8 @@ class _Pipeline:
                 name: spec.fit(x1, x2, tau=getattr(cfg, spec.threshold), seed=seed, **kw)
                 for name, spec in FAMILIES.items()
             }
+            if cfg.independent.enabled:
+                fits = {name: _independent(fit, x1, cfg) for name, fit in fits.items()}
             self.timer.add("model_fitting", start)
             # kept as the record stores them (float32), so memory per match stays small
             results.append(
@@ -265,6 +296,69 @@ class _Pipeline:
         return est, _cloud(est, self.K_pose, x0, x1, first.rgb, self.s_max)
 
 
+def _independent(fit: ModelFit, x1: np.ndarray, cfg: ScoreConfig) -> ModelFit:
+    """``fit`` with the outliers that move on their own left out of its IR
+    (:func:`~geocon_core.models.independent_motion`, ``cfg.independent``)."""
+    if fit.model is None:
+        return fit
+    ind = cfg.independent
+    mask = independent_motion(x1, fit.residuals_px, fit.inliers, neighbours=ind.neighbours, jump=ind.jump)
+    return with_independent(fit, mask, min_inliers=cfg.min_inliers, max_share=ind.max_share)
+
+
+def _keep_still(
+    scored: list[PairFits], maps: dict[tuple[int, int], np.ndarray], info: ClipInfo, cfg: ScoreConfig
+) -> list[PairFits]:
+    """The pairs of a still camera judged on its still pixels: the matches of each pair inside a
+    span of ``maps`` whose first-frame position moved between the span's first and last frame (a
+    mover, seen by the motion segmentation or not) are left out of both families' IR and GE, as
+    independent motion is (:func:`_leave_out`, :func:`~geocon_core.models.with_independent`)."""
+    if not maps:
+        return scored
+    x0, y0, x1b, y1b = info.content_box
+    out = []
+    for r in scored:
+        span = next(((a, b) for (a, b) in maps if a <= r.t0 and r.t1 <= b), None)
+        if span is None or r.skip is not None or not len(r.x1):
+            out.append(r)
+            continue
+        still = maps[span]
+        h, w = still.shape
+        px = np.clip(((r.x1[:, 0] / r.scale - x0) * w / (x1b - x0)).astype(int), 0, w - 1)
+        py = np.clip(((r.x1[:, 1] / r.scale - y0) * h / (y1b - y0)).astype(int), 0, h - 1)
+        moved = ~still[py, px]
+        fits = {name: _leave_out(r.fit(name), moved, cfg) for name in FAMILIES}
+        out.append(replace(r, h=fits["H"], f=fits["F"]))
+    return out
+
+
+def _leave_out(fit: ModelFit | None, moved: np.ndarray, cfg: ScoreConfig) -> ModelFit | None:
+    """``fit`` with the matches on pixels that ``moved`` over the span left out (as well as its
+    independent motion), except those that sit within ``still_keep_px`` of the model in this
+    pair (a mover that stood still here still shows the still camera); more than
+    ``independent.max_share`` of the matches left out and the pair cannot be judged."""
+    if fit is None or fit.model is None:
+        return fit
+    moved = moved & ~(fit.residuals_px <= np.float32(cfg.still_keep_px))
+    ind = moved if fit.independent is None else (fit.independent | moved)
+    return with_independent(fit, ind, min_inliers=cfg.min_inliers, max_share=cfg.independent.max_share)
+
+
+def _reduced(
+    gray: np.ndarray, labels: np.ndarray | None, info: ClipInfo, size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """A frame's content at the largest size inside ``size`` (never up) and its object mask."""
+    x0, y0, x1, y1 = info.content_box
+    w, h = x1 - x0, y1 - y0
+    f = min(1.0, size[0] / w, size[1] / h)
+    dst = (max(16, round(w * f)), max(16, round(h * f)))
+    g = cv2.resize(gray[y0:y1, x0:x1], dst, interpolation=cv2.INTER_AREA)
+    if labels is None:
+        return g, None
+    m = cv2.resize((labels[y0:y1, x0:x1] > 0).astype(np.uint8), dst, interpolation=cv2.INTER_NEAREST) > 0
+    return g, m
+
+
 def _scaled(img: np.ndarray, s: float, interpolation: int) -> np.ndarray:
     """``img`` at scale ``s`` (area resampling for grey frames, nearest for labels)."""
     if s == 1.0:
@@ -301,12 +395,31 @@ def _cloud(
     return PointCloud(xyz, rgb, note)
 
 
-def _shot_hops(shot: tuple[int, int], hop: int) -> list[tuple[int, int]]:
-    """The chain hops inside one shot (none when chains are off or the shot is one hop long)."""
-    start, end = shot
-    if hop == 0 or end - start < 1:
+def _chain_windows(span: tuple[int, int], cfg: ScoreConfig) -> list[tuple[int, int]]:
+    """Every chain hop inside frames ``span`` (inclusive): hops of ``chain_hop`` frames and of
+    the longer lengths up to ``chain_longest`` (none when chains are off or the span is one hop)."""
+    start, end = span
+    if cfg.chain_hop == 0 or end - start < 1:
         return []
-    return [(start + a, start + b) for a, b in chain_hops(end - start + 1, hop)]
+    out: list[tuple[int, int]] = []
+    for length in chain_lengths(cfg.chain_hop, cfg.chain_longest):
+        out += [(start + a, start + b) for a, b in chain_hops(end - start + 1, length)]
+    return list(dict.fromkeys(out))
+
+
+def _chain_pose(
+    span: tuple[int, int],
+    by_window: dict[tuple[int, int], PoseEstimate],
+    hops: list[tuple[int, int]],
+    failed: PoseEstimate,
+    cfg: ScoreConfig,
+) -> PoseEstimate | None:
+    """The pose over ``span`` composed from its hops (:func:`~geocon_core.pose.chain.select_hops`,
+    :func:`~geocon_core.pose.chain.compose_chain`), or None when they span too little."""
+    start, end = span
+    local = {(a - start, b - start): by_window[(a, b)] for a, b in hops}
+    chosen = select_hops(local, end - start + 1)
+    return compose_chain(chosen, end - start + 1, failed, min_share=cfg.chain_min_share)
 
 
 def _shot_pose(
@@ -323,9 +436,7 @@ def _shot_pose(
         return pose_failure("single_frame", 0, float(np.sqrt(K[0, 0] * K[1, 1])))
     est: PoseEstimate = by_window[shot]
     if not est.pose_present and hops:
-        est = (
-            compose_chain([(h, by_window[h]) for h in hops], end - start + 1, est, min_share=cfg.chain_min_share) or est
-        )
+        est = _chain_pose(shot, by_window, hops, est, cfg) or est
     return est
 
 
@@ -455,7 +566,7 @@ def score_clip(
     K = default_intrinsics(info.content_box, cfg.fov_x_deg)
     windows = gate_windows(n, cfg.gate_window, cfg.gate_stride)
     first_last_only = pose_log is not None or getattr(backend, "needs_frames", False)  # a log, DUSt3R
-    hops = [] if first_last_only or cfg.chain_hop == 0 else chain_hops(n, cfg.chain_hop)
+    hops = [] if first_last_only or cfg.chain_hop == 0 else _chain_windows((0, n - 1), cfg)
     pose_windows = [] if first_last_only else [w for w in windows if w != (0, n - 1)]
     builder = None
     if dense is not None and n >= 2:
@@ -468,8 +579,10 @@ def score_clip(
     stages = _Pipeline(
         info, cfg, matcher, flow, backend, K, mask_source, timer, keep_flows=on_frame is not None, dense=builder
     )
-    shots = info.shots if len(info.shots) > 1 and not first_last_only else ()
-    shot_hops = {shot: _shot_hops(shot, cfg.chain_hop) for shot in shots}
+    if cfg.still_share > 0 and not first_last_only:
+        stages.still_frames = frozenset(t for shot in info.shots for t in shot)
+    shots = info.shots if cfg.judge_shots and len(info.shots) > 1 and not first_last_only else ()
+    shot_hops = {shot: _chain_windows(shot, cfg) for shot in shots}
     for shot in shots:
         pose_windows += [w for w in (shot, *shot_hops[shot]) if w[1] > w[0] and w != (0, n - 1)]
     pose_windows += [h for h in hops if h not in pose_windows]
@@ -485,11 +598,15 @@ def score_clip(
     pose, cloud = out.first_last
     by_window = dict(out.windows)
     if not pose.pose_present and hops:
-        pose = compose_chain([(h, by_window[h]) for h in hops], n, pose, min_share=cfg.chain_min_share) or pose
+        pose = _chain_pose((0, n - 1), by_window, hops, pose, cfg) or pose
+    if stages.still_frames and not shots:  # with cuts, each shot is tested on its own
+        pose = stages.still_test((0, n - 1), pose, K)
     timeline = [(w, by_window[w]) for w in windows if w in by_window]
-    scored = sorted(out.pairs, key=lambda r: (r.gap, r.t0, r.scale))
-    objects = sorted(out.objects, key=lambda r: r.key)
     shot_poses = [(shot, _shot_pose(shot, by_window, shot_hops[shot], K, cfg)) for shot in shots]
+    if stages.still_frames:
+        shot_poses = [(shot, stages.still_test(shot, est, K)) for shot, est in shot_poses]
+    scored = _keep_still(sorted(out.pairs, key=lambda r: (r.gap, r.t0, r.scale)), stages.still_maps, info, cfg)
+    objects = sorted(out.objects, key=lambda r: r.key)
     record = assemble_record(str(path), info, cfg, K, backend.name, pose, timeline, windows, scored, shot_poses)
     if object_gap < cfg.object_gap and mask_source is not None:
         record = replace(

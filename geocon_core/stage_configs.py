@@ -16,6 +16,7 @@ __all__ = [
     "DIS_PRESET_NAMES",
     "BarConfig",
     "CutConfig",
+    "IndependentConfig",
     "FlowConfig",
     "MotionConfig",
     "Sam2Config",
@@ -66,6 +67,29 @@ class CutConfig:
     def __post_init__(self) -> None:
         if self.thumb_width < 1 or self.hist_bins < 1:
             raise ValueError("cuts: thumb_width and hist_bins must be positive")
+
+
+@dataclass(frozen=True)
+class IndependentConfig:
+    """Independent motion in the background fits (:func:`~geocon_core.models.independent_motion`):
+    the outliers of a pair's background model that jump away from the background around them (a
+    mover the object masks did not cover whole) are left out of the pair's IR and counted. Off in
+    ``paper`` (every match counts, as the paper's IR)."""
+
+    enabled: bool = False
+    """Look for independent motion in every pair's fits."""
+    neighbours: int = 8
+    """Nearest inliers an outlier is compared with."""
+    jump: float = 4.0
+    """An outlier is independent when its residual is at least this many times the median
+    residual of its nearest inliers (a motion boundary: the background beside it fits)."""
+    max_share: float = 0.5
+    """A pair whose matches move on their own for more than this share (0..1] cannot be judged
+    (``independent_motion``): what is left is not the scene's background."""
+
+    def __post_init__(self) -> None:
+        if self.neighbours < 1 or self.jump <= 0 or not 0 < self.max_share <= 1:
+            raise ValueError("independent: neighbours must be at least 1, jump positive and max_share in (0, 1]")
 
 
 @dataclass(frozen=True)

@@ -70,8 +70,15 @@ def test_regating_at_the_recorded_thresholds_gives_the_recorded_verdict(record):
 
 def test_a_clip_without_cuts_records_no_shots(synth_clips):
     folder = synth_clips([ClipPlan("C1")], seed=5, width=W, height=H, num_frames=N)
-    rec = score_clip(folder / f"{ClipPlan('C1').clip_id}.mp4", ScoreConfig(working_size=(W, H)))
+    rec = score_clip(folder / f"{ClipPlan('C1').clip_id}.mp4", preset("audit").with_(working_size=(W, H)))
     assert rec.shots == () and "shots" not in rec.summary()
+
+
+def test_the_paper_keeps_one_gate_across_a_cut(two_shots):
+    """``paper`` does not judge shot by shot (``judge_shots``); pairs across the cut are skipped."""
+    rec = score_clip(two_shots[0], ScoreConfig(working_size=(W, H)))
+    assert rec.shots == () and rec.video.cuts == (N,)
+    assert all(p.skip == "hard_cut" for p in rec.pairs if p.t0 < N <= p.t1)
 
 
 def test_the_gate_shot_is_the_first_with_two_frames():

@@ -156,6 +156,11 @@ class MotionSegmenter(Coverage):
         self._cache: tuple[int, np.ndarray] | None = None
         self.regimes: dict[int, str] = {}
         """Background model used for the forward pair of each frame (``H``, ``F``, ``static``)."""
+        self.dynamic: dict[int, float] = {}
+        """Per frame, the share (0..1) of the content that moves against the background model
+        with flow that fails the forward-backward check in every direction, outside the
+        objects: a dynamic background (water, fire, smoke, foliage in wind) whose texture
+        re-forms from frame to frame and obeys no camera."""
 
     # -- streaming -------------------------------------------------------------------------
 
@@ -313,6 +318,10 @@ class MotionSegmenter(Coverage):
                 # object moving: e.g. texture that re-synthesises itself every frame (boiling)
                 if np.mean([np.count_nonzero(s.reliable[m]) for s in sides]) >= min_reliable * np.count_nonzero(m):
                     masks.append(m)
+            boiling = (score >= 1.0) & ~np.logical_or.reduce([s.reliable for s in sides])
+            if masks:
+                boiling &= ~np.logical_or.reduce(masks)
+            self.dynamic[t] = float(np.count_nonzero(boiling)) / boiling.size
         vels = [_velocity(m, fwd, bwd) for m in masks]
         parts = merge_parts(masks, vels, self.config, self._px)[:MAX_ID]
         masks = [np.logical_or.reduce([masks[i] for i in g]) for g in parts]

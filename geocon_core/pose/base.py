@@ -21,7 +21,7 @@ __all__ = [
     "check_inputs",
 ]
 
-POSE_METHODS = ("essential", "rotation", "chain", "log", "dust3r", "none")
+POSE_METHODS = ("essential", "rotation", "chain", "log", "dust3r", "still", "none")
 
 ZOOM_NOTE_LOG = 0.05
 """A fitted zoom whose log exceeds this (about 5 %) is named in the pose's note."""
@@ -39,7 +39,8 @@ class PoseEstimate:
         ``t_inf`` is the first-order bound ``parallax_px / focal_px``.
     method: ``"essential"``, ``"rotation"``, ``"chain"`` (composed from short hops when the
         first-last pair failed, :mod:`geocon_core.pose.chain`), ``"log"``, ``"dust3r"`` (aligned
-        DUSt3R point maps, :mod:`geocon_core.pose.dust3r`) or ``"none"``.
+        DUSt3R point maps, :mod:`geocon_core.pose.dust3r`), ``"still"`` (a still camera told by
+        dense motion, :mod:`geocon_core.pose.still`) or ``"none"``.
     reason: reason code when not present (``"too_few_matches"``, ``"too_few_inliers"``,
         ``"degenerate"``, ``"no_cheirality"``, ``"log_no_pose"``, ``"too_few_points"``,
         ``"needs_frames"``, ``"single_frame"`` for a shot of one frame), else None.

@@ -13,6 +13,13 @@ so the sum is on the clip's scale as long as the scene distance changes slowly a
 and the composed ``t_inf`` is then an under-estimate). A rotation-only hop contributes no
 translation (its translation is below the noise) and its first-order bound ``parallax / f``.
 
+Hops of one frame see the least parallax: a camera that trucks while it turns moves a pixel or
+less between adjacent frames, every hop is then explained by a rotation, and the chain reads a
+translation near zero. With several hop lengths (:func:`chain_lengths`), :func:`select_hops`
+walks the clip taking at each frame the longest hop that has a pose, so the chain keeps the
+parallax of hops several frames long and falls back to shorter ones only where the longer ones
+share too little.
+
 When some hops have no pose, the chain is cut there: every unbroken run of hops is composed on
 its own and the clip's ``t_inf`` is the largest run's, a lower bound of the translation over the
 clip; it is used only when the hops with a pose span at least ``min_share`` of the clip.
@@ -27,7 +34,7 @@ import numpy as np
 from ..geometry import rotation_angle_deg
 from .base import ZOOM_NOTE_LOG, PoseEstimate
 
-__all__ = ["chain_hops", "compose_chain"]
+__all__ = ["chain_hops", "chain_lengths", "select_hops", "compose_chain"]
 
 
 def chain_hops(n: int, hop: int) -> list[tuple[int, int]]:
@@ -43,6 +50,42 @@ def chain_hops(n: int, hop: int) -> list[tuple[int, int]]:
         ends.pop(-2)
     starts = [0] + ends[:-1]
     return list(zip(starts, ends, strict=True))
+
+
+def chain_lengths(shortest: int, longest: int) -> list[int]:
+    """Hop lengths from ``longest`` down to ``shortest``, halving (``8, 4, 2, 1``); just
+    ``[shortest]`` when ``longest <= shortest``."""
+    if shortest < 1:
+        raise ValueError(f"hop must be a positive number of frames, got {shortest}")
+    lengths = [shortest]
+    while lengths[-1] * 2 <= longest:
+        lengths.append(lengths[-1] * 2)
+    return lengths[::-1]
+
+
+def select_hops(hops: dict[tuple[int, int], PoseEstimate], n: int) -> list[tuple[tuple[int, int], PoseEstimate]]:
+    """Consecutive hops over frames ``0 .. n - 1`` for :func:`compose_chain`: from each frame the
+    longest hop of ``hops`` (windows ``(start, end)`` of several lengths, :func:`chain_hops` of
+    each) that has a pose; where none has, the shortest hop from there (without a pose, so the
+    chain is cut) or, where no hop starts, one step on."""
+    out: list[tuple[tuple[int, int], PoseEstimate]] = []
+    by_start: dict[int, list[tuple[tuple[int, int], PoseEstimate]]] = {}
+    for w, est in hops.items():
+        by_start.setdefault(w[0], []).append((w, est))
+    pos = 0
+    while pos < n - 1:
+        here = sorted(by_start.get(pos, []), key=lambda h: h[0][1] - h[0][0], reverse=True)
+        good = [h for h in here if h[1].pose_present]
+        if good:
+            out.append(good[0])
+            pos = good[0][0][1]
+            continue
+        if here:  # the shortest hop from here, without a pose: the chain is cut there
+            out.append(here[-1])
+            pos = here[-1][0][1]
+        else:
+            pos += 1
+    return out
 
 
 def _compose_run(run: Sequence[PoseEstimate]) -> tuple[np.ndarray, float]:
