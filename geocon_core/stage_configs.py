@@ -206,6 +206,10 @@ class MotionConfig:
     cameras; otherwise that residual is not used."""
     f_fit_points: int = 600
     """About this many grid vectors feed a fundamental-matrix fit (every k-th one)."""
+    dynamic_open_px: int = 5
+    """Pixels whose flow fails the forward-backward check count as a dynamic background
+    (``MotionSegmenter.dynamic``) in blobs at least this many reduced px across (thinner bands
+    are the background uncovered along an occluding edge)."""
 
     def __post_init__(self) -> None:
         if min(self.px_reference) < 16:

@@ -520,3 +520,27 @@ def test_motion_settings_do_not_follow_the_scoring_canvas(tmp_path: Path) -> Non
     assert small.px_scale == pytest.approx(0.5) and big.px_scale == pytest.approx(0.5)
     native = MotionSegmenter(big.info, px_reference=(1920, 1080))  # settings in the canvas's own pixels
     assert native.px_scale == pytest.approx(0.4)
+
+
+def test_a_boiling_patch_is_a_dynamic_background_not_an_object(tmp_path) -> None:
+    """A still camera over a textured wall with a patch whose texture re-forms every frame (water,
+    fire): the patch is measured as dynamic background, at about its share of the frame, and no
+    object is made of it; the still rest reads as nothing dynamic."""
+    rng = np.random.default_rng(5)
+    w, h = 320, 180
+    wall = cv2.resize(rng.integers(0, 256, (h // 6, w // 6), dtype=np.uint8), (w, h), interpolation=cv2.INTER_CUBIC)
+    folder = tmp_path / "boil"
+    folder.mkdir()
+    patch = (slice(50, 130), slice(180, 290))  # 80 x 110 px: 15% of the frame
+    for t in range(16):
+        img = wall.copy()
+        img[patch] = cv2.GaussianBlur(rng.integers(0, 256, (80, 110), dtype=np.uint8), (3, 3), 0)
+        cv2.imwrite(str(folder / f"{t:03d}.png"), np.dstack([img] * 3))
+    info = probe_clip(folder)
+    seg = MotionSegmenter(info)
+    pred = run_source(seg, info)
+    share = 80 * 110 / (w * h)
+    dynamic = np.array([seg.dynamic[t] for t in sorted(seg.dynamic)])
+    print(f"dynamic share per frame {np.round(dynamic, 3).tolist()}, patch {share:.3f}")
+    assert 0.5 * share <= np.median(dynamic) <= 1.3 * share
+    assert max(masked_share(p, info.content_mask) for p in pred) < 0.02

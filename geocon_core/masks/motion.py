@@ -156,11 +156,15 @@ class MotionSegmenter(Coverage):
         self._cache: tuple[int, np.ndarray] | None = None
         self.regimes: dict[int, str] = {}
         """Background model used for the forward pair of each frame (``H``, ``F``, ``static``)."""
+        self._boiling: dict[int, np.ndarray] = {}  # unexplained pixels of frames not yet segmented
         self.dynamic: dict[int, float] = {}
-        """Per frame, the share (0..1) of the content that moves against the background model
-        with flow that fails the forward-backward check in every direction, outside the
-        objects: a dynamic background (water, fire, smoke, foliage in wind) whose texture
-        re-forms from frame to frame and obeys no camera."""
+        """Per frame, the share (0..1) of the content, outside the objects, whose flow to the next
+        frame cannot be tracked back (:meth:`_unexplained`): a dynamic background
+        (water, fire, smoke, foliage in wind) whose texture re-forms from frame to frame and obeys
+        no camera. Measured where the background model of the frame's pair is a homography (a
+        still, turning or zooming camera); a translating camera uncovers the background along
+        every depth edge, and its frames are not measured (they count as 0 in the record's
+        ``dynamic_share``)."""
 
     # -- streaming -------------------------------------------------------------------------
 
@@ -282,7 +286,18 @@ class MotionSegmenter(Coverage):
     def _pair(self, g0: np.ndarray, g1: np.ndarray, t0: int, t1: int) -> tuple[Side | None, Side | None]:
         f, b = self._evidence.pair(g0, g1, t0, t1)
         self.regimes[t0] = f.regime if f is not None else "none"
+        if f is not None and f.regime != "F":  # a translating camera's flow fails along its disocclusions
+            self._boiling[t0] = self._unexplained(f)
         return f, b
+
+    def _unexplained(self, fwd: Side) -> np.ndarray:
+        """Pixels of the pair's first frame whose flow fails the forward-backward check, in blobs
+        at least ``dynamic_open_px`` reduced px across: a texture that re-forms from frame to frame
+        (water, fire, smoke) has no motion to track back, while the thin bands where an occluding
+        edge uncovers the background are opened away."""
+        bad = (~fwd.reliable).astype(np.uint8)
+        k = max(1, int(self.config.dynamic_open_px))
+        return cv2.morphologyEx(bad, cv2.MORPH_OPEN, np.ones((k, k), np.uint8)) > 0
 
     def _slow_side(self, gray: np.ndarray, p: int, bwd: Side | None) -> Side | None:
         """Evidence of frame p against the frame ``slow_gap`` distinct frames earlier, when the
@@ -318,10 +333,11 @@ class MotionSegmenter(Coverage):
                 # object moving: e.g. texture that re-synthesises itself every frame (boiling)
                 if np.mean([np.count_nonzero(s.reliable[m]) for s in sides]) >= min_reliable * np.count_nonzero(m):
                     masks.append(m)
-            boiling = (score >= 1.0) & ~np.logical_or.reduce([s.reliable for s in sides])
-            if masks:
-                boiling &= ~np.logical_or.reduce(masks)
-            self.dynamic[t] = float(np.count_nonzero(boiling)) / boiling.size
+            boiling = self._boiling.pop(t, None)
+            if boiling is not None:
+                if masks:
+                    boiling = boiling & ~np.logical_or.reduce(masks)
+                self.dynamic[t] = float(np.count_nonzero(boiling)) / boiling.size
         vels = [_velocity(m, fwd, bwd) for m in masks]
         parts = merge_parts(masks, vels, self.config, self._px)[:MAX_ID]
         masks = [np.logical_or.reduce([masks[i] for i in g]) for g in parts]

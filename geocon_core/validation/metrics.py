@@ -114,6 +114,16 @@ def _gate_rows(rows: list[CaseResult]) -> list[MetricRow]:
         out.append(
             _share("gate accuracy", subset, judged, lambda r: r.gate == r.truth_gate, ">= 90%", lambda v: v >= 0.9)
         )
+    posed = [r for r in rows if r.kind == "real" and r.posed and r.truth_gate is not None and r.verdict != "failed"]
+    row = _share(
+        "gate accuracy", "posed walk-throughs", posed, lambda r: r.gate == r.truth_gate, "all", lambda v: v == 1.0
+    )
+    wrong = [
+        f"{r.case_id.split('__', 1)[-1]} ({r.gate}, t_inf {'-' if r.t_inf is None else f'{r.t_inf:.3f}'})"
+        for r in posed
+        if r.gate != r.truth_gate
+    ]
+    out.append(replace(row, detail=", ".join(wrong)))
     return out
 
 

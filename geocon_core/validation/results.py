@@ -92,6 +92,9 @@ class CaseResult:
     :func:`~geocon_core.verdict.report_margin`): how confident a flag is."""
     verdict_note: str | None = None
     """Why the background could not be judged, or what decided the verdict (the record's note)."""
+    posed: bool = False
+    """The clip comes with its camera poses (a RealEstate10K walk-through): its expected gate is
+    known from them, not only seen."""
 
     @property
     def flagged(self) -> bool:
@@ -141,10 +144,13 @@ def worst_pair_note(rec: ClipRecord) -> str | None:
     spec = family_spec(model)
     rows = rec.matches.rows(pair.index)
     res = getattr(rec.matches, spec.residual_px)[rows]
-    out = res[~getattr(rec.matches, spec.inliers)[rows]]
-    note = f"pair ({pair.t0}, {pair.t1}), gap {pair.gap}: IR {ir:.3f} of {pair.n_matches} matches"
+    moving = getattr(rec.matches, spec.independent)[rows]
+    out = res[~getattr(rec.matches, spec.inliers)[rows] & ~moving]
+    note = f"pair ({pair.t0}, {pair.t1}), gap {pair.gap}: IR {ir:.3f} of {pair.n_matches - int(moving.sum())} matches"
     if len(out):
         note += f"; {len(out)} outliers {out.min():.1f}-{out.max():.1f} px off the {model} model"
+    if moving.any():
+        note += f" ({int(moving.sum())} matches that move on their own left out)"
     if pair.n_gross:
         note += f" ({pair.n_gross} gross mismatches dropped before the fit)"
     return note
@@ -249,6 +255,7 @@ def _expected(case: dict[str, Any], truth_path: str | None) -> dict[str, Any]:
         "mover_size": a.mover_size,
         "dynamic": a.dynamic,
         "artifact_kinds": a.artifact_kinds,
+        "posed": bool(a.pose_file),
     }
 
 
