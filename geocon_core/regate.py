@@ -139,9 +139,13 @@ def regate_pairs(
 
 def pair_inliers(record: "ClipRecord | Residuals", index: int, family: Family, tau: float) -> np.ndarray:
     """The inlier mask of pair ``index``'s matches under ``family`` at threshold ``tau``
-    (:func:`~geocon_core.models.inlier_mask`)."""
-    res = getattr(record.matches, family_spec(family).residual)
-    return inlier_mask(res[record.matches.rows(index)], tau)
+    (:func:`~geocon_core.models.inlier_mask`); matches that move on their own (the record's
+    independent motion) are never inliers, as in the fit."""
+    spec = family_spec(family)
+    rows = record.matches.rows(index)
+    inl = inlier_mask(getattr(record.matches, spec.residual)[rows], tau)
+    moving = getattr(record.matches, spec.independent, None)
+    return inl if moving is None else inl & ~moving[rows]
 
 
 def regate_family(

@@ -39,6 +39,8 @@ class ResultClip:
     ge_f: float | None = None
     adap90_max: float | None = None
     n_objects: int = 0
+    shots: int = 0
+    """Shots judged on their own (0: one shot); such a clip is re-gated shot by shot."""
 
     def scores(self, family: str) -> tuple[float | None, float | None]:
         """The recorded ``(IR, GE)`` of background ``family``."""
@@ -92,6 +94,7 @@ def clip_from_record_json(
         ge_f=fam["F"]["ge"],
         adap90_max=max(adap90) if adap90 else None,
         n_objects=len(d.get("objects", [])),
+        shots=len(d.get("shots", [])),
     )
 
 
@@ -115,6 +118,10 @@ def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]
     except (ImportError, OSError):
         return {}
     cols = ["clip_id", "status", "t_inf", "pose_present", "ir_h", "ge_h", "ir_f", "ge_f", "adap90_max", "n_objects"]
+    schema = pq.read_schema(path)
+    if "shots" not in schema.names:  # tables written before shots were judged on their own
+        return {}
+    cols.append("shots")
     table = pq.read_table(path, columns=cols).to_pydict()
     return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
 
@@ -155,6 +162,7 @@ def read_bench_clips(root: Path) -> list[ResultClip]:
                 ge_f=_num(row["ge_f"]),
                 adap90_max=_num(row["adap90_max"]),
                 n_objects=int(row["n_objects"]),
+                shots=int(row["shots"]),
             )
         )
     return clips

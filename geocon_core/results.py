@@ -24,7 +24,7 @@ from .config import ScoreConfig
 from .layout import BENCH_FORMAT, MANIFEST_NAME, clip_folders, read_manifest, read_status
 from .models import family_spec
 from .record import RecordError, read_record_json
-from .regate import Residuals, load_residuals, regate_family
+from .regate import Residuals, load_residuals, regate_clip, regate_family
 from .result_clips import ResultClip, _failed_clip, clip_from_record_json, read_bench_clips
 from .verdict import ClipVerdict, Scores, Thresholds, family_verdict, is_flagged
 
@@ -274,6 +274,8 @@ class ResultsIndex:
         if clip.status != "ok":
             return None
         try:
+            if clip.shots:  # judged shot by shot: each shot's own gate and pairs
+                return regate_clip(self.residuals(clip.clip_id), thresholds)
             h, f = (Scores(*self._family(clip, fam, thresholds.tau(fam))) for fam in ("H", "F"))
         except ResultsError:  # its record turned out unreadable: listed as broken from now on
             return None

@@ -79,6 +79,7 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         tau_f_px=_num(bg.tau_f_px),
         observed_category=None if record.category is None else record.category.label,
         n_objects=len(record.objects),
+        shots=len(record.shots),
         adadfrc_max=max(adadfrc) if adadfrc else _NAN,
         adap90_max=max(adap90) if adap90 else _NAN,
         masked_share_mean=float(sum(record.masked_share) / len(record.masked_share)) if record.masked_share else _NAN,
@@ -209,6 +210,7 @@ COLUMNS: dict[str, list[str]] = {
         "tau_f_px",
         "observed_category",
         "n_objects",
+        "shots",
         "adadfrc_max",
         "adap90_max",
         "masked_share_mean",
@@ -247,6 +249,7 @@ _DTYPES: dict[str, dict[str, str]] = {
         "valid_pairs": "int64",
         "total_pairs": "int64",
         "n_objects": "int64",
+        "shots": "int64",
     },
 }
 _FLOAT = {

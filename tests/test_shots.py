@@ -85,3 +85,24 @@ def test_the_gate_shot_is_the_first_with_two_frames():
     assert gate_shot([(0, 0), (1, 9)]) == 1
     assert gate_shot([(0, 5), (6, 9)]) == 0
     assert gate_shot([(0, 0), (1, 1)]) == 0
+
+
+def test_the_audit_app_regates_a_clip_with_cuts_shot_by_shot(record, tmp_path):
+    """The results index (the audit app's triage) gives a clip with cuts the recorded verdict at
+    the recorded thresholds, and re-gates it shot by shot at others."""
+    from geocon_core.record import write_record
+    from geocon_core.results import ResultsIndex
+
+    write_record(record, tmp_path / "rec")
+    index = ResultsIndex.open(tmp_path / "rec")
+    (clip,) = index.clips
+    assert clip.shots == 2
+    v = index.verdict(clip.clip_id, index.recorded)
+    assert (v.consistent, v.ir, v.ge, v.label) == (
+        record.background.consistent,
+        record.background.ir,
+        record.background.ge,
+        record.gate.label,
+    )
+    tight = Thresholds(0.01, 0.0005, 0.97, 0.6, 0.03, 0.05)
+    assert index.verdict(clip.clip_id, tight).consistent is False
