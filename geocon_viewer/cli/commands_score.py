@@ -168,6 +168,13 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
         kept = sum(p.n_matches for p in record.pairs)
         coverage += f"; {gross} of {gross + kept} matches dropped as gross mismatches (repeated structure)"
     table.add_row("coverage", coverage)
+    for shot in record.shots:
+        state = {True: "consistent", False: "inconsistent", None: "not judged"}[shot.consistent]
+        table.add_row(
+            f"  shot {shot.start}-{shot.end}",
+            f"gate {shot.label or '-'} (t_inf {fmt(shot.t_inf, '.4f')}) -> {shot.model}: IR {fmt(shot.ir, '.3f')}   "
+            f"GE {fmt(shot.ge, '.2f')} px   {state}",
+        )
     table.add_row("verdict", _verdict_row(record))
     if record.category is not None:
         table.add_row("category", f"{record.category.label}: {record.category.rule}")
