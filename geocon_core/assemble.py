@@ -42,6 +42,7 @@ from .verdict import (
     gate_decision,
     gate_shot,
     summarize_family,
+    window_t_inf,
 )
 
 __all__ = ["software_versions", "fit_summary", "assemble_record", "add_objects", "object_entries"]
@@ -118,14 +119,25 @@ def coverage_note(summary: FamilySummary, min_coverage: float) -> str | None:
 
 
 def _background(
-    cfg: ScoreConfig, v: ClipVerdict, fam: dict[str, FamilySummary], pose: PoseEstimate
+    cfg: ScoreConfig, v: ClipVerdict, fam: dict[str, FamilySummary], pose: PoseEstimate, t_window: float | None = None
 ) -> BackgroundSummary:
     if fam[v.model].ir is None:
         note = coverage_note(fam[v.model], cfg.min_coverage) or "the background could not be judged"
+    elif v.untrusted:
+        note = (
+            f"the background could not be judged: {fam[v.model].independent_share:.0%} of its matches (median over "
+            f"the pairs) move on their own (movers the masks did not cover whole), and the {v.model} fit failed "
+            f"(IR {v.ir:.3f}, GE {v.ge:.2f} px) where they leak; a failure there says nothing about the scene"
+        )
     elif not pose.pose_present:
         note = f"no pose ({pose.reason}): gated F by the fail->F policy"
     elif v.label == "U":
-        note = f"gray zone: both families fitted, kept {v.model} (IR H {fam['H'].ir}, IR F {fam['F'].ir})"
+        why = (
+            f" (t_inf {pose.t_inf:.4f}, but a gate window reads {t_window:.4f} > {cfg.tau_t_window:g})"
+            if pose.t_inf is not None and pose.t_inf <= cfg.tau_t_low and t_window is not None
+            else ""
+        )
+        note = f"gray zone{why}: both families fitted, kept {v.model} (IR H {fam['H'].ir}, IR F {fam['F'].ir})"
     else:
         note = f"t_inf {pose.t_inf:.4f} -> {v.label}" + (f" ({pose.note})" if pose.note else "")
     chosen = fam[v.model]
@@ -144,14 +156,29 @@ def _background(
     )
 
 
-def _independent_share(scored: list[PairFits], family: str) -> float:
-    """Median over the scored pairs with a model of the share of matches that moved on their own."""
-    shares = []
-    for r in scored:
-        fit = r.fit(family)
-        if fit is not None and fit.model is not None and len(r.x1):
-            shares.append(fit.n_independent / len(r.x1))
-    return float(np.median(shares)) if shares else 0.0
+def _judge_span(
+    cfg: ScoreConfig,
+    thresholds: Thresholds,
+    scored: list[PairFits],
+    pose: PoseEstimate,
+    timeline_poses: Sequence[tuple[tuple[int, int], PoseEstimate]],
+    span: tuple[int, int],
+) -> tuple[dict[str, FamilySummary], ClipVerdict, float | None]:
+    """Both families over ``scored`` (the pairs of frames ``span``) and their verdict under the
+    gate of ``pose`` and of the gate windows inside ``span``; the largest window too."""
+    fam = {name: summarize_family(name, scored, cfg) for name in FAMILIES}
+    rows = [(s, e, est.t_inf, est.pose_present) for (s, e), est in timeline_poses]
+    t_window = window_t_inf(rows, span)
+    verdict = family_verdict(
+        fam["H"],
+        fam["F"],
+        t_inf=pose.t_inf,
+        pose_present=pose.pose_present,
+        thresholds=thresholds,
+        tau_t=cfg.tau_t,
+        t_window=t_window,
+    )
+    return fam, verdict, t_window
 
 
 def _judge_shots(
@@ -159,16 +186,14 @@ def _judge_shots(
     thresholds: Thresholds,
     shot_poses: Sequence[tuple[tuple[int, int], PoseEstimate]],
     scored: list[PairFits],
+    timeline_poses: Sequence[tuple[tuple[int, int], PoseEstimate]] = (),
 ) -> tuple[ClipVerdict, dict[str, FamilySummary], PoseEstimate, tuple[ShotRecord, ...]]:
-    """Each shot judged on its own pairs with its own gate; the combined verdict, the families
-    and pose of the shot that decides, and the shots' records."""
+    """Each shot judged on its own pairs with its own gate (and the gate windows inside it); the
+    combined verdict, the families and pose of the shot that decides, and the shots' records."""
     verdicts, families, records = [], [], []
     for (start, end), est in shot_poses:
         mine = [r for r in scored if start <= r.t0 and r.t1 <= end]
-        fam = {name: summarize_family(name, mine, cfg) for name in FAMILIES}
-        v = family_verdict(
-            fam["H"], fam["F"], t_inf=est.t_inf, pose_present=est.pose_present, thresholds=thresholds, tau_t=cfg.tau_t
-        )
+        fam, v, _ = _judge_span(cfg, thresholds, mine, est, timeline_poses, (start, end))
         note = "a single frame: nothing to judge" if end == start else _background(cfg, v, fam, est).choice_note
         verdicts.append(v)
         families.append(fam)
@@ -256,14 +281,11 @@ def assemble_record(
     thresholds = Thresholds.of(cfg)
     shots: tuple[ShotRecord, ...] = ()
     if len(shot_poses) > 1:
-        verdict, fam, pose, shots = _judge_shots(cfg, thresholds, shot_poses, scored)
+        verdict, fam, pose, shots = _judge_shots(cfg, thresholds, shot_poses, scored, timeline_poses)
         background = replace(_background(cfg, verdict, fam, pose), choice_note=_shots_note(shots, verdict))
     else:
-        fam = {name: summarize_family(name, scored, cfg) for name in FAMILIES}
-        verdict = family_verdict(
-            fam["H"], fam["F"], t_inf=pose.t_inf, pose_present=pose.pose_present, thresholds=thresholds, tau_t=cfg.tau_t
-        )
-        background = _background(cfg, verdict, fam, pose)
+        fam, verdict, t_window = _judge_span(cfg, thresholds, scored, pose, timeline_poses, (0, info.num_frames - 1))
+        background = _background(cfg, verdict, fam, pose, t_window)
     warnings: list[str] = list(info.warnings)  # frames lost to a damaged file, from the reader
     if not pose.pose_present:
         warnings.append(f"the first-last pose could not be recovered ({pose.reason}); the clip is gated F")
@@ -272,7 +294,7 @@ def assemble_record(
     coverage = coverage_note(fam[verdict.model], cfg.min_coverage)
     if coverage:
         warnings.append(coverage)
-    moving = _independent_share(scored, verdict.model)
+    moving = fam[verdict.model].independent_share
     if moving >= 0.01:
         warnings.append(
             f"independent motion: {moving:.0%} of the background matches (median over the scored pairs) move on their "

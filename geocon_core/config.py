@@ -177,6 +177,19 @@ class ScoreConfig:
     """Hysteresis gate: H when ``t_inf`` is at most this."""
     tau_t_high: float = 0.05
     """Hysteresis gate: F when ``t_inf`` is at least this; U in between."""
+    untrusted_share: float = 0.0
+    """A background that fails the report gate while at least this share of its matches (median
+    over its pairs, :attr:`~geocon_core.record.FamilySummary.independent_share`) moved on their
+    own cannot be judged: a mover the masks did not cover whole breaks a fit on a rigid scene as
+    surely as a broken scene does, so the failure says nothing. A background that passes keeps
+    its verdict (leaking movers only lower IR). 0 (the paper): off."""
+    tau_t_window: float = 0.0
+    """Gate windows: a clip (or shot) that the first-last ``t_inf`` gates H is in the gray zone
+    when one of its gate windows (``gate_window`` frames, every ``gate_stride``) reads ``t_inf``
+    above this (:func:`~geocon_core.verdict.gate_decision`). The background is judged on pairs a
+    few frames apart; a camera that translates inside the clip and ends near where it started
+    (a tracking shot, a walk that turns back) shows those pairs parallax that the first-last pose
+    does not see. 0 (the paper): the first-last pose alone."""
     gate_window: int = 16
     """Frames between the two ends of a windowed gate estimate."""
     gate_stride: int = 8
@@ -274,6 +287,10 @@ class ScoreConfig:
         """The gate's settings: thresholds in order, chains and the still-camera test."""
         if not self.tau_t_low <= self.tau_t_high:
             raise ValueError("tau_t_low must not exceed tau_t_high")
+        if self.tau_t_window < 0:
+            raise ValueError("tau_t_window must be >= 0 (0: off)")
+        if not 0.0 <= self.untrusted_share <= 1.0:
+            raise ValueError("untrusted_share must be in [0, 1] (0: off)")
         if self.chain_hop < 0 or self.chain_longest < 0 or not 0.0 < self.chain_min_share <= 1.0:
             raise ValueError("chain_hop and chain_longest must be >= 0 and chain_min_share in (0, 1]")
         if not 0.0 <= self.still_share <= 1.0 or self.still_px <= 0 or self.still_keep_px < 0:
@@ -327,6 +344,9 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "the masks did not cover whole) are left out of IR and counted; a camera whose frame stays still "
         "between its first and last frame (dense flow, 15% of the content or more, movers left out) is "
         "gated as still and judged on its still pixels; clips with hard cuts are judged shot by shot; "
+        "a clip the first-last pose gates H whose 16-frame gate window reads t_inf above 0.03 is in the "
+        "gray zone (both families fitted); a failing background half of whose matches moved on their "
+        "own cannot be judged; "
         "the default of `geocon score` and `geocon bench`",
         ScoreConfig(
             preset="audit",
@@ -344,6 +364,8 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             independent=IndependentConfig(enabled=True),
             still_share=0.15,
             judge_shots=True,
+            tau_t_window=0.03,
+            untrusted_share=0.5,
         ),
     ),
     "fast": (

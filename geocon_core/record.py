@@ -259,6 +259,7 @@ def _family_from(d: dict) -> FamilySummary:
         per_gap=tuple(GapSummary(**g) for g in d["per_gap"]),
         per_scale=tuple(ScaleSummary(**s) for s in d["per_scale"]),
         invalid_reasons=dict(d["invalid_reasons"]),
+        independent_share=float(d.get("independent_share", 0.0)),
     )
 
 

@@ -330,6 +330,9 @@ class FamilySummary:
     per_gap: tuple[GapSummary, ...]
     per_scale: tuple[ScaleSummary, ...]
     invalid_reasons: dict[str, int]
+    independent_share: float = 0.0
+    """Median over the pairs with a model of the share of their matches that moved on their own
+    (independent motion, a still camera's moved pixels), left out of IR."""
 
 
 @dataclass(frozen=True)

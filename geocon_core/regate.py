@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -31,6 +31,7 @@ from .verdict import (
     combine_shots,
     family_verdict,
     gate_shot,
+    window_t_inf,
 )
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "regate_family",
     "regate_pairs",
     "pair_inliers",
+    "gate_windows_of",
     "sensitivity_scan",
     "Residuals",
     "ResidualArrays",
@@ -57,6 +59,9 @@ class Regated:
     ge: float | None
     valid_pairs: int
     per_gap: tuple[GapSummary, ...]
+    independent_share: float = 0.0
+    """As :attr:`~geocon_core.record.FamilySummary.independent_share` (the stored flags: it does
+    not depend on ``tau``)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,6 +106,24 @@ def _pair_table(record: "ClipRecord | Residuals") -> PairTable:
     if isinstance(record, Residuals):
         return record.table
     return PairTable.of(record.pairs, record.matches)
+
+
+def _moved_share(record: "ClipRecord | Residuals", family: Family, keep: "slice | np.ndarray") -> float:
+    """The median over the pairs (``keep`` of the pair table) with a model and matches of the
+    share of their matches flagged as moving on their own, as the scorer summarises it."""
+    m = record.matches
+    table = _pair_table(record)
+    offsets = np.asarray(m.offsets, dtype=np.int64)
+    total = np.diff(offsets)[table.index]
+    independent = getattr(m, family_spec(family).independent, None)
+    if independent is None:
+        moved = np.zeros(len(total))
+    else:
+        cum = np.concatenate([[0], np.cumsum(independent.astype(np.int64))])
+        moved = (cum[offsets[1:]] - cum[offsets[:-1]])[table.index]
+    use = (table.usable[family] & (total > 0))[keep]
+    shares = (moved / np.maximum(total, 1))[keep][use]
+    return float(np.median(shares)) if len(shares) else 0.0
 
 
 def _regate_arrays(
@@ -180,6 +203,7 @@ def regate_family(
         tau=float(tau),
         ir=ir_c,
         ge=ge_c,
+        independent_share=_moved_share(record, family, keep),
         valid_pairs=sum(g.valid_pairs for g in per_gap),
         per_gap=per_gap,
     )
@@ -217,6 +241,13 @@ class ShotGate:
     end: int
     t_inf: float | None
     pose_present: bool
+    t_window: float | None = None
+    """The largest gate window inside the shot (:func:`~geocon_core.verdict.window_t_inf`)."""
+
+
+def gate_windows_of(gate: dict[str, Any]) -> list[tuple[int, int, float | None, bool]]:
+    """The gate windows of a record's ``gate`` (as JSON) as ``(start, end, t_inf, pose_present)``."""
+    return [(int(w["start"]), int(w["end"]), w["t_inf"], bool(w["pose_present"])) for w in gate.get("timeline", [])]
 
 
 @dataclass(frozen=True, eq=False)
@@ -252,6 +283,7 @@ class Residuals:
         t_inf: float | None,
         pose_present: bool,
         shots: tuple[ShotGate, ...] = (),
+        t_window: float | None = None,
     ) -> None:
         self.config = config
         self.pairs = pairs
@@ -259,14 +291,22 @@ class Residuals:
         self.t_inf = t_inf
         self.pose_present = pose_present
         self.shots = shots
+        self.t_window = t_window
 
     def __repr__(self) -> str:
         return f"Residuals({len(self.pairs)} pairs, t_inf={self.t_inf}, pose_present={self.pose_present})"
 
     @classmethod
     def of(cls, record: ClipRecord) -> "Residuals":
-        shots = tuple(ShotGate(s.start, s.end, s.t_inf, s.pose_present) for s in record.shots)
-        return cls(record.config, record.pairs, record.matches, record.gate.t_inf, record.gate.pose_present, shots)
+        rows = [(w.start, w.end, w.t_inf, w.pose_present) for w in record.gate.timeline]
+        shots = tuple(
+            ShotGate(s.start, s.end, s.t_inf, s.pose_present, window_t_inf(rows, (s.start, s.end)))
+            for s in record.shots
+        )
+        t_window = window_t_inf(rows, (0, record.video.num_frames - 1))
+        return cls(
+            record.config, record.pairs, record.matches, record.gate.t_inf, record.gate.pose_present, shots, t_window
+        )
 
     @cached_property
     def table(self) -> PairTable:
@@ -285,9 +325,14 @@ def load_residuals(folder: str | Path) -> Residuals:
     arrays = ResidualArrays(**read_matches(path, ResidualArrays.NAMES, ResidualArrays.OPTIONAL))  # nothing unpickled
     pairs = pairs_from_json(d)
     gate = d["gate"]
-    shots = tuple(ShotGate(s["start"], s["end"], s["t_inf"], bool(s["pose_present"])) for s in d.get("shots", []))
+    rows = gate_windows_of(gate)
+    shots = tuple(
+        ShotGate(s["start"], s["end"], s["t_inf"], bool(s["pose_present"]), window_t_inf(rows, (s["start"], s["end"])))
+        for s in d.get("shots", [])
+    )
     cfg = ScoreConfig.from_dict(d["config"])
-    return Residuals(cfg, pairs, arrays, gate["t_inf"], bool(gate["pose_present"]), shots)
+    t_window = window_t_inf(rows, (0, int(d["video"]["num_frames"]) - 1))
+    return Residuals(cfg, pairs, arrays, gate["t_inf"], bool(gate["pose_present"]), shots, t_window)
 
 
 def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipVerdict:
@@ -303,10 +348,13 @@ def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipV
                 t_inf=s.t_inf,
                 pose_present=s.pose_present,
                 thresholds=thresholds,
+                t_window=s.t_window,
             )
             for s in res.shots
         ]
         return combine_shots(verdicts, gate_shot([(s.start, s.end) for s in res.shots]))
     h = regate_family(res, "H", thresholds.tau("H"))
     f = regate_family(res, "F", thresholds.tau("F"))
-    return family_verdict(h, f, t_inf=res.t_inf, pose_present=res.pose_present, thresholds=thresholds)
+    return family_verdict(
+        h, f, t_inf=res.t_inf, pose_present=res.pose_present, thresholds=thresholds, t_window=res.t_window
+    )

@@ -12,6 +12,8 @@ from .dataset import expected_model
 from .layout import RRD_NAME, STATUS_NAME, clip_folders, read_status, tables_dir
 from .models import family_spec
 from .record import read_record_json
+from .regate import gate_windows_of
+from .verdict import window_t_inf
 
 __all__ = ["ResultClip", "clip_from_record_json", "read_bench_clips"]
 
@@ -32,11 +34,14 @@ class ResultClip:
     rrd: Path | None
     prompt: str | None
     t_inf: float | None = None
+    t_window: float | None = None
     pose_present: bool = False
     ir_h: float | None = None
     ge_h: float | None = None
     ir_f: float | None = None
     ge_f: float | None = None
+    ind_h: float = 0.0
+    ind_f: float = 0.0
     adap90_max: float | None = None
     n_objects: int = 0
     shots: int = 0
@@ -46,6 +51,10 @@ class ResultClip:
         """The recorded ``(IR, GE)`` of background ``family``."""
         attr = family_spec(family).attr
         return getattr(self, f"ir_{attr}"), getattr(self, f"ge_{attr}")
+
+    def moved(self, family: str) -> float:
+        """The share of background ``family``'s matches that moved on their own (median over pairs)."""
+        return float(getattr(self, f"ind_{family_spec(family).attr}"))
 
 
 def _num(v: Any) -> float | None:
@@ -87,11 +96,14 @@ def clip_from_record_json(
         error=None,
         rrd=rrd,
         t_inf=gate["t_inf"],
+        t_window=window_t_inf(gate_windows_of(gate), (0, int(d["video"]["num_frames"]) - 1)),
         pose_present=bool(gate["pose_present"]),
         ir_h=fam["H"]["ir"],
         ge_h=fam["H"]["ge"],
         ir_f=fam["F"]["ir"],
         ge_f=fam["F"]["ge"],
+        ind_h=float(fam["H"].get("independent_share", 0.0)),
+        ind_f=float(fam["F"].get("independent_share", 0.0)),
         adap90_max=max(adap90) if adap90 else None,
         n_objects=len(d.get("objects", [])),
         shots=len(d.get("shots", [])),
@@ -119,9 +131,9 @@ def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]
         return {}
     cols = ["clip_id", "status", "t_inf", "pose_present", "ir_h", "ge_h", "ir_f", "ge_f", "adap90_max", "n_objects"]
     schema = pq.read_schema(path)
-    if "shots" not in schema.names:  # tables written before shots were judged on their own
+    if not {"shots", "t_window", "ind_h", "ind_f"} <= set(schema.names):  # tables of an earlier version
         return {}
-    cols.append("shots")
+    cols += ["shots", "t_window", "ind_h", "ind_f"]
     table = pq.read_table(path, columns=cols).to_pydict()
     return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
 
@@ -155,11 +167,14 @@ def read_bench_clips(root: Path) -> list[ResultClip]:
                 error=None,
                 rrd=folder / status["rrd"] if status.get("rrd") else None,
                 t_inf=_num(row["t_inf"]),
+                t_window=_num(row["t_window"]),
                 pose_present=bool(row["pose_present"]),
                 ir_h=_num(row["ir_h"]),
                 ge_h=_num(row["ge_h"]),
                 ir_f=_num(row["ir_f"]),
                 ge_f=_num(row["ge_f"]),
+                ind_h=_num(row["ind_h"]) or 0.0,
+                ind_f=_num(row["ind_f"]) or 0.0,
                 adap90_max=_num(row["adap90_max"]),
                 n_objects=int(row["n_objects"]),
                 shots=int(row["shots"]),

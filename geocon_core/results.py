@@ -276,10 +276,12 @@ class ResultsIndex:
         try:
             if clip.shots:  # judged shot by shot: each shot's own gate and pairs
                 return regate_clip(self.residuals(clip.clip_id), thresholds)
-            h, f = (Scores(*self._family(clip, fam, thresholds.tau(fam))) for fam in ("H", "F"))
+            h, f = (Scores(*self._family(clip, fam, thresholds.tau(fam)), clip.moved(fam)) for fam in ("H", "F"))
         except ResultsError:  # its record turned out unreadable: listed as broken from now on
             return None
-        return family_verdict(h, f, t_inf=clip.t_inf, pose_present=clip.pose_present, thresholds=thresholds)
+        return family_verdict(
+            h, f, t_inf=clip.t_inf, pose_present=clip.pose_present, thresholds=thresholds, t_window=clip.t_window
+        )
 
     def triage(
         self,

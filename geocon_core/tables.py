@@ -15,6 +15,7 @@ from .dataset import expected_model
 from .layout import CLIPS_DIR, clip_folders, read_status, tables_dir
 from .record import ClipRecord, read_record
 from .regate import sensitivity_scan
+from .verdict import window_t_inf
 
 __all__ = ["TABLES", "COLUMNS", "collect_rows", "write_tables", "read_tables"]
 
@@ -64,6 +65,11 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         gate_model=gate.model,
         binary_label=gate.binary_label,
         t_inf=_num(gate.t_inf),
+        t_window=_num(
+            window_t_inf(
+                [(w.start, w.end, w.t_inf, w.pose_present) for w in gate.timeline], (0, record.video.num_frames - 1)
+            )
+        ),
         pose_present=bool(gate.pose_present),
         pose_method=gate.pose.method,
         margin=_num(gate.margin),
@@ -73,6 +79,8 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         ge_h=_num(fam["H"].ge),
         ir_f=_num(fam["F"].ir),
         ge_f=_num(fam["F"].ge),
+        ind_h=_num(fam["H"].independent_share),
+        ind_f=_num(fam["F"].independent_share),
         valid_pairs=bg.valid_pairs,
         total_pairs=bg.total_pairs,
         consistent=bg.consistent,
@@ -179,8 +187,9 @@ def collect_rows(results: str | Path) -> dict[str, list[dict[str, Any]]]:
 
 
 _GROUP = ["clip_id", "model", "scene_id", "category"]
-_CLIP_SCORES = ["ir", "ge", "ir_h", "ge_h", "ir_f", "ge_f"]
-"""The clip's IR and GE: of the chosen model, of H, of F (float columns)."""
+_CLIP_SCORES = ["ir", "ge", "ir_h", "ge_h", "ir_f", "ge_f", "ind_h", "ind_f"]
+"""The clip's IR and GE: of the chosen model, of H, of F; and the share of H's and F's matches
+that moved on their own (float columns)."""
 COLUMNS: dict[str, list[str]] = {
     "clips": _GROUP
     + [
@@ -200,6 +209,7 @@ COLUMNS: dict[str, list[str]] = {
         "gate_model",
         "binary_label",
         "t_inf",
+        "t_window",
         "pose_present",
         "pose_method",
         "margin",
@@ -254,6 +264,7 @@ _DTYPES: dict[str, dict[str, str]] = {
 }
 _FLOAT = {
     "t_inf",
+    "t_window",
     "margin",
     *_CLIP_SCORES,
     "tau_f_px",

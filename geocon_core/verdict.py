@@ -18,7 +18,7 @@ Default thresholds are those of :class:`~geocon_core.config.ScoreConfig`.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Literal, NamedTuple, Protocol, Sequence
+from typing import Iterable, Literal, NamedTuple, Protocol, Sequence
 
 import numpy as np
 
@@ -33,6 +33,7 @@ __all__ = [
     "hysteresis_gate",
     "gate_margin",
     "gate_decision",
+    "window_t_inf",
     "FitRow",
     "aggregate_gaps",
     "aggregate_gap_arrays",
@@ -102,13 +103,32 @@ def gate_decision(
     tau_t: float | None = None,
     low: float | None = None,
     high: float | None = None,
+    t_window: float | None = None,
+    window: float = 0.0,
 ) -> tuple[GateLabel, GateLabel, float | None]:
     """(hysteresis label, binary label, margin). Without a pose the clip is gated F with no
-    margin (the fail->F policy)."""
+    margin (the fail->F policy). With ``window`` > 0 (``ScoreConfig.tau_t_window``), a clip the
+    first-last ``t_inf`` gates H whose largest gate-window statistic ``t_window`` exceeds
+    ``window`` is in the gray zone instead, its margin ``window - t_window`` (negative)."""
     if not pose_present or t_inf is None:
         return "F", "F", None
     label = hysteresis_gate(t_inf, low, high)
+    if label == "H" and window > 0 and t_window is not None and t_window > window:
+        return "U", binary_gate(t_inf, tau_t), window - t_window
     return label, binary_gate(t_inf, tau_t), gate_margin(label, t_inf, low, high)
+
+
+def window_t_inf(windows: Iterable[tuple[int, int, float | None, bool]], span: tuple[int, int]) -> float | None:
+    """The largest gate statistic of the gate windows ``(start, end, t_inf, pose_present)`` that
+    lie inside ``span`` (inclusive) other than the span itself; None when none has a pose. The
+    background is judged on pairs a few frames apart: a camera that translates inside the clip
+    and comes back near its start reads a small first-last ``t_inf`` while its windows do not."""
+    values = [
+        float(t)
+        for start, end, t, present in windows
+        if present and t is not None and span[0] <= start and end <= span[1] and (start, end) != tuple(span)
+    ]
+    return max(values) if values else None
 
 
 # --- aggregation over gaps and scales ----------------------------------------------------------
@@ -232,8 +252,11 @@ def summarize_family(family: str, scored: Sequence[PairFits], cfg: ScoreConfig) 
         rows, gaps=cfg.gaps, scales=cfg.scales, aggregation=cfg.aggregation, min_coverage=cfg.min_coverage
     )
     reasons: dict[str, int] = {}
+    moved = []
     for r in scored:
         fit = r.fit(family)
+        if fit is not None and fit.model is not None and len(r.x1):
+            moved.append(fit.n_independent / len(r.x1))
         reason = r.skip or (fit.reason if fit is not None else None)
         if reason:
             reasons[reason] = reasons.get(reason, 0) + 1
@@ -260,6 +283,7 @@ def summarize_family(family: str, scored: Sequence[PairFits], cfg: ScoreConfig) 
         per_gap=tuple(per_gap),
         per_scale=tuple(per_scale),
         invalid_reasons=dict(sorted(reasons.items())),
+        independent_share=float(np.median(moved)) if moved else 0.0,
     )
 
 
@@ -277,8 +301,13 @@ class Thresholds:
     ge_gate: float
     tau_t_low: float
     tau_t_high: float
+    tau_t_window: float = 0.0
+    """Gate windows (``ScoreConfig.tau_t_window``; 0: off)."""
+    untrusted_share: float = 0.0
+    """A failing background with this share of matches moving on their own cannot be judged
+    (``ScoreConfig.untrusted_share``; 0: off)."""
 
-    NAMES = ("tau_h", "tau_f", "ir_gate", "ge_gate", "tau_t_low", "tau_t_high")
+    NAMES = ("tau_h", "tau_f", "ir_gate", "ge_gate", "tau_t_low", "tau_t_high", "tau_t_window", "untrusted_share")
 
     @classmethod
     def of(cls, config: ScoreConfig) -> "Thresholds":
@@ -290,6 +319,10 @@ class Thresholds:
             raise ValueError(f"tau_h and tau_f must be positive, got {self.tau_h} and {self.tau_f}")
         if not self.tau_t_low <= self.tau_t_high:
             raise ValueError(f"the gate's low threshold {self.tau_t_low} exceeds its high threshold {self.tau_t_high}")
+        if self.tau_t_window < 0:
+            raise ValueError(f"the gate window threshold must be >= 0 (0: off), got {self.tau_t_window}")
+        if not 0.0 <= self.untrusted_share <= 1.0:
+            raise ValueError(f"the untrusted share must be in [0, 1] (0: off), got {self.untrusted_share}")
 
     def tau(self, family: str) -> float:
         """The residual threshold of ``family``."""
@@ -349,11 +382,15 @@ class ClipVerdict:
     ir_f: float | None
     ge_f: float | None
     binary_label: GateLabel = "F"
+    untrusted: bool = False
+    """The chosen family failed the report gate on a background whose matches moved on their own
+    at ``Thresholds.untrusted_share`` or more: not judged (``consistent`` None)."""
 
 
 class FamilyScores(Protocol):
-    """A family's clip IR and GE (None when it could not be judged): a
-    :class:`~geocon_core.record.FamilySummary`, a re-gated family, or :class:`Scores`."""
+    """A family's clip IR and GE (None when it could not be judged) and the share of its matches
+    that moved on their own: a :class:`~geocon_core.record.FamilySummary`, a re-gated family, or
+    :class:`Scores`."""
 
     @property
     def ir(self) -> float | None: ...
@@ -361,12 +398,16 @@ class FamilyScores(Protocol):
     @property
     def ge(self) -> float | None: ...
 
+    @property
+    def independent_share(self) -> float: ...
+
 
 class Scores(NamedTuple):
     """A family's clip IR and GE as plain values (see :class:`FamilyScores`)."""
 
     ir: float | None
     ge: float | None
+    independent_share: float = 0.0
 
 
 def family_verdict(
@@ -377,23 +418,39 @@ def family_verdict(
     pose_present: bool,
     thresholds: Thresholds,
     tau_t: float | None = None,
+    t_window: float | None = None,
 ) -> ClipVerdict:
-    """The verdict from a clip's gate statistic and both families' scores ``h`` and ``f``: the
-    gate (:func:`gate_decision`; ``tau_t`` is the binary gate's threshold, default the config's),
-    the model (:func:`choose_model`) and the report gate on that model's IR and GE."""
+    """The verdict from a clip's gate statistic (and its largest gate window, ``t_window``) and
+    both families' scores ``h`` and ``f``: the gate (:func:`gate_decision`; ``tau_t`` is the binary
+    gate's threshold, default the config's), the model (:func:`choose_model`) and the report gate
+    on that model's IR and GE."""
     label, binary, margin = gate_decision(
-        t_inf, pose_present=pose_present, tau_t=tau_t, low=thresholds.tau_t_low, high=thresholds.tau_t_high
+        t_inf,
+        pose_present=pose_present,
+        tau_t=tau_t,
+        low=thresholds.tau_t_low,
+        high=thresholds.tau_t_high,
+        t_window=t_window,
+        window=thresholds.tau_t_window,
     )
     model = choose_model(label, pose_present and t_inf is not None, h.ir, f.ir)
-    ir, ge = (h.ir, h.ge) if model == "H" else (f.ir, f.ge)
+    chosen = h if model == "H" else f
+    ir, ge = chosen.ir, chosen.ge
+    consistent = report_verdict(ir, ge, thresholds.ir_gate, thresholds.ge_gate)
+    untrusted = (
+        consistent is False
+        and thresholds.untrusted_share > 0
+        and chosen.independent_share >= thresholds.untrusted_share
+    )
     return ClipVerdict(
         label=label,
         model=model,
         margin=margin,
         ir=ir,
         ge=ge,
-        consistent=report_verdict(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
-        report_margin=report_margin(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
+        consistent=None if untrusted else consistent,
+        report_margin=None if untrusted else report_margin(ir, ge, thresholds.ir_gate, thresholds.ge_gate),
+        untrusted=untrusted,
         ir_h=h.ir,
         ge_h=h.ge,
         ir_f=f.ir,
@@ -412,10 +469,13 @@ def clip_verdict(
     ge_f: float | None,
     thresholds: Thresholds,
     tau_t: float | None = None,
+    t_window: float | None = None,
 ) -> ClipVerdict:
     """:func:`family_verdict` from both families' IR and GE given as values."""
     h, f = Scores(ir_h, ge_h), Scores(ir_f, ge_f)
-    return family_verdict(h, f, t_inf=t_inf, pose_present=pose_present, thresholds=thresholds, tau_t=tau_t)
+    return family_verdict(
+        h, f, t_inf=t_inf, pose_present=pose_present, thresholds=thresholds, tau_t=tau_t, t_window=t_window
+    )
 
 
 # --- clips with cuts: each shot judged on its own -------------------------------------------------

@@ -23,6 +23,16 @@ THRESHOLD_LABELS = {
     "ge_gate": ("GE gate (px)", 0.1, "... and GE <= this (px)."),
     "tau_t_low": ("gate low", 0.005, "Hysteresis gate: H when t_inf <= this."),
     "tau_t_high": ("gate high", 0.005, "Hysteresis gate: F when t_inf >= this; U in between."),
+    "tau_t_window": (
+        "gate window",
+        0.005,
+        "An H clip whose gate window reads t_inf above this is in the gray zone (0: off).",
+    ),
+    "untrusted_share": (
+        "untrusted share",
+        0.05,
+        "A failing background with at least this share of matches moving on their own is not judged (0: off).",
+    ),
 }
 """Per threshold: its label, the step of its input and its hint."""
 

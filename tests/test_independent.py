@@ -147,3 +147,36 @@ def test_movers_the_masks_miss_leave_a_still_camera_consistent(synth_clips):
     assert any(w.startswith("independent motion:") for w in rec.warnings)
     moved = sum(p.h.n_independent for p in rec.pairs if p.h is not None)
     assert moved > 0 and rec.matches.h_ind.sum() == moved
+
+
+def test_a_failing_background_whose_matches_moved_on_their_own_is_not_judged(synth_clips, tmp_path):
+    """The untrusted share: a background that fails while at least ``untrusted_share`` of its
+    matches moved on their own is not judged; one that passes keeps its verdict. The share is the
+    record's, and re-gating (the stored per-match flags, also from the saved residuals) reads the
+    same share and gives the same verdict."""
+    from dataclasses import replace
+
+    from geocon_core.config import preset
+    from geocon_core.record import write_record
+    from geocon_core.regate import load_residuals, regate_clip, regate_family
+    from geocon_core.scorer import score_clip
+    from geocon_core.synth import ClipPlan
+    from geocon_core.verdict import Thresholds
+
+    folder = synth_clips([ClipPlan("C4")], seed=2, width=640, height=360, num_frames=24)
+    audit = preset("audit").with_(masks="none")  # the movers' matches are left to the independent-motion rule
+    rec = score_clip(folder / f"{ClipPlan('C4').clip_id}.mp4", replace(audit, still_share=0.0))
+    share = rec.background.chosen.independent_share
+    assert 0.0 < share < 1.0 and rec.background.consistent is True  # passing: the share changes nothing
+    th = Thresholds.of(rec.config)
+    assert th.untrusted_share == 0.5
+    assert regate_family(rec, rec.background.model, th.tau(rec.background.model)).independent_share == share
+    # made to fail (a GE gate no fit meets): not judged from the share up, failing under it
+    strict = replace(th, ge_gate=1e-6)
+    at, under = replace(strict, untrusted_share=share), replace(strict, untrusted_share=min(1.0, share * 1.01))
+    v = regate_clip(rec, at)
+    assert (v.consistent, v.untrusted, v.report_margin) == (None, True, None)
+    assert (regate_clip(rec, under).consistent, regate_clip(rec, under).untrusted) == (False, False)
+    assert regate_clip(rec, replace(strict, untrusted_share=0.0)).consistent is False  # off
+    write_record(rec, tmp_path / "rec")
+    assert regate_clip(load_residuals(tmp_path / "rec"), at).untrusted is True

@@ -217,3 +217,19 @@ def test_an_unjudged_gap_leaves_the_headline_to_the_judged_ones():
     per_gap, ir, ge = aggregate_gaps(rows, gaps=(1, 8), scales=(1.0,), aggregation="worst", min_coverage=0.5)
     assert [g.judged for g in per_gap] == [True, False]
     assert ir == pytest.approx(0.99) and ge == pytest.approx(0.1)  # gap 8's lone fit is not the headline
+
+
+def test_a_failing_background_of_moving_matches_is_not_judged_and_a_passing_one_passes():
+    th = Thresholds(1.0, 0.1, 0.97, 0.6, 0.03, 0.05, 0.0, 0.5)
+    fails, passes = Scores(0.8, 0.9, 0.6), Scores(0.99, 0.2, 0.9)
+    v = family_verdict(fails, fails, t_inf=0.0, pose_present=True, thresholds=th)
+    assert (v.model, v.consistent, v.untrusted, v.report_margin) == ("H", None, True, None)
+    assert family_verdict(passes, passes, t_inf=0.0, pose_present=True, thresholds=th).consistent is True
+    clean = Scores(0.8, 0.9, 0.49)
+    assert family_verdict(clean, clean, t_inf=0.0, pose_present=True, thresholds=th).consistent is False
+    # the bench index reads the same shares from its clips
+    clip = _clip("fails", True, True)
+    moved = ResultClip(**{**clip.__dict__, "ir_h": 0.8, "ge_h": 0.9, "ind_h": 0.6})
+    idx = ResultsIndex(Path("."), [moved], ScoreConfig(untrusted_share=0.5), None, "bench")
+    got = idx.verdict(moved.clip_id, idx.recorded)
+    assert got is not None and got.consistent is None and got.untrusted

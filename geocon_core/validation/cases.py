@@ -12,13 +12,14 @@ import hashlib
 import io
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Sequence
 
 __all__ = [
     "ANNOTATIONS_PATH",
     "CODECS",
     "CaseSpec",
     "Annotation",
+    "is_geometric",
     "CLEAN_FAMILIES",
     "FAILURE_FAMILY",
     "HEIGHTS",
@@ -100,6 +101,11 @@ OTHER_ARTIFACTS: tuple[str, ...] = ("blur", "watermark", "text", "flicker")
 """Artifact kinds a geometric check is not meant to see."""
 
 
+def is_geometric(artifact_kinds: Sequence[str]) -> bool:
+    """Whether any of ``artifact_kinds`` is geometric (:data:`GEOMETRIC_ARTIFACTS`)."""
+    return any(k in GEOMETRIC_ARTIFACTS for k in artifact_kinds)
+
+
 def split_of(key: str) -> str:
     """``tune`` or ``check``: the half a clip belongs to, from a seeded hash of its key
     (``root:clip``). Rules and thresholds are chosen on the tune half only; the check half is
@@ -160,7 +166,7 @@ class Annotation:
     @property
     def geometric_artifact(self) -> bool:
         """A visible artifact of a geometric kind (an object or the background changes shape)."""
-        return any(k in GEOMETRIC_ARTIFACTS for k in self.artifact_kinds)
+        return is_geometric(self.artifact_kinds)
 
     @property
     def visible_artifact(self) -> bool:

@@ -117,9 +117,10 @@ class CaseResult:
 
     @property
     def geometric_artifact(self) -> bool:
-        from .cases import GEOMETRIC_ARTIFACTS
+        """A visible artifact of a geometric kind (:func:`~.cases.is_geometric`)."""
+        from .cases import is_geometric
 
-        return any(k in GEOMETRIC_ARTIFACTS for k in self.artifact_kinds)
+        return is_geometric(self.artifact_kinds)
 
 
 def worst_pair_note(rec: ClipRecord) -> str | None:
