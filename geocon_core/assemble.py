@@ -137,7 +137,8 @@ def _background(
             if pose.t_inf is not None and pose.t_inf <= cfg.tau_t_low and t_window is not None
             else ""
         )
-        note = f"gray zone{why}: both families fitted, kept {v.model} (IR H {fam['H'].ir}, IR F {fam['F'].ir})"
+        irs = ", ".join(f"IR {k} " + ("-" if fam[k].ir is None else f"{fam[k].ir:.3f}") for k in ("H", "F"))
+        note = f"gray zone{why}: both families fitted, kept {v.model} ({irs})"
     else:
         note = f"t_inf {pose.t_inf:.4f} -> {v.label}" + (f" ({pose.note})" if pose.note else "")
     chosen = fam[v.model]
