@@ -303,6 +303,11 @@ def assemble_record(
         )
     if info.duplicates:
         warnings.append(f"{len(info.duplicates)} duplicated frame(s): pairs across them are not scored")
+    if info.fades:
+        warnings.append(
+            f"{len(info.fades)} cross-fade(s) over frames {', '.join(f'{s}-{e}' for s, e in info.fades)}: the frames "
+            "between each fade's ends blend two shots, and no pair among them is scored"
+        )
     if info.cuts:
         warnings.append(
             f"{len(info.cuts)} hard cut(s) at frame(s) {list(info.cuts)}: pairs across them are not scored, and "

@@ -343,7 +343,8 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "the background's; background outliers that jump away from the background around them (a mover "
         "the masks did not cover whole) are left out of IR and counted; a camera whose frame stays still "
         "between its first and last frame (dense flow, 15% of the content or more, movers left out) is "
-        "gated as still and judged on its still pixels; clips with hard cuts are judged shot by shot; "
+        "gated as still and judged on its still pixels; clips with hard cuts or cross-fades (up to 30 "
+        "frames) are judged shot by shot; "
         "a clip the first-last pose gates H whose 16-frame gate window reads t_inf above 0.03 is in the "
         "gray zone (both families fitted); a failing background half of whose matches moved on their "
         "own cannot be judged; "
@@ -366,6 +367,7 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             judge_shots=True,
             tau_t_window=0.03,
             untrusted_share=0.5,
+            cuts=CutConfig(fade_frames=30),
         ),
     ),
     "fast": (

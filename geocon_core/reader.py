@@ -64,7 +64,7 @@ from .decode import (
 )
 from .stage_configs import BarConfig, CutConfig
 
-SkipReason = Literal["duplicate_frame", "hard_cut"]
+SkipReason = Literal["duplicate_frame", "hard_cut", "fade"]
 
 __all__ = [
     "ClipError",
@@ -76,6 +76,7 @@ __all__ = [
     "check_clip",
     "iter_frames",
     "probe_clip",
+    "find_fades",
     "canvas_layout",
     "layout_of",
     "to_working",
@@ -117,7 +118,12 @@ class ClipInfo:
     duplicates: tuple[int, ...] = ()
     """Sorted t (>= 1) such that frame t duplicates frame t - 1."""
     cuts: tuple[int, ...] = ()
-    """Sorted t (>= 1) such that a hard cut lies between frame t - 1 and frame t."""
+    """Sorted t (>= 1) such that a hard cut lies between frame t - 1 and frame t. A fade (below)
+    puts one after its first end and one at its last end."""
+    fades: tuple[tuple[int, int], ...] = ()
+    """(s, e) of each cross-fade, sorted: frames ``s + 1 .. e - 1`` blend frame ``s`` (the last of
+    a shot) into frame ``e`` (the first of the next); ``s + 1`` and ``e`` are in :attr:`cuts`, and
+    the frames between belong to no shot. Absent from records written before fades were found."""
     warnings: tuple[str, ...] = ()
     """One sentence each about frames lost to damage (the container promised more frames than
     decoded, a decoder error ended the stream, a GIF stops before its trailer); the clip is scored
@@ -147,6 +153,13 @@ class ClipInfo:
                 raise ValueError(
                     f"{name} must be sorted distinct frame indices in 1..{self.num_frames - 1}, got {ts!r}"
                 )
+        if not isinstance(self.fades, tuple) or any(
+            not (isinstance(f, tuple) and len(f) == 2 and 0 <= f[0] < f[1] - 1 < self.num_frames - 1)
+            or f[0] + 1 not in self.cuts
+            or f[1] not in self.cuts
+            for f in self.fades
+        ):
+            raise ValueError(f"fades must be (s, e) frame pairs with s + 1 and e in cuts, got {self.fades!r}")
         if not isinstance(self.warnings, tuple) or not all(isinstance(w, str) for w in self.warnings):
             raise ValueError(f"warnings must be a tuple of str, got {self.warnings!r}")
 
@@ -161,40 +174,48 @@ class ClipInfo:
 
     @property
     def shots(self) -> tuple[tuple[int, int], ...]:
-        """(first, last) frame of each shot, inclusive: the spans between :attr:`cuts`; one span
-        for a clip without cuts."""
+        """(first, last) frame of each shot, inclusive: the spans between :attr:`cuts`, less the
+        inside of each fade; one span for a clip without cuts."""
         starts = (0, *self.cuts)
         ends = (*(c - 1 for c in self.cuts), self.num_frames - 1)
-        return tuple(zip(starts, ends, strict=True))
+        inside = {(s + 1, e - 1) for s, e in self.fades}
+        return tuple(span for span in zip(starts, ends, strict=True) if span not in inside)
 
     def pair_skip_reason(self, t0: int, t1: int) -> SkipReason | None:
         """Why the frame pair (t0, t1), ``0 <= t0 < t1 < num_frames``, must not be scored:
         ``"duplicate_frame"`` if every frame in ``t0 + 1 .. t1`` duplicates its predecessor (the
-        two frames are identical), ``"hard_cut"`` if a cut ``c`` has ``t0 < c <= t1``, else None."""
+        two frames are identical), ``"fade"`` if both frames lie inside a fade, ``"hard_cut"`` if a
+        cut ``c`` has ``t0 < c <= t1``, else None."""
         if not 0 <= t0 < t1 < self.num_frames:
             raise ValueError(f"need 0 <= t0 < t1 < {self.num_frames}, got ({t0}, {t1})")
         dup = set(self.duplicates)
         if all(t in dup for t in range(t0 + 1, t1 + 1)):
             return "duplicate_frame"
+        if any(s < t0 and t1 < e for s, e in self.fades):
+            return "fade"
         if any(t0 < c <= t1 for c in self.cuts):
             return "hard_cut"
         return None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict (tuples become lists); :meth:`from_dict` inverts it exactly."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+        out = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+        out["fades"] = [list(f) for f in self.fades]
+        return out
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ClipInfo":
         """The :class:`ClipInfo` that :meth:`to_dict` made ``d`` from (:attr:`warnings` may be
         absent: records written before it hold none)."""
         names = {f.name for f in fields(cls)}
-        unknown, missing = set(d) - names, names - set(d) - {"warnings"}
+        unknown, missing = set(d) - names, names - set(d) - {"warnings", "fades"}
         if unknown or missing:
             raise ValueError(f"ClipInfo keys: unknown {sorted(unknown)}, missing {sorted(missing)}")
         kw: dict[str, Any] = {
-            k: tuple(int(x) for x in v) if isinstance(v, list) and k != "warnings" else v for k, v in d.items()
+            k: tuple(int(x) for x in v) if isinstance(v, list) and k not in ("warnings", "fades") else v
+            for k, v in d.items()
         }
+        kw["fades"] = tuple((int(s), int(e)) for s, e in d.get("fades", []))
         kw["fps"], kw["scale"], kw["num_frames"] = float(d["fps"]), float(d["scale"]), int(d["num_frames"])
         warnings = d.get("warnings", [])
         kw["warnings"] = tuple(warnings) if isinstance(warnings, list) else warnings
@@ -239,6 +260,7 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
     dup_flags: list[bool] = []
     hist_dist: list[float] = []
     thumb_mad: list[float] = []
+    fade_thumbs: list[np.ndarray] = []
     n = 0
     size = (0, 0)
     video: CaptureFrames | None = None
@@ -262,6 +284,8 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         col_max = cols if col_max is None else np.maximum(col_max, cols)
         thumb = _thumbnail(gray, config.cuts.thumb_width)
         hist = cv2.calcHist([thumb], [0], None, [config.cuts.hist_bins], [0, 256])
+        if config.cuts.fade_frames:
+            fade_thumbs.append(_thumbnail(gray, config.cuts.fade_width))
         if prev_gray is not None and prev_thumb is not None and prev_hist is not None:
             dup_flags.append(float(cv2.mean(cv2.absdiff(gray, prev_gray))[0]) <= config.duplicate_mad)
             hist_dist.append(float(cv2.compareHist(prev_hist, hist, cv2.HISTCMP_BHATTACHARYYA)))
@@ -285,6 +309,10 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
     sw, sh = layout.scaled_size
     duplicates = tuple(t + 1 for t, d in enumerate(dup_flags) if d)
     cuts = _hard_cuts(np.asarray(hist_dist), np.asarray(thumb_mad), np.asarray(dup_flags), config.cuts)
+    fades = find_fades(fade_thumbs, config.cuts) if fade_thumbs else ()
+    if fades:  # a fade's ends are cuts; a cut found inside a fade is the fade's
+        inside = {t for s, e in fades for t in range(s + 1, e + 1)}
+        cuts = tuple(sorted({c for c in cuts if c not in inside} | {t for s, e in fades for t in (s + 1, e)}))
     return ClipInfo(
         path=name,
         kind=kind,
@@ -298,6 +326,7 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         content_box=_content_box(size, bars, layout, config.bars.margin_px),
         duplicates=duplicates,
         cuts=cuts,
+        fades=fades,
         warnings=_damage_warnings(Path(path), kind, n, None if video is None else video.error, promise),
     )
 
@@ -468,6 +497,69 @@ def _thumbnail(gray: np.ndarray, width: int) -> np.ndarray:
     th = max(1, round(width * h / w))
     interp = cv2.INTER_AREA if w >= width else cv2.INTER_LINEAR
     return cv2.resize(gray, (width, th), interpolation=interp)
+
+
+def _ncc(a: np.ndarray, b: np.ndarray) -> float:
+    """Normalised cross-correlation of two flattened thumbnails, means removed (0 for a flat one)."""
+    a, b = a - a.mean(), b - b.mean()
+    den = math.sqrt(float(a @ a) * float(b @ b))
+    return float(a @ b) / den if den > 0 else 0.0
+
+
+def _blend_fit(thumbs: np.ndarray, s: int, e: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(alpha, residual) of each frame strictly between ``s`` and ``e`` as the blend
+    ``(1 - alpha) T_s + alpha T_e`` of the two ends that fits it best (least squares), the
+    residual as RMS over the RMS of ``T_e - T_s``; and the mean absolute difference of the ends."""
+    d = thumbs[e] - thumbs[s]
+    dd = float(d @ d)
+    inner = thumbs[s + 1 : e] - thumbs[s]
+    if dd <= 0:
+        return np.zeros(len(inner)), np.full(len(inner), np.inf), 0.0
+    alpha = inner @ d / dd
+    rest = inner - alpha[:, None] * d
+    residual = np.sqrt(np.mean(rest**2, axis=1)) / math.sqrt(dd / d.size)
+    return alpha, residual, float(np.mean(np.abs(d)))
+
+
+def find_fades(thumbs: list[np.ndarray], config: CutConfig) -> tuple[tuple[int, int], ...]:
+    """Cross-fades among a clip's grey thumbnails (one per frame, same size): (s, e) such that every
+    frame strictly between is a blend of frames s and e (:func:`_blend_fit` residual at most
+    ``config.fade_residual``, blend weights rising from below a half to above it), the two ends
+    differ by more than ``config.min_mad`` grey levels and are different pictures (normalised
+    cross-correlation below ``config.fade_max_ncc``: a change of light is no fade), and ``e - s``
+    is 3 to ``config.fade_frames``.
+    Overlapping fades are merged and trimmed to the frames whose weight moves (a still stretch
+    before or after a fade is a blend of its ends too, with weight 0 or 1)."""
+    n = len(thumbs)
+    if n < 4 or config.fade_frames < 3:
+        return ()
+    t = np.stack([x.astype(np.float32).ravel() for x in thumbs])
+    windows = []
+    for e in range(3, n):
+        for s in range(max(0, e - config.fade_frames), e - 2):
+            alpha, residual, mad = _blend_fit(t, s, e)
+            if mad <= config.min_mad or residual.max() > config.fade_residual:
+                continue
+            if alpha.min() < -0.1 or alpha.max() > 1.1 or np.any(np.diff(alpha) < -0.1):
+                continue
+            if alpha[0] < 0.5 < alpha[-1] and _ncc(t[s], t[e]) < config.fade_max_ncc:
+                windows.append((s, e))
+    merged: list[list[int]] = []
+    for s, e in sorted(windows):
+        if merged and s < merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], e)
+        else:
+            merged.append([s, e])
+    fades = []
+    for s, e in merged:
+        alpha, _, _ = _blend_fit(t, s, e)
+        moving = np.flatnonzero((alpha > 0.05) & (alpha < 0.95))
+        if not len(moving):
+            continue
+        s2, e2 = s + int(moving[0]), s + 2 + int(moving[-1])  # the last still frame before, the first after
+        if e2 - s2 >= 3:
+            fades.append((s2, e2))
+    return tuple(fades)
 
 
 def _hard_cuts(dist: np.ndarray, mad: np.ndarray, duplicate: np.ndarray, config: CutConfig) -> tuple[int, ...]:

@@ -63,10 +63,25 @@ class CutConfig:
     isolated spike; a fast pan or a passing occluder raises several consecutive distances)."""
     lone_distance: float = 0.35
     """The distance a pair needs when the clip has no other pair to compare it with."""
+    fade_frames: int = 0
+    """Cross-fades (dissolves) up to this many frames long are found (:func:`~geocon_core.reader.find_fades`):
+    the frames between a fade's two ends are blends of them, so no pair that touches them is scored and
+    the shots on either side are judged on their own. 0 (the paper): fades are not looked for."""
+    fade_residual: float = 0.15
+    """A frame inside a fade is the blend of the fade's two end frames that fits it best, to within
+    this share (RMS) of the two ends' difference, on grey thumbnails ``fade_width`` px wide."""
+    fade_width: int = 32
+    """Width (px) of the grey thumbnails the fade test compares."""
+    fade_max_ncc: float = 0.5
+    """A fade's two ends are different pictures: the normalised cross-correlation of their
+    thumbnails (mean removed) is below this. A change of light keeps the picture (0.9 and more on
+    the generated clips whose sunlight or lightning comes and goes) and is no fade."""
 
     def __post_init__(self) -> None:
-        if self.thumb_width < 1 or self.hist_bins < 1:
-            raise ValueError("cuts: thumb_width and hist_bins must be positive")
+        if self.thumb_width < 1 or self.hist_bins < 1 or self.fade_width < 1:
+            raise ValueError("cuts: thumb_width, hist_bins and fade_width must be positive")
+        if self.fade_frames < 0 or not 0 < self.fade_residual < 1 or not -1 <= self.fade_max_ncc <= 1:
+            raise ValueError("cuts: fade_frames must be >= 0, fade_residual in (0, 1) and fade_max_ncc in [-1, 1]")
 
 
 @dataclass(frozen=True)

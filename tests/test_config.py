@@ -123,9 +123,9 @@ def test_every_field_changes_the_hash(name: str, config: ScoreConfig) -> None:
 def test_adding_an_optional_backend_keeps_the_hashes_of_the_presets() -> None:
     # the hashes the presets had when SAM-2 and DUSt3R were added (an optional backend's settings
     # leave them alone), as renewed on 2026-11-26 by the scoring settings added then (independent
-    # motion, the still-camera test, shots, chain lengths, gate windows, the untrusted share)
-    assert config_hash(preset("audit")) == "17d5ad573a65e247"
-    assert config_hash(preset("paper")) == "11c796e3d1efb6f0"
+    # motion, the still-camera test, shots, chain lengths, gate windows, the untrusted share, fades)
+    assert config_hash(preset("audit")) == "de188b80dff97eb9"
+    assert config_hash(preset("paper")) == "9406eeccc05e551f"
 
 
 def test_presets_print_every_field() -> None:
