@@ -15,13 +15,22 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
 from .config import ScoreConfig
 from .models import FAMILIES, family_spec, inlier_mask, segment_inlier_stats, segment_order
-from .record import ClipRecord, GapSummary, MatchArrays, PairRecord, pairs_from_json, read_matches, read_record_json
+from .record import (
+    ClipRecord,
+    GapSummary,
+    GateWindow,
+    MatchArrays,
+    PairRecord,
+    pairs_from_json,
+    read_matches,
+    read_record_json,
+)
 from .verdict import (
     ClipVerdict,
     Family,
@@ -39,7 +48,7 @@ __all__ = [
     "regate_family",
     "regate_pairs",
     "pair_inliers",
-    "gate_windows_of",
+    "timeline_rows",
     "sensitivity_scan",
     "Residuals",
     "ResidualArrays",
@@ -108,29 +117,12 @@ def _pair_table(record: "ClipRecord | Residuals") -> PairTable:
     return PairTable.of(record.pairs, record.matches)
 
 
-def _moved_share(record: "ClipRecord | Residuals", family: Family, keep: "slice | np.ndarray") -> float:
-    """The median over the pairs (``keep`` of the pair table) with a model and matches of the
-    share of their matches flagged as moving on their own, as the scorer summarises it."""
-    m = record.matches
-    table = _pair_table(record)
-    offsets = np.asarray(m.offsets, dtype=np.int64)
-    total = np.diff(offsets)[table.index]
-    independent = getattr(m, family_spec(family).independent, None)
-    if independent is None:
-        moved = np.zeros(len(total))
-    else:
-        cum = np.concatenate([[0], np.cumsum(independent.astype(np.int64))])
-        moved = (cum[offsets[1:]] - cum[offsets[:-1]])[table.index]
-    use = (table.usable[family] & (total > 0))[keep]
-    shares = (moved / np.maximum(total, 1))[keep][use]
-    return float(np.median(shares)) if len(shares) else 0.0
-
-
 def _regate_arrays(
     record: "ClipRecord | Residuals", family: Family, tau: float, min_inliers: int | None
-) -> tuple[PairTable, np.ndarray, np.ndarray, np.ndarray]:
-    """(pair table, valid, IR, GE) per pair of ``record.pairs`` at ``tau``; IR and GE are NaN
-    where not valid."""
+) -> tuple[PairTable, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(pair table, valid, IR, GE, moved) per pair of ``record.pairs`` at ``tau``; IR and GE are
+    NaN where not valid; ``moved`` is the share of the pair's matches that move on their own
+    (the stored flags, whatever ``tau``; NaN where the family has no model or the pair no match)."""
     spec = family_spec(family)
     need = record.config.min_inliers if min_inliers is None else min_inliers
     m = record.matches
@@ -139,12 +131,13 @@ def _regate_arrays(
     independent = getattr(m, spec.independent, None)
     k, n, ge = segment_inlier_stats(res, px, m.offsets, tau, order=table.order[family], exclude=independent)
     k, n, ge = k[table.index], n[table.index], ge[table.index]
+    total = np.diff(np.asarray(m.offsets, dtype=np.int64))[table.index]
+    # n counts the matches left after the independent ones; NaN where the family has no model or no match
+    moved = np.where(table.usable[family] & (total > 0), (total - n) / np.maximum(total, 1), np.nan)
     valid = table.usable[family] & (n > 0) & (k >= need) & (k > 0)
-    if independent is not None and independent.any():  # a pair whose background mostly moves on its own
-        total = np.diff(np.asarray(m.offsets, dtype=np.int64))[table.index]
-        valid &= (total - n) <= record.config.independent.max_share * total
+    valid &= moved <= record.config.independent.max_share  # a pair whose background mostly moves on its own
     ir = np.where(valid, k / np.maximum(n, 1), np.nan)
-    return table, valid, ir, np.where(valid, ge, np.nan)
+    return table, valid, ir, np.where(valid, ge, np.nan), moved
 
 
 def regate_pairs(
@@ -153,7 +146,7 @@ def regate_pairs(
     """Every pair of a record with its IR and GE re-gated at ``tau`` (the rows behind
     :func:`regate_family`). A pair is valid when it was scored, its model exists and it keeps at
     least ``min_inliers`` (default: the record's) inliers."""
-    _, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
+    _, valid, ir, ge, _ = _regate_arrays(record, family, tau, min_inliers)
     return [
         (p, FitRow(p.gap, p.scale, bool(v), float(i) if v else None, float(g) if v else None, p.skip is None))
         for p, v, i, g in zip(record.pairs, valid, ir, ge, strict=True)
@@ -183,7 +176,7 @@ def regate_family(
     re-fitting: the models stay those of the scoring run); pairs as in :func:`regate_pairs`.
     ``frames`` (first, last), inclusive, keeps only the pairs inside them (one shot of a clip
     with cuts)."""
-    table, valid, ir, ge = _regate_arrays(record, family, tau, min_inliers)
+    table, valid, ir, ge, moved = _regate_arrays(record, family, tau, min_inliers)
     cfg = record.config
     keep = slice(None) if frames is None else (table.t0 >= frames[0]) & (table.t1 <= frames[1])
     per_gap, ir_c, ge_c = aggregate_gap_arrays(
@@ -203,7 +196,7 @@ def regate_family(
         tau=float(tau),
         ir=ir_c,
         ge=ge_c,
-        independent_share=_moved_share(record, family, keep),
+        independent_share=float(np.nanmedian(moved[keep])) if np.isfinite(moved[keep]).any() else 0.0,
         valid_pairs=sum(g.valid_pairs for g in per_gap),
         per_gap=per_gap,
     )
@@ -245,9 +238,16 @@ class ShotGate:
     """The largest gate window inside the shot (:func:`~geocon_core.verdict.window_t_inf`)."""
 
 
-def gate_windows_of(gate: dict[str, Any]) -> list[tuple[int, int, float | None, bool]]:
-    """The gate windows of a record's ``gate`` (as JSON) as ``(start, end, t_inf, pose_present)``."""
-    return [(int(w["start"]), int(w["end"]), w["t_inf"], bool(w["pose_present"])) for w in gate.get("timeline", [])]
+def timeline_rows(timeline: Iterable[GateWindow | dict[str, Any]]) -> list[tuple[int, int, float | None, bool]]:
+    """A record's gate windows (its :class:`~geocon_core.record.GateWindow` objects, or their JSON
+    dicts) as the ``(start, end, t_inf, pose_present)`` rows of
+    :func:`~geocon_core.verdict.window_t_inf`."""
+    return [
+        (int(w["start"]), int(w["end"]), w["t_inf"], bool(w["pose_present"]))
+        if isinstance(w, dict)
+        else (w.start, w.end, w.t_inf, w.pose_present)
+        for w in timeline
+    ]
 
 
 @dataclass(frozen=True, eq=False)
@@ -298,7 +298,7 @@ class Residuals:
 
     @classmethod
     def of(cls, record: ClipRecord) -> "Residuals":
-        rows = [(w.start, w.end, w.t_inf, w.pose_present) for w in record.gate.timeline]
+        rows = timeline_rows(record.gate.timeline)
         shots = tuple(
             ShotGate(s.start, s.end, s.t_inf, s.pose_present, window_t_inf(rows, (s.start, s.end)))
             for s in record.shots
@@ -325,7 +325,7 @@ def load_residuals(folder: str | Path) -> Residuals:
     arrays = ResidualArrays(**read_matches(path, ResidualArrays.NAMES, ResidualArrays.OPTIONAL))  # nothing unpickled
     pairs = pairs_from_json(d)
     gate = d["gate"]
-    rows = gate_windows_of(gate)
+    rows = timeline_rows(gate.get("timeline", []))
     shots = tuple(
         ShotGate(s["start"], s["end"], s["t_inf"], bool(s["pose_present"]), window_t_inf(rows, (s["start"], s["end"])))
         for s in d.get("shots", [])

@@ -12,7 +12,7 @@ from .dataset import expected_model
 from .layout import RRD_NAME, STATUS_NAME, clip_folders, read_status, tables_dir
 from .models import family_spec
 from .record import read_record_json
-from .regate import gate_windows_of
+from .regate import timeline_rows
 from .verdict import window_t_inf
 
 __all__ = ["ResultClip", "clip_from_record_json", "read_bench_clips"]
@@ -96,7 +96,7 @@ def clip_from_record_json(
         error=None,
         rrd=rrd,
         t_inf=gate["t_inf"],
-        t_window=window_t_inf(gate_windows_of(gate), (0, int(d["video"]["num_frames"]) - 1)),
+        t_window=window_t_inf(timeline_rows(gate.get("timeline", [])), (0, int(d["video"]["num_frames"]) - 1)),
         pose_present=bool(gate["pose_present"]),
         ir_h=fam["H"]["ir"],
         ge_h=fam["H"]["ge"],

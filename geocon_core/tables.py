@@ -14,7 +14,7 @@ from typing import Any
 from .dataset import expected_model
 from .layout import CLIPS_DIR, clip_folders, read_status, tables_dir
 from .record import ClipRecord, read_record
-from .regate import sensitivity_scan
+from .regate import sensitivity_scan, timeline_rows
 from .verdict import window_t_inf
 
 __all__ = ["TABLES", "COLUMNS", "collect_rows", "write_tables", "read_tables"]
@@ -65,11 +65,7 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         gate_model=gate.model,
         binary_label=gate.binary_label,
         t_inf=_num(gate.t_inf),
-        t_window=_num(
-            window_t_inf(
-                [(w.start, w.end, w.t_inf, w.pose_present) for w in gate.timeline], (0, record.video.num_frames - 1)
-            )
-        ),
+        t_window=_num(window_t_inf(timeline_rows(gate.timeline), (0, record.video.num_frames - 1))),
         pose_present=bool(gate.pose_present),
         pose_method=gate.pose.method,
         margin=_num(gate.margin),
