@@ -194,8 +194,10 @@ def _judge_shots(
     verdicts, families, records = [], [], []
     for (start, end), est in shot_poses:
         mine = [r for r in scored if start <= r.t0 and r.t1 <= end]
-        fam, v, _ = _judge_span(cfg, thresholds, mine, est, timeline_poses, (start, end))
-        note = "a single frame: nothing to judge" if end == start else _background(cfg, v, fam, est).choice_note
+        fam, v, t_window = _judge_span(cfg, thresholds, mine, est, timeline_poses, (start, end))
+        note = (
+            "a single frame: nothing to judge" if end == start else _background(cfg, v, fam, est, t_window).choice_note
+        )
         verdicts.append(v)
         families.append(fam)
         records.append(
