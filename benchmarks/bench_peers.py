@@ -19,6 +19,15 @@ label against the expected one, and pycolmap's configuration of the first-last p
 (``PLANAR``, ``PANORAMIC`` or ``PLANAR_OR_PANORAMIC`` read as H; ``CALIBRATED`` or ``UNCALIBRATED``
 as F; anything else, or too few matches, as no answer). Gray-zone families (truth U) are shown,
 not counted.
+
+The GVGC keep rate (``--gvgc [CLIP ...]``), the simplest published metric of generated-video
+geometry (:mod:`geocon_core.validation.peer`: 854x480 SIFT, FLANN ratio 0.85, F-RANSAC at 1 px,
+F inliers / matches), beside GeoCon's clip score and verdict (``audit``) on each clip, with the
+seconds of each; without clips, on the synthetic C1-C6 clips (640x360, 24 frames). ``geocon
+validate`` reports the two side by side on the annotated real and generated footage (AUC rows).
+
+    .venv/bin/python benchmarks/bench_peers.py --gvgc                 # synthetic families
+    .venv/bin/python benchmarks/bench_peers.py --gvgc clip1.mp4 clip2.gif
 """
 
 from __future__ import annotations
@@ -127,13 +136,48 @@ def geocon_run(path: Path, preset_name: str) -> tuple[float, str, int]:
     return n / (time.perf_counter() - start), record.gate.label, n
 
 
+def gvgc(clips: list[Path], preset_name: str) -> None:
+    """The peer's keep rate and GeoCon's finding on each clip, side by side."""
+    from geocon_core.config import preset
+    from geocon_core.scorer import score_clip
+    from geocon_core.validation.peer import PEER_NAME, peer_keep_rate
+
+    print(f"{'clip':<34} {'keep rate':>9} {'1-keep':>7} {'s':>5}   {'clip score':>10} {'verdict':<13} {'s':>5}")
+    for path in clips:
+        peer = peer_keep_rate(path)
+        start = time.perf_counter()
+        record = score_clip(path, preset(preset_name), workers=THREADS)
+        seconds = time.perf_counter() - start
+        finding = record.finding()
+        keep = "-" if peer.keep_rate is None else f"{peer.keep_rate:.3f}"
+        score = "-" if finding.clip_score is None else f"{finding.clip_score:.3f}"
+        one_minus = "-" if peer.score is None else f"{peer.score:.3f}"
+        print(
+            f"{path.name[:34]:<34} {keep:>9} {one_minus:>7} {peer.seconds:5.1f}   {score:>10} {finding.verdict:<13} "
+            f"{seconds:5.1f}",
+            flush=True,
+        )
+    print(f"peer: {PEER_NAME}; GeoCon: {preset_name} preset (clip score 0 sound .. 1 broken)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=120, help="frames of each speed clip (default 120)")
     ap.add_argument("--size", default="1024x720")
     ap.add_argument("--presets", default="paper,fast", help="GeoCon presets, comma-separated")
     ap.add_argument("--no-regime", action="store_true", help="skip the regime check on C1-C6")
+    ap.add_argument(
+        "--gvgc", nargs="*", type=Path, metavar="CLIP", help="the GVGC keep rate beside GeoCon's clip score (only)"
+    )
+    ap.add_argument("--gvgc-preset", default="audit", help="GeoCon's preset beside the keep rate (default audit)")
     args = ap.parse_args()
+    if args.gvgc is not None:
+        missing = [str(p) for p in args.gvgc if not p.exists()]
+        if missing:
+            raise SystemExit(f"no such clip: {', '.join(missing)}")
+        families = ("C1", "C2", "C3", "C4", "C5", "C6")
+        gvgc(args.gvgc or [render(f, "640x360", 24)[0] for f in families], args.gvgc_preset)
+        return
     try:
         colmap = Colmap()
     except ImportError:

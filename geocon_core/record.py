@@ -25,6 +25,7 @@ import numpy as np
 from . import record_parts
 from .config import ScoreConfig
 from .dense_cloud import DenseCloud, WindowCloud
+from .finding import ClipFinding, clip_finding
 from .npz import NPZ_ERRORS
 from .reader import ClipInfo
 from .record_parts import (
@@ -139,11 +140,31 @@ class ClipRecord:
     shots: tuple[ShotRecord, ...] = ()
     dynamic_share: tuple[float, ...] = ()
 
+    def finding(self) -> ClipFinding:
+        """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.finding`)."""
+        from .verdict import report_margin
+
+        bg, cfg = self.background, self.config
+        return clip_finding(
+            model=bg.model,
+            ir=bg.ir,
+            ge=bg.ge,
+            consistent=bg.consistent,
+            margin=report_margin(bg.ir, bg.ge, cfg.ir_gate, cfg.ge_gate),
+            ir_gate=cfg.ir_gate,
+            ge_gate=cfg.ge_gate,
+            note=bg.choice_note,
+            shots=len(self.shots),
+        )
+
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
         bg, gate = self.background, self.gate
+        finding = self.finding()
         return {
             "clip": self.clip,
+            "verdict": finding.to_dict(),
+            "clip_score": finding.clip_score,
             "gate": {
                 "label": gate.label,
                 "model": gate.model,

@@ -18,6 +18,7 @@ import viser.uplot as uplot
 
 from geocon_core.dense_cloud import KIND_OBJECT, KIND_OUTLIER
 from geocon_core.diagnostics import Overlays
+from geocon_core.finding import clip_finding
 from geocon_core.record import ClipRecord
 from geocon_core.regate import regate_pairs
 from geocon_core.results import ResultClip
@@ -343,10 +344,23 @@ def clip_card(view: ClipView, v: ClipVerdict, clip: ResultClip, th: Thresholds, 
     rec = view.record
     bg, g = rec.background, rec.gate
     state = {True: "passes", False: "FAILS", None: "cannot be judged"}[v.consistent]
+    finding = clip_finding(
+        model=v.model,
+        ir=v.ir,
+        ge=v.ge,
+        consistent=v.consistent,
+        margin=v.report_margin,
+        ir_gate=th.ir_gate,
+        ge_gate=th.ge_gate,
+        note=bg.choice_note,
+        shots=len(rec.shots),
+    )
     lines = [
         f"### {view.clip_id}",
         f"platform **{clip.platform}** · category **{clip.category or EMPTY}** (expects {clip.expected_model or EMPTY})"
         + (f" · {clip.prompt}" if clip.prompt else ""),
+        "",
+        f"**{finding.verdict}** (clip score {fmt(finding.clip_score, '.2f')}, 0 sound .. 1 broken): {finding.reason}",
         "",
         f"**Background {state}** the report gate: model **{v.model}**, IR **{fmt(v.ir)}** "
         f"(gate ≥ {th.ir_gate:g}), "

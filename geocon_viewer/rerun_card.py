@@ -39,8 +39,12 @@ def audit_card(record: ClipRecord) -> str:
     reasons = ", ".join(f"{k}: {n}" for k, n in bg.chosen.invalid_reasons.items()) or "none"
     category = record.category.label if record.category else "n/a"
     th = g.thresholds
+    finding = record.finding()
     lines = [
         f"# {record.clip.rsplit('/', 1)[-1]}",
+        "",
+        f"**Finding: {finding.verdict}** (clip score {fmt(finding.clip_score, '.2f')}, 0 sound .. 1 broken): "
+        f"{finding.reason}",
         "",
         f"**Verdict: background {verdict}** — model {bg.model}, IR {fmt(bg.ir, '.3f')} (gate >= {cfg.ir_gate:g}), "
         f"GE {fmt(bg.ge, '.2f', ' px')} (gate <= {cfg.ge_gate:g} px); category **{category}**.",

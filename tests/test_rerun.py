@@ -284,6 +284,8 @@ def test_audit_card_names_versions_and_thresholds(objects_run):
     card = audit_card(record)
     assert rr.__version__ in card and record.config_hash in card
     assert "0.97" in card and "3.5" in card and record.gate.label in card
+    finding = record.finding()
+    assert f"**Finding: {finding.verdict}**" in card and finding.reason in card
     logged = next(r for r in rows["/audit"])["TextDocument:text"]
     assert logged[0] == card if isinstance(logged, list) else logged == card
 

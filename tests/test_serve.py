@@ -166,6 +166,8 @@ def test_selecting_a_clip_loads_its_point_cloud_and_frames(app, results):
         assert app.cloud_handle.points.shape == record.cloud.xyz.shape
         np.testing.assert_allclose(app.cloud_handle.points, record.cloud.xyz.astype(np.float32))
         assert clip_id in app.card_md.content
+        finding = record.finding()  # the recorded thresholds: the card reads as the record's summary
+        assert f"**{finding.verdict}** (clip score" in app.card_md.content and finding.reason in app.card_md.content
     assert app.view.frames_ready.wait(60) and app.view.frames_error is None
     assert len(app.view.frames) == app.view.num_frames == 16
     # both cameras show their frame once it is decoded: first and last, at thumbnail width

@@ -353,3 +353,35 @@ def test_report_only_says_when_planned_cases_have_no_record(tmp_path):
     assert res.exit_code == 0, res.output
     assert "1 of 1 planned cases have no record" in " ".join(res.output.split())
     assert not (tmp_path / "empty" / "cache").exists() or not any((tmp_path / "empty" / "cache").iterdir())
+
+
+def test_auc_rows_put_the_clip_score_beside_the_peer_on_each_half():
+    gen = dict(kind="real", source="generated")
+    rows = [
+        # check half: artifacts score above clean clips for GeoCon; the peer ranks them the other way
+        _row(case_id="a1", group="check", artifact_kinds=("morphing",), clip_score=0.9, peer_score=0.1, **gen),
+        _row(case_id="a2", group="check", artifact_kinds=("melting",), clip_score=0.8, peer_score=0.2,
+             verdict="inconsistent", **gen),
+        _row(case_id="c1", group="check", clip_score=0.2, peer_score=0.5, verdict="inconsistent", **gen),
+        _row(case_id="c2", group="check", clip_score=None, peer_score=0.6, verdict="not judged", **gen),
+        _row(case_id="r1", group="check", kind="real", source="real", clip_score=0.1, peer_score=0.55),
+        _row(case_id="r2", group="check", kind="real", source="real", clip_score=0.1, peer_score=0.05),
+        # tune half: reported, no target
+        _row(case_id="t1", group="tune", artifact_kinds=("morphing",), clip_score=0.3, peer_score=0.9, **gen),
+        _row(case_id="t2", group="tune", clip_score=0.6, peer_score=0.1, **gen),
+    ]  # fmt: skip
+    table = {(m.metric, m.subset): m for m in compute_metrics(rows)}
+    vis = table["AUC, clip score (visible artifact vs clean-looking generated)", "check half"]
+    assert (vis.value, vis.hits, vis.n, vis.ok) == (1.0, 2, 4, True)  # c2 (cannot judge) counts at 0.5
+    assert vis.detail == "peer 0.00; 1 not judged counted at 0.5"
+    geo = table["AUC, clip score (geometric artifact vs clean-looking generated)", "check half"]
+    assert geo.ok is True and geo.target == ">= 0.80"
+    real = table["AUC, clip score (generated vs real cameras)", "check half"]
+    assert (real.hits, real.n) == (4, 6) and real.detail.startswith("peer 0.62")  # 5 of 8 pairs for the peer
+    tune = table["AUC, clip score (visible artifact vs clean-looking generated)", "tune half"]
+    assert (tune.value, tune.ok, tune.target) == (0.0, None, "reported")
+    # flag rates beside the peer at GeoCon's clean-looking flag rate (1 of 2 -> the peer's top clean score, 0.6)
+    clean = table["flagged inconsistent, GeoCon", "clean-looking generated, check half"]
+    assert (clean.hits, clean.n, clean.detail) == (1, 2, "peer at the same clean-looking rate: 1/2")
+    cams = table["flagged inconsistent, GeoCon", "real cameras, check half"]
+    assert (cams.hits, cams.n, cams.detail) == (0, 2, "peer at the same clean-looking rate: 0/2")

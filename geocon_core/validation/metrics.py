@@ -35,10 +35,21 @@ from collections import defaultdict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from .cases import LEVELS, SEVERITIES
 from .results import CaseResult
 
-__all__ = ["MetricRow", "OBJECT_RATIO", "IR_TOLERANCE", "TRACK_COVERAGE", "compute_metrics", "detected"]
+__all__ = [
+    "auc",
+    "AUC_SETS",
+    "MetricRow",
+    "OBJECT_RATIO",
+    "IR_TOLERANCE",
+    "TRACK_COVERAGE",
+    "compute_metrics",
+    "detected",
+]
 
 OBJECT_RATIO = 5.0
 """An injected object failure is detected when the object's AdaDFRC is at least this many times
@@ -189,6 +200,99 @@ def _generated_rows(rows: list[CaseResult]) -> list[MetricRow]:
             )
             judged = sum(r.verdict == "not judged" for r in group_rows)
             out.append(replace(row, detail=f"{judged} not judged" if group_rows else ""))
+    return out
+
+
+def auc(pos: Iterable[float | None], neg: Iterable[float | None]) -> float | None:
+    """Area under the ROC curve of a score (higher = more broken) separating ``pos`` from ``neg``:
+    the chance that a random positive scores above a random negative, ties counting half. A
+    missing score (a clip that cannot be judged) counts as 0.5, no evidence either way. None when
+    either side is empty."""
+    p = np.array([0.5 if v is None else v for v in pos], float)
+    n = np.array([0.5 if v is None else v for v in neg], float)
+    if not len(p) or not len(n):
+        return None
+    above = (p[:, None] > n[None, :]).sum() + 0.5 * (p[:, None] == n[None, :]).sum()
+    return float(above / (len(p) * len(n)))
+
+
+AUC_SETS: tuple[tuple[str, Callable[[CaseResult], bool], Callable[[CaseResult], bool]], ...] = (
+    ("visible artifact vs clean-looking generated", lambda r: r.artifact, lambda r: r.generated and not r.artifact),
+    (
+        "geometric artifact vs clean-looking generated",
+        lambda r: r.geometric_artifact,
+        lambda r: r.generated and not r.artifact,
+    ),
+    ("visible artifact vs real cameras", lambda r: r.artifact, lambda r: r.source == "real"),
+    ("generated vs real cameras", lambda r: r.generated, lambda r: r.source == "real"),
+)
+"""The separations the AUC rows report: (name, positives, negatives), over annotated clips."""
+
+AUC_MARGIN = 0.10
+"""On the check half, the clip score must beat the peer's AUC (visible artifact vs clean) by this."""
+AUC_GEOMETRIC = 0.80
+"""On the check half, the clip score's AUC for geometric artifacts against clean-looking clips."""
+
+
+def _auc_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    """GeoCon's clip score against the peer (1 - GVGC keep rate) on the same annotated clips, per
+    set: AUC of each separation in :data:`AUC_SETS`, and the flag rates when the peer's threshold
+    flags as many clean-looking generated clips as GeoCon's verdict does."""
+    out = []
+    for group, name in REAL_GROUPS:
+        annotated = [r for r in rows if r.kind == "real" and r.group == group and r.verdict != "failed"]
+        if not any(r.generated for r in annotated):
+            continue
+        for label, is_pos, is_neg in AUC_SETS:
+            pos = [r for r in annotated if r.generated and is_pos(r)]
+            neg = [r for r in annotated if is_neg(r)]
+            ours = auc([r.clip_score for r in pos], [r.clip_score for r in neg])
+            peer = auc([r.peer_score for r in pos], [r.peer_score for r in neg])
+            missing = sum(r.peer_score is None for r in pos + neg)
+            target, ok = "reported", None
+            if group == "check" and ours is not None and peer is not None and label.startswith("visible artifact vs c"):
+                target, ok = f">= peer + {AUC_MARGIN:.2f}", ours >= peer + AUC_MARGIN
+            elif group == "check" and ours is not None and label.startswith("geometric"):
+                target, ok = f">= {AUC_GEOMETRIC:.2f}", ours >= AUC_GEOMETRIC
+            judged = sum(r.clip_score is None for r in pos + neg)
+            detail = f"peer {'-' if peer is None else f'{peer:.2f}'}" + (
+                f" ({missing} clips without a peer score)" if missing else ""
+            )
+            detail += f"; {judged} not judged counted at 0.5" if judged else ""
+            out.append(
+                MetricRow(f"AUC, clip score ({label})", name, ours, len(pos), len(pos) + len(neg), target, ok, detail)
+            )
+        out += _matched_flag_rows(annotated, name)
+    return out
+
+
+def _matched_flag_rows(annotated: list[CaseResult], name: str) -> list[MetricRow]:
+    """Flag rates of GeoCon's verdict and of the peer at the threshold that flags the same share of
+    clean-looking generated clips (the peer's own threshold is not published)."""
+    clean = [r for r in annotated if r.generated and not r.artifact]
+    scored = sorted((r.peer_score for r in clean if r.peer_score is not None), reverse=True)
+    if not clean or not scored:
+        return []
+    flagged = sum(r.verdict == "inconsistent" for r in clean)
+    k = round(flagged / len(clean) * len(scored))
+    cut = scored[k - 1] if k > 0 else float("inf")
+    out = []
+    for subset, pick in (
+        ("clean-looking generated", lambda r: r.generated and not r.artifact),
+        ("visible artifact", lambda r: r.artifact),
+        ("real cameras", lambda r: r.source == "real"),
+    ):
+        group_rows = [r for r in annotated if pick(r)]
+        peer_hits = sum(r.peer_score is not None and r.peer_score >= cut for r in group_rows)
+        row = _share(
+            "flagged inconsistent, GeoCon",
+            f"{subset}, {name}",
+            group_rows,
+            lambda r: r.verdict == "inconsistent",
+            "reported",
+            None,
+        )
+        out.append(replace(row, detail=f"peer at the same clean-looking rate: {peer_hits}/{len(group_rows)}"))
     return out
 
 
@@ -392,6 +496,7 @@ def compute_metrics(rows: list[CaseResult]) -> list[MetricRow]:
         _category_rows,
         _pose_rows,
         _generated_rows,
+        _auc_rows,
         _cut_rows,
     ):
         table += [row for row in part(rows) if row.n > 0]

@@ -53,6 +53,8 @@ def format_value(row: MetricRow) -> str:
         return "-"
     if row.metric.startswith("clean IR"):
         return f"{row.value:.3f}"
+    if row.metric.startswith("AUC"):
+        return f"{row.value:.2f} ({row.hits} vs {row.n - row.hits})"
     return f"{100 * row.value:.0f}% ({row.hits}/{row.n})"
 
 
@@ -66,14 +68,16 @@ def run_validation(
     annotations: dict[str, Annotation] | None = None,
     progress: Progress | None = None,
     score: bool = True,
+    peer: bool = True,
 ) -> ValidationReport:
     """Plan, prepare and score every case of ``plan`` with ``config`` into ``out`` (clips cached
     in ``cache``), compute the table and write the report files. With ``score=False`` the report
-    covers only the cases scored by an earlier run (``planned`` says how many there are)."""
+    covers only the cases scored by an earlier run (``planned`` says how many there are). With
+    ``peer`` every annotated clip is also scored by the peer (:mod:`.peer`) for the AUC rows."""
     start = time.perf_counter()
     out_dir = Path(out)
     cases = plan_cases(plan, annotations)
-    scored = run_cases(cases, plan, config, out_dir, cache, jobs=jobs, progress=progress, score=score)
+    scored = run_cases(cases, plan, config, out_dir, cache, jobs=jobs, progress=progress, score=score, peer=peer)
     rows = tuple(case_result(s, case_folder(out_dir, c), c) for c, s in scored)
     report = ValidationReport(
         metrics=tuple(compute_metrics(list(rows))),
@@ -93,7 +97,21 @@ def _fmt(value: Any, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
-_CASE_COLUMNS = ("case", "truth", "verdict", "IR", "GE", "gate", "t_inf", "pose", "objects", "max AdaDFRC", "category")
+_CASE_COLUMNS = (
+    "case",
+    "truth",
+    "verdict",
+    "clip score",
+    "peer",
+    "IR",
+    "GE",
+    "gate",
+    "t_inf",
+    "pose",
+    "objects",
+    "max AdaDFRC",
+    "category",
+)
 
 
 def _case_cells(r: CaseResult) -> list[str]:
@@ -112,6 +130,8 @@ def _case_cells(r: CaseResult) -> list[str]:
         r.case_id,
         truth,
         r.verdict if r.error is None else f"failed: {r.error}",
+        _fmt(r.clip_score, ".2f"),
+        _fmt(r.peer_score, ".2f"),
         _fmt(r.ir, ".3f"),
         _fmt(r.ge, ".2f"),
         r.gate or "-",

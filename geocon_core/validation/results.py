@@ -4,6 +4,7 @@ and what the saved record says. Everything here is read from ``record.json`` and
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -17,7 +18,20 @@ from .cases import Annotation, CaseSpec
 if TYPE_CHECKING:
     from ..record import ClipRecord
 
-__all__ = ["CaseResult", "case_result", "worst_pair_note", "track_coverage", "VERDICTS", "MIN_VISIBLE_PX", "MIN_IOU"]
+__all__ = [
+    "PEER_FILE",
+    "peer_score",
+    "CaseResult",
+    "case_result",
+    "worst_pair_note",
+    "track_coverage",
+    "VERDICTS",
+    "MIN_VISIBLE_PX",
+    "MIN_IOU",
+]
+
+PEER_FILE = "peer.json"
+"""The peer's score of a case (:class:`~.peer.PeerScore` as JSON), beside its record."""
 
 MIN_VISIBLE_PX = 100
 """A true object counts as visible in a frame when its mask covers at least this many pixels at
@@ -92,6 +106,10 @@ class CaseResult:
     :func:`~geocon_core.verdict.report_margin`): how confident a flag is."""
     verdict_note: str | None = None
     """Why the background could not be judged, or what decided the verdict (the record's note)."""
+    clip_score: float | None = None
+    """The record's clip score (0 sound .. 1 broken; None: cannot judge), :mod:`geocon_core.finding`."""
+    peer_score: float | None = None
+    """The peer's score on the same clip: 1 - GVGC keep rate (:mod:`.peer`); None when not run."""
     posed: bool = False
     """The clip comes with its camera poses (a RealEstate10K walk-through): its expected gate is
     known from them, not only seen."""
@@ -109,6 +127,10 @@ class CaseResult:
     def false_flag(self) -> bool:
         """Called inconsistent (or failed to score): what a clip that obeys geometry must never be."""
         return self.verdict in ("inconsistent", "failed")
+
+    @property
+    def generated(self) -> bool:
+        return self.source == "generated"
 
     @property
     def artifact(self) -> bool:
@@ -211,6 +233,19 @@ def _coverage_of(folder: Path, truth_path: str | None, rec: ClipRecord) -> float
     return track_coverage(labels, [truth.labels(t) for t in range(len(labels))])
 
 
+def peer_score(folder: Path) -> float | None:
+    """``1 - keep rate`` of the peer saved in a case folder (``peer.json``, :data:`PEER_FILE`),
+    None when absent, of another peer version, or without a keep rate."""
+    from .peer import PEER_VERSION
+
+    try:
+        saved = json.loads((folder / PEER_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    keep = saved.get("keep_rate")
+    return None if saved.get("version") != PEER_VERSION or keep is None else 1.0 - float(keep)
+
+
 def _report_margin(rec: ClipRecord) -> float | None:
     from ..verdict import report_margin
 
@@ -294,6 +329,8 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
         truth_cuts=_scored_cuts(case, rec.video.num_frames) if case["kind"] == "real" else None,
         cuts=rec.video.cuts,
         report_margin=_report_margin(rec),
+        clip_score=rec.finding().clip_score,
+        peer_score=peer_score(folder),
         verdict_note=rec.background.choice_note,
         verdict=verdict,
         gate=rec.gate.label,

@@ -37,7 +37,7 @@ LABELS_FILE = "labels.npz"
 be checked against the scene's true masks (:func:`~.results.track_coverage`)."""
 
 Progress = Callable[[str, int, int], None]
-"""``progress(phase, done, total)``: phase is ``prepare`` or ``score``."""
+"""``progress(phase, done, total)``: phase is ``prepare``, ``score`` or ``peer``."""
 
 
 def case_folder(out: Path, case: CaseSpec) -> Path:
@@ -86,6 +86,37 @@ def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], fold
     return status
 
 
+def _peer_one(clip: str, folder: str, max_frames: int) -> dict:
+    """Worker: the peer (:mod:`.peer`) on a scored case's clip, saved as ``peer.json`` beside its
+    record. A clip the peer cannot read is saved with its error (keep rate None), never dropped."""
+    import cv2
+
+    from .peer import PEER_VERSION, peer_keep_rate
+    from .results import PEER_FILE
+
+    cv2.setNumThreads(1)
+    try:
+        saved: dict[str, Any] = peer_keep_rate(clip, max_frames).to_dict()
+    except Exception as exc:  # recorded, as a failed case is
+        saved = {"keep_rate": None, "version": PEER_VERSION, "error": f"{type(exc).__name__}: {exc}"}
+    saved["clip"] = clip
+    tmp = Path(folder) / (PEER_FILE + ".part")
+    tmp.write_text(json.dumps(saved, indent=1) + "\n")
+    os.replace(tmp, Path(folder) / PEER_FILE)
+    return saved
+
+
+def _peer_done(folder: Path, clip: str) -> bool:
+    from .peer import PEER_VERSION
+    from .results import PEER_FILE
+
+    try:
+        saved = json.loads((folder / PEER_FILE).read_text())
+    except (OSError, ValueError):
+        return False
+    return saved.get("version") == PEER_VERSION and saved.get("clip") == clip
+
+
 def _finished(folder: Path, digest: str, clip: Path) -> dict | None:
     """The saved status of a case scored earlier from ``clip`` with the same configuration."""
     try:
@@ -119,6 +150,37 @@ def _map(fn: Callable[..., Any], jobs: int, argsets: list[tuple], on_done: Calla
             raise
 
 
+def _run_peer(
+    cases: list[CaseSpec],
+    statuses: list[dict[str, Any] | None],
+    out_dir: Path,
+    max_frames: int,
+    jobs: int,
+    progress: Progress | None,
+) -> None:
+    """The peer on every scored annotated (real-footage) case that has no current ``peer.json``."""
+    todo = [
+        (str(s["clip"]), str(case_folder(out_dir, c)), max_frames)
+        for c, s in zip(cases, statuses, strict=True)
+        if c.kind == "real"
+        and s is not None
+        and s.get("status") == "ok"
+        and s.get("clip")
+        and not _peer_done(case_folder(out_dir, c), str(s["clip"]))
+    ]
+    done = 0
+
+    def ran(_: int, __: Any) -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress("peer", done, len(todo))
+
+    if progress is not None and todo:
+        progress("peer", 0, len(todo))
+    _map(_peer_one, jobs, todo, ran)
+
+
 def _unique_prepares(cases: Iterable[CaseSpec], plan: ValidationPlan, code: str) -> dict[str, CaseSpec]:
     from .prepare import prepare_key
 
@@ -138,10 +200,12 @@ def run_cases(
     jobs: int = 1,
     progress: Progress | None = None,
     score: bool = True,
+    peer: bool = True,
 ) -> list[tuple[CaseSpec, dict[str, Any]]]:
     """Prepare and score ``cases``; returns each case with its status (``case.json``), in case
     order. With ``score=False`` nothing is prepared or scored: only the cases finished earlier
-    are returned (the report of an interrupted run)."""
+    are returned (the report of an interrupted run). With ``peer`` (and ``score``), every scored
+    annotated clip also gets the peer's keep rate (``peer.json``, phase ``peer``), once per clip."""
     out_dir, cache_dir = Path(out), Path(cache)
     code = code_digest()
     from .prepare import prepare_key
@@ -194,4 +258,6 @@ def run_cases(
         for i in todo
     ]
     _map(_score_one, jobs, argsets, scored)
+    if peer and score:
+        _run_peer(cases, statuses, out_dir, plan.max_frames, jobs, progress)
     return [(c, s) for c, s in zip(cases, statuses, strict=True) if s is not None]

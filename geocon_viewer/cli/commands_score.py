@@ -110,12 +110,10 @@ def _gate_row(record: ClipRecord) -> str:
 
 
 def _verdict_row(record: ClipRecord) -> str:
-    bg, cfg = record.background, record.config
-    if bg.consistent is None:
-        return "[yellow]not judged[/] (no valid pair)"
-    if bg.consistent:
-        return f"[green]consistent[/] (IR >= {cfg.ir_gate:g} and GE <= {cfg.ge_gate:g} px)"
-    return f"[red]inconsistent[/] (needs IR >= {cfg.ir_gate:g} and GE <= {cfg.ge_gate:g} px)"
+    f = record.finding()
+    colour = {"consistent": "green", "inconsistent": "red"}.get(f.verdict, "yellow")
+    score = "" if f.clip_score is None else f"   clip score {f.clip_score:.2f} (0 sound .. 1 broken)"
+    return f"[{colour}]{f.verdict}[/]{score}: {f.reason}"
 
 
 def _object_rows(table: Table, record: ClipRecord) -> None:

@@ -125,6 +125,13 @@ def validate(
         bool, typer.Option("--real/--no-real", help="Score the real clips of --data, real2 and the footage cache.")
     ] = True,
     synthetic: Annotated[bool, typer.Option("--synthetic/--no-synthetic", help="Score the synthetic grid.")] = True,
+    peer: Annotated[
+        bool,
+        typer.Option(
+            "--peer/--no-peer",
+            help="Also score every annotated clip with the peer (GVGC keep rate) for the AUC rows; once per clip.",
+        ),
+    ] = True,
     jobs: Annotated[int, typer.Option(min=1, help="Worker processes.")] = 1,
     report_only: Annotated[
         bool,
@@ -170,7 +177,7 @@ def validate(
         _fill(notes, cache_dir, footage_from)
     if real:
         _say_missing(plan, notes)
-    report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only)
+    report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only, peer)
     if report_only and len(report.cases) < report.planned:
         out.print(
             f"[yellow]{report.planned - len(report.cases)} of {report.planned} planned cases have no record in "
@@ -258,6 +265,7 @@ def _run(
     jobs: int,
     notes: dict[str, Annotation],
     score: bool,
+    peer: bool = True,
 ) -> ValidationReport:
     from rich.progress import TaskID
 
@@ -268,7 +276,10 @@ def _run(
 
         def progress(phase: str, done: int, total: int) -> None:
             if phase not in tasks:
-                tasks[phase] = bar.add_task("preparing clips" if phase == "prepare" else "scoring", total=total)
+                words = {"prepare": "preparing clips", "score": "scoring", "peer": "peer (GVGC keep rate)"}
+                tasks[phase] = bar.add_task(words.get(phase, phase), total=total)
             bar.update(tasks[phase], completed=done, total=total)
 
-        return run_validation(plan, cfg, out_dir, cache, jobs=jobs, annotations=notes, progress=progress, score=score)
+        return run_validation(
+            plan, cfg, out_dir, cache, jobs=jobs, annotations=notes, progress=progress, score=score, peer=peer
+        )
