@@ -91,3 +91,17 @@ def test_auc_counts_pairs_ties_half_and_missing_scores_as_no_evidence():
     assert auc([0.5, 0.7], [0.5]) == 0.75  # one tie, one win
     assert auc([None], [0.2, 0.8]) == 0.5
     assert auc([], [0.1]) is None
+
+
+def test_f_test_looseness_is_read_in_source_pixels(synth_dir, scored_clip):
+    """A rendered rigid scene seen by a trucking camera: its background matches lie within a pixel
+    or two of each pair's F, far inside the loose tau_F that the records translate to pixels."""
+    from geocon_core.config import preset
+    from geocon_core.validation.results import F_PX_STEPS, f_within_px
+
+    rec = scored_clip(synth_dir / "c3_translation.mp4", preset("fast"))
+    within, tau_px = f_within_px(rec)
+    assert within is not None and tau_px is not None and len(within) == len(F_PX_STEPS)
+    assert list(within) == sorted(within) and within[F_PX_STEPS.index(2.0)] > 0.9
+    assert tau_px > 2.0  # tau_F (normalised) is several source pixels at this size
+    assert f_within_px(rec, (1e9,))[0] == (1.0,)

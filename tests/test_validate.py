@@ -364,8 +364,10 @@ def test_auc_rows_put_the_clip_score_beside_the_peer_on_each_half():
              verdict="inconsistent", **gen),
         _row(case_id="c1", group="check", clip_score=0.2, peer_score=0.5, verdict="inconsistent", **gen),
         _row(case_id="c2", group="check", clip_score=None, peer_score=0.6, verdict="not judged", **gen),
-        _row(case_id="r1", group="check", kind="real", source="real", clip_score=0.1, peer_score=0.55),
-        _row(case_id="r2", group="check", kind="real", source="real", clip_score=0.1, peer_score=0.05),
+        _row(case_id="r1", group="check", kind="real", source="real", clip_score=0.1, peer_score=0.55,
+             f_within=(0.5, 0.8, 0.9, 1.0), tau_f_px=6.0),
+        _row(case_id="r2", group="check", kind="real", source="real", clip_score=0.1, peer_score=0.05,
+             f_within=(0.7, 0.9, 1.0, 1.0), tau_f_px=8.0),
         # tune half: reported, no target
         _row(case_id="t1", group="tune", artifact_kinds=("morphing",), clip_score=0.3, peer_score=0.9, **gen),
         _row(case_id="t2", group="tune", clip_score=0.6, peer_score=0.1, **gen),
@@ -383,5 +385,8 @@ def test_auc_rows_put_the_clip_score_beside_the_peer_on_each_half():
     # flag rates beside the peer at GeoCon's clean-looking flag rate (1 of 2 -> the peer's top clean score, 0.6)
     clean = table["flagged inconsistent, GeoCon", "clean-looking generated, check half"]
     assert (clean.hits, clean.n, clean.detail) == (1, 2, "peer at the same clean-looking rate: 1/2")
+    loose = table["F keeps within 1 px (median share)", "real cameras, check half"]
+    assert loose.value == pytest.approx(0.85) and loose.n == 2
+    assert loose.detail == "0.5 px 0.60 · 1 px 0.85 · 2 px 0.95 · 4 px 1.00; tau_F ~ 7.0 px (median)"
     cams = table["flagged inconsistent, GeoCon", "real cameras, check half"]
     assert (cams.hits, cams.n, cams.detail) == (0, 2, "peer at the same clean-looking rate: 0/2")

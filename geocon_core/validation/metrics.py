@@ -263,6 +263,35 @@ def _auc_rows(rows: list[CaseResult]) -> list[MetricRow]:
                 MetricRow(f"AUC, clip score ({label})", name, ours, len(pos), len(pos) + len(neg), target, ok, detail)
             )
         out += _matched_flag_rows(annotated, name)
+    return out + _f_test_rows(rows)
+
+
+def _f_test_rows(rows: list[CaseResult]) -> list[MetricRow]:
+    """How loose the F test is: per set, the median over clips of the share of background matches
+    within each :data:`~.results.F_PX_STEPS` source px of their pair's F, beside the source-pixel
+    equivalent of tau_F. Value: the share at 1 px."""
+    from .results import F_PX_STEPS
+
+    out = []
+    one = F_PX_STEPS.index(1.0)
+    for group, name in REAL_GROUPS:
+        annotated = [r for r in rows if r.kind == "real" and r.group == group and r.f_within is not None]
+        for subset, pick in (
+            ("real cameras", lambda r: r.source == "real"),
+            ("clean-looking generated", lambda r: r.generated and not r.artifact),
+            ("geometric artifact", lambda r: r.geometric_artifact),
+        ):
+            chosen = [r for r in annotated if pick(r)]
+            if not chosen:
+                continue
+            shares = np.median(np.array([r.f_within for r in chosen]), axis=0)
+            taus = [r.tau_f_px for r in chosen if r.tau_f_px is not None]
+            detail = " · ".join(f"{t:g} px {v:.2f}" for t, v in zip(F_PX_STEPS, shares, strict=True))
+            detail += f"; tau_F ~ {np.median(taus):.1f} px (median)" if taus else ""
+            out.append(
+                MetricRow("F keeps within 1 px (median share)", f"{subset}, {name}", float(shares[one]), len(chosen),
+                          len(chosen), "reported", None, detail)
+            )  # fmt: skip
     return out
 
 

@@ -53,6 +53,8 @@ def format_value(row: MetricRow) -> str:
         return "-"
     if row.metric.startswith("clean IR"):
         return f"{row.value:.3f}"
+    if row.metric.startswith("F keeps"):
+        return f"{row.value:.2f} ({row.n} clips)"
     if row.metric.startswith("AUC"):
         return f"{row.value:.2f} ({row.hits} vs {row.n - row.hits})"
     return f"{100 * row.value:.0f}% ({row.hits}/{row.n})"

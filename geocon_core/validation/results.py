@@ -30,6 +30,10 @@ __all__ = [
     "MIN_IOU",
 ]
 
+F_PX_STEPS = (0.5, 1.0, 2.0, 4.0)
+"""Source-pixel thresholds at which the validation reports the share of background matches an F
+model keeps (:attr:`CaseResult.f_within`)."""
+
 PEER_FILE = "peer.json"
 """The peer's score of a case (:class:`~.peer.PeerScore` as JSON), beside its record."""
 
@@ -108,6 +112,12 @@ class CaseResult:
     """Why the background could not be judged, or what decided the verdict (the record's note)."""
     clip_score: float | None = None
     """The record's clip score (0 sound .. 1 broken; None: cannot judge), :mod:`geocon_core.finding`."""
+    f_within: tuple[float, ...] | None = None
+    """Share of the background matches (largest scale, movers left out) within each of
+    :data:`F_PX_STEPS` source pixels of their pair's fundamental matrix (median over pairs): how
+    loose the F test is (:func:`f_within_px`); None without a valid F fit."""
+    tau_f_px: float | None = None
+    """The source-pixel equivalent of the record's tau_F (median over the largest-scale F fits)."""
     peer_score: float | None = None
     """The peer's score on the same clip: 1 - GVGC keep rate (:mod:`.peer`); None when not run."""
     posed: bool = False
@@ -233,6 +243,34 @@ def _coverage_of(folder: Path, truth_path: str | None, rec: ClipRecord) -> float
     return track_coverage(labels, [truth.labels(t) for t in range(len(labels))])
 
 
+def f_within_px(rec: ClipRecord, steps: Sequence[float] = F_PX_STEPS) -> tuple[tuple[float, ...] | None, float | None]:
+    """(share within each of ``steps`` source px, tau_F in source px) of the record's F fits at the
+    largest scale: per valid pair, the share of its matches (independent movers left out) whose
+    Sampson distance to the pair's F is within the step; the median over pairs. The F models were
+    fitted at the record's tau_F, so a tighter step reads the same model's residuals (a refit at
+    that step could keep a little more)."""
+    if not rec.pairs:
+        return None, None
+    s_max = max(p.scale for p in rec.pairs)
+    to_source = 1.0 / (s_max * rec.video.scale)
+    m = rec.matches
+    shares, taus = [], []
+    for p in rec.pairs:
+        f = p.fit("F") if p.scale == s_max and p.skip is None else None
+        if f is None or not f.valid:
+            continue
+        rows = m.rows(p.index)
+        keep = ~m.f_ind[rows] if m.f_ind is not None else np.ones(rows.stop - rows.start, bool)
+        res = m.f_res_px[rows][keep] * to_source
+        if len(res):
+            shares.append([float(np.mean(res <= t)) for t in steps])
+        if f.tau_px is not None:
+            taus.append(f.tau_px * to_source)
+    if not shares:
+        return None, None
+    return tuple(float(v) for v in np.median(np.array(shares), axis=0)), float(np.median(taus)) if taus else None
+
+
 def peer_score(folder: Path) -> float | None:
     """``1 - keep rate`` of the peer saved in a case folder (``peer.json``, :data:`PEER_FILE`),
     None when absent, of another peer version, or without a keep rate."""
@@ -324,6 +362,7 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
     rec = read_record(folder)
     scores = [o.adadfrc for o in rec.objects if o.adadfrc is not None]
     verdict = _verdict(rec.background.consistent)
+    within, tau_px = f_within_px(rec) if case["kind"] == "real" else (None, None)
     return CaseResult(
         **base,
         truth_cuts=_scored_cuts(case, rec.video.num_frames) if case["kind"] == "real" else None,
@@ -331,6 +370,8 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
         report_margin=_report_margin(rec),
         clip_score=rec.finding().clip_score,
         peer_score=peer_score(folder),
+        f_within=within,
+        tau_f_px=tau_px,
         verdict_note=rec.background.choice_note,
         verdict=verdict,
         gate=rec.gate.label,
