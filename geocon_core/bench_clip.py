@@ -66,7 +66,9 @@ def score_to_folder(
     in ``out_dir`` as it was). ``dense``: a :class:`~geocon_core.dense_cloud.DenseCloudConfig` to
     add the dense point clouds to the record. ``sinks`` are factories called with the first frame's arrival and
     the staging folder; each made sink receives every frame, ``finish(record)`` once the record is
-    in place, and ``abort()`` (where it has one) when scoring fails."""
+    in place, and ``abort()`` (where it has one) when scoring fails. A sink with a ``commit()``
+    (a Rerun recording) is finished before the record is committed and committed with it, as one
+    unit (:func:`~geocon_core.staging.staged_record`)."""
     from .diagnostics import OverlayWriter
     from .record import write_record
     from .scorer import score_clip
@@ -81,8 +83,9 @@ def score_to_folder(
         for sink in made:
             sink(fd)
 
+    commits: list[Callable[[], object]] = []
     try:
-        with staged_record(out_dir) as stage:
+        with staged_record(out_dir, then=commits) as stage:
             record = score_clip(
                 clip,
                 cfg,
@@ -98,8 +101,12 @@ def score_to_folder(
             )
             made[0].close()
             write_record(record, stage)
-        for sink in made[1:]:
-            sink.finish(record)
+            for sink in made[1:]:  # complete every recording before the commit; renamed with the record
+                if hasattr(sink, "commit"):
+                    sink.finish(record, commit=False)
+                    commits.append(sink.commit)
+                else:
+                    sink.finish(record)
     except BaseException:
         for sink in made[1:]:
             if hasattr(sink, "abort"):

@@ -11,14 +11,20 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
+import signal
+import threading
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 from .procs import pid_alive
 
 __all__ = [
     "OutPathError",
+    "RECORD_PARTS",
+    "check_apart",
+    "deferred_signals",
+    "record_parts",
     "check_out_dir",
     "check_out_file",
     "clear_stale_parts",
@@ -81,6 +87,100 @@ def check_out_file(path: Path, option: str) -> Path:
     except OutPathError as exc:
         raise OutPathError(f"{option} {path} cannot be written: {str(exc).removeprefix(f'{option} ')}") from None
     return path
+
+
+RECORD_PARTS = ("record.json", "matches.npz", "overlays")
+"""What a record folder holds of its own (replaced whole when the record is written)."""
+
+
+def _real(path: Path) -> Path:
+    return Path(os.path.realpath(path))
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """The same file or folder, by resolved path or (both existing) by device and inode: a hard
+    link or a bind mount of an input is that input too."""
+    if _real(a) == _real(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _within(path: Path, folder: Path) -> bool:
+    """``path`` is ``folder`` or lies inside it (resolved; a folder reached through a link counts)."""
+    p, f = _real(path), _real(folder)
+    if p == f or f in p.parents:
+        return True
+    return any(_same_file(a, folder) for a in [path, *path.parents][:64] if a.exists())
+
+
+def record_parts(folder: Path) -> list[Path]:
+    """The paths a record folder owns (:data:`RECORD_PARTS`)."""
+    return [folder / name for name in RECORD_PARTS]
+
+
+def check_apart(
+    outputs: Sequence[tuple[str, Path]],
+    inputs: Sequence[tuple[str, Path]],
+    records: Sequence[Path] = (),
+) -> None:
+    """Refuse, before any work, an output that would write over an input or into a record.
+
+    ``outputs``: (option, path) of every file or folder a command writes; ``inputs``: (what, path)
+    of everything it reads (the clip, its frame folder, masks, a pose log, the record viewed);
+    ``records``: record folders an output may sit beside but never inside of (their
+    :data:`RECORD_PARTS`). Compared by resolved path and by inode, so links and hard links are
+    seen through. Raises :class:`OutPathError` with one sentence naming the option, the path and
+    the input it would destroy."""
+    for option, out in outputs:
+        for what, src in inputs:
+            if _same_file(out, src):
+                raise OutPathError(
+                    f"{option} {out} is the {what}; GeoCon never writes over its inputs, choose another path"
+                )
+            if src.is_dir() and _within(out, src):
+                raise OutPathError(
+                    f"{option} {out} lies inside the {what} {src}; GeoCon never writes into its inputs, "
+                    "choose another path"
+                )
+            if out.is_dir() and _within(src, out) and any(_within(src, part) for part in record_parts(out)):
+                raise OutPathError(
+                    f"{option} {out} would replace the {what} {src} (a record's own file); choose another folder"
+                )
+        for folder in records:
+            for part in record_parts(folder):
+                if _within(out, part) and not _same_file(out, folder):
+                    raise OutPathError(
+                        f"{option} {out} is inside the record {folder} ({part.name}), which it would destroy; "
+                        "choose a path outside the record's own files"
+                    )
+
+
+@contextmanager
+def deferred_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
+    """Hold Ctrl-C and ``kill`` for the length of the block (a commit of several renames must not
+    stop halfway), then deliver the first one that arrived, exactly as if it came after the block.
+    Outside the main thread (where handlers cannot be set) the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = {s: signal.getsignal(s) for s in signals}
+
+    def hold(signum: int, _frame: object) -> None:
+        caught.append(signum)
+
+    for s in signals:
+        signal.signal(s, hold)
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if caught:
+            os.kill(os.getpid(), caught[0])
 
 
 def part_prefix(target: Path) -> str:

@@ -14,12 +14,12 @@ running) are removed by the next run into the same folder.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from .diagnostics import OVERLAYS_DIR
 from .layout import RRD_NAME
-from .paths import clear_stale_parts, part_path, remove_path
+from .paths import clear_stale_parts, deferred_signals, part_path, remove_path
 
 __all__ = ["RECORD_PARTS", "staged_record"]
 
@@ -41,10 +41,13 @@ def _commit(stage: Path, out_dir: Path) -> None:
 
 
 @contextlib.contextmanager
-def staged_record(out_dir: str | Path) -> Iterator[Path]:
+def staged_record(out_dir: str | Path, then: Sequence[Callable[[], object]] = ()) -> Iterator[Path]:
     """A temporary folder beside ``out_dir`` to write a record into; when the block ends without
     an exception the record's parts replace those of ``out_dir`` (created if needed), otherwise
-    the temporary folder is removed and ``out_dir`` is untouched."""
+    the temporary folder is removed and ``out_dir`` is untouched. ``then``: further commits of the
+    same unit (a recording's rename), run right after the record's; Ctrl-C or ``kill`` during the
+    commits is held until all of them are done (:func:`~geocon_core.paths.deferred_signals`), so
+    a signal leaves either the old record with its old recording or the new pair."""
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     clear_stale_parts(out_dir)
@@ -53,6 +56,9 @@ def staged_record(out_dir: str | Path) -> Iterator[Path]:
     stage.mkdir()
     try:
         yield stage
-        _commit(stage, out_dir)
+        with deferred_signals():
+            _commit(stage, out_dir)
+            for commit in then:
+                commit()
     finally:
         remove_path(stage)

@@ -308,13 +308,20 @@ class RrdSink:
     def frame(self, f: AuditFrame, fps: float) -> None:
         self._audit(fps).frame(f)
 
-    def finish(self, record: ClipRecord) -> Path | None:
+    def finish(self, record: ClipRecord, *, commit: bool = True) -> Path | None:
+        """Log the record and close the recording; with ``commit`` move it into place at once,
+        else leave that to :meth:`commit` (a caller committing it together with the record)."""
         self._audit(record.video.fps).record(record)
         self.rec.flush()
         self.rec.disconnect()
+        if commit:
+            self.commit()
+        return self.path
+
+    def commit(self) -> None:
+        """Move the finished recording into place (one rename)."""
         if self.part is not None and self.path is not None:
             self.part.replace(self.path)
-        return self.path
 
     def abort(self) -> None:
         """Stop recording and remove the partial file; an earlier recording at ``path`` stays."""

@@ -1016,7 +1016,130 @@ OPTIONS = [
     Case("same-clip-again", scored_a, score("a/clip.mp4", out=None), 0, check=default_out_written),
 ]
 
-CASES = CLIPS + MASKS + POSES + OPTIONS
+# --- outputs never touch inputs -------------------------------------------------------------------
+
+
+def clip_and_links(ctx: Ctx) -> None:
+    """``clip.mp4``, a hard link ``hard.mp4`` and a symbolic link ``link.mp4`` to it."""
+    clip = ctx.pan()
+    os.link(clip, ctx.tmp / "hard.mp4")
+    (ctx.tmp / "link.mp4").symlink_to("clip.mp4")
+
+
+def clip_and_record(ctx: Ctx) -> None:
+    """``clip.mp4`` and a record folder ``out`` (of another clip) it would be scored into."""
+    ctx.pan()
+    ctx.record("out")
+
+
+def frame_folder(ctx: Ctx) -> None:
+    write_pngs(ctx.tmp / "frames", frames_of("pan"))
+
+
+def results_folder(ctx: Ctx) -> None:
+    """A benchmark results folder ``res`` with its records and tables folders."""
+    for part in ("clips", "tables"):
+        (ctx.tmp / "res" / part).mkdir(parents=True)
+    (ctx.tmp / "res" / "tables" / "clips.parquet").write_bytes(b"PAR1")
+
+
+def clip_scored_to_rec(ctx: Ctx) -> None:
+    """``clip.mp4`` and its record ``rec`` (scored here, so the record names this clip)."""
+    ctx.pan()
+    res = ctx.invoke(list(score("clip.mp4", out="rec")))
+    assert res.code == 0, res.describe()
+
+
+OUTPUTS = [
+    Case("rrd-is-the-clip", lambda c: c.pan(), score("clip.mp4", "--rrd", "clip.mp4"), 2, ("--rrd", "clip")),
+    Case("rrd-is-a-hard-link-of-the-clip", clip_and_links, score("clip.mp4", "--rrd", "hard.mp4"), 2, ("--rrd",)),
+    Case("rrd-is-a-link-to-the-clip", clip_and_links, score("clip.mp4", "--rrd", "link.mp4"), 2, ("--rrd",)),
+    Case("rrd-through-a-link-is-the-clip", clip_and_links, score("link.mp4", "--rrd", "clip.mp4"), 2, ("--rrd",)),
+    Case(
+        "rrd-is-the-records-json",
+        clip_and_record,
+        score("clip.mp4", "--rrd", "out/record.json"),
+        2,
+        ("--rrd", "record.json"),
+    ),
+    Case(
+        "rrd-is-the-records-matches",
+        clip_and_record,
+        score("clip.mp4", "--rrd", "out/matches.npz"),
+        2,
+        ("--rrd", "matches.npz"),
+    ),
+    Case(
+        "rrd-inside-the-records-overlays",
+        clip_and_record,
+        score("clip.mp4", "--rrd", "out/overlays/a.rrd"),
+        2,
+        ("--rrd", "overlays"),
+    ),
+    Case("out-is-the-frame-folder", frame_folder, score("frames", out="frames"), 2, ("--out", "frames")),
+    Case("out-inside-the-frame-folder", frame_folder, score("frames", out="frames/rec"), 2, ("--out", "frames")),
+    Case("rrd-inside-the-frame-folder", frame_folder, score("frames", "--rrd", "frames/a.rrd"), 2, ("--rrd",)),
+    Case(
+        "rrd-inside-the-masks",
+        lambda c: c.c4(),
+        score("c4.mp4", "--masks", "c4.masks", "--rrd", "c4.masks/a.rrd"),
+        2,
+        ("--rrd", "masks"),
+    ),
+    Case(
+        "out-is-the-masks",
+        lambda c: c.c4(),
+        score("c4.mp4", "--masks", "c4.masks", out="c4.masks"),
+        2,
+        ("--out", "masks"),
+    ),
+    Case(
+        "rrd-is-the-pose-log",
+        pose("ok.json", log(IDENTITY)),
+        score("clip.mp4", "--pose-log", "ok.json", "--rrd", "ok.json"),
+        2,
+        ("--rrd", "pose log"),
+    ),
+    Case(
+        "view-save-is-the-records-json",
+        clip_scored_to_rec,
+        ("view", "rec", "--headless", "--save", "rec/record.json"),
+        2,
+        ("--save", "record.json"),
+        needs=("rerun",),
+    ),
+    Case(
+        "view-save-is-the-records-matches",
+        clip_scored_to_rec,
+        ("view", "rec", "--headless", "--save", "rec/matches.npz"),
+        2,
+        ("--save",),
+        needs=("rerun",),
+    ),
+    Case(
+        "view-save-is-the-clip",
+        clip_scored_to_rec,
+        ("view", "rec", "--headless", "--save", "clip.mp4"),
+        2,
+        ("--save", "clip"),
+        needs=("rerun",),
+    ),
+    Case(
+        "view-screenshot-is-the-records-json",
+        clip_scored_to_rec,
+        ("view", "rec", "--headless", "--screenshot", "rec/record.json"),
+        2,
+        ("--screenshot",),
+        needs=("rerun",),
+    ),
+    Case("report-out-is-the-results", results_folder, ("report", "res", "--out", "res"), 2, ("--out", "res")),
+    Case("report-out-holds-the-results", results_folder, ("report", "res", "--out", "."), 2, ("--out",)),
+    Case("report-out-in-the-records", results_folder, ("report", "res", "--out", "res/clips"), 2, ("--out",)),
+    Case("report-out-in-the-tables", results_folder, ("report", "res", "--out", "res/tables/r"), 2, ("--out",)),
+    Case("bench-out-is-the-dataset", dataset, ("bench", "ds", "--out", "ds", *FAST, "--no-rrd"), 2, ("--out", "ds")),
+]
+
+CASES = CLIPS + MASKS + POSES + OPTIONS + OUTPUTS
 
 
 def test_the_catalogue_is_complete():
@@ -1104,3 +1227,12 @@ def judge(case: Case, ctx: Ctx, res: Outcome, before: dict[str, str]) -> list[st
         except (AssertionError, OSError, ValueError, KeyError) as exc:
             problems.append(f"check {case.check.__name__}: {type(exc).__name__}: {exc}")
     return problems
+
+
+def test_a_negative_report_seed_is_refused_before_any_work(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    results_folder(Ctx(tmp_path, None))  # type: ignore[arg-type]
+    before = snapshot(tmp_path)
+    res = CliRunner().invoke(app, ["report", "res", "--seed", "-1"])
+    assert res.exit_code == 2 and "--seed" in res.output
+    assert snapshot(tmp_path) == before  # nothing read into a report, nothing written

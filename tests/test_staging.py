@@ -66,3 +66,33 @@ def test_staging_folders_of_killed_runs_are_cleared(tmp_path):
         _write_record(stage, "new", 1)
     assert not stale.exists() and alive.exists()
     assert (tmp_path / "D" / "record.json").read_text() == "new"
+
+
+def test_a_signal_during_the_commit_waits_for_the_record_and_its_recording(tmp_path, monkeypatch):
+    """Ctrl-C arriving while a record and its recording are moved into place is held until both
+    are there, then delivered: the folder never pairs a new record with an old recording."""
+    import signal
+
+    import geocon_core.staging as staging
+
+    out, rrd, part = tmp_path / "D", tmp_path / "audit.rrd", tmp_path / ".audit.rrd.part"
+    _write_record(out, "old", 2)
+    rrd.write_text("old")
+    real_commit = staging._commit
+
+    def interrupted_commit(stage: Path, out_dir: Path) -> None:
+        os.kill(os.getpid(), signal.SIGINT)  # arrives between the first rename and the last
+        real_commit(stage, out_dir)
+
+    monkeypatch.setattr(staging, "_commit", interrupted_commit)
+    with pytest.raises(KeyboardInterrupt), staged_record(out, then=[lambda: part.replace(rrd)]) as stage:
+        _write_record(stage, "new", 1)
+        part.write_text("new")
+    assert (out / "record.json").read_text() == "new" and (out / "matches.npz").read_text() == "new"
+    assert rrd.read_text() == "new" and not part.exists()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is given back
+    with pytest.raises(RuntimeError), staged_record(out, then=[lambda: part.replace(rrd)]) as stage:
+        _write_record(stage, "newer", 1)
+        part.write_text("newer")
+        raise RuntimeError("failed before the commit")
+    assert (out / "record.json").read_text() == "new" and rrd.read_text() == "new"  # the old pair, whole

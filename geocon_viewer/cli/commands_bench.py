@@ -3,6 +3,7 @@ report, and the named settings."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
@@ -93,6 +94,7 @@ def bench(
         if working_size is not None:
             cfg = cfg.with_(working_size=parse_size(working_size))
         ray_options = _ray_options(executor, ray_address, workers, ray_cpus, ray_gpus)
+        _check_bench_out(dataset, out_dir)
     except ValueError as exc:
         raise fail(str(exc)) from None
     renderer = render_audit_rrd if rrd and has_viewer_extra("rerun") else None
@@ -158,6 +160,16 @@ def bench(
     )
 
 
+def _check_bench_out(dataset: Path, out_dir: Path) -> None:
+    """The results folder is not the dataset folder itself (its records would sit among the clips)."""
+    from geocon_core.paths import OutPathError
+
+    if out_dir.exists() and dataset.exists() and os.path.samefile(out_dir, dataset):
+        raise OutPathError(
+            f"--out {out_dir} is the dataset folder; the results go into a folder of their own (e.g. {dataset}/results)"
+        )
+
+
 def _ray_options(executor: str, address: str | None, workers: int, cpus: float, gpus: float | None) -> Any:
     """The Ray settings of ``geocon bench`` (None for the process pool, which takes none of them)."""
     from geocon_core.bench import EXECUTORS
@@ -173,10 +185,33 @@ def _ray_options(executor: str, address: str | None, workers: int, cpus: float, 
     return RayOptions(address=address, local_cpus=workers, cpus_per_clip=cpus, gpus_per_clip=gpus)
 
 
+def _check_report_out(results: Path, out_dir: Path | None) -> None:
+    """The report folder is replaced whole: it must not be the results folder, hold it, or lie in
+    its records or tables."""
+    from geocon_core.paths import OutPathError, check_apart
+
+    if out_dir is None:
+        return
+    if (
+        out_dir.exists()
+        and results.exists()
+        and (
+            os.path.samefile(out_dir, results)
+            or Path(os.path.realpath(out_dir)) in Path(os.path.realpath(results)).parents
+        )
+    ):
+        raise OutPathError(
+            f"--out {out_dir} holds the results folder {results}, and a report folder is replaced whole; "
+            "choose another folder (default: RESULTS/report)"
+        )
+    for part in ("clips", "tables"):
+        check_apart([("--out", out_dir)], [(f"results' {part} folder", results / part)])
+
+
 def report(
     results: Annotated[Path, typer.Argument(help="Results folder written by `geocon bench`.")],
     out_dir: Annotated[Optional[Path], typer.Option("--out", help="Report folder (default: RESULTS/report).")] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the bootstrap resampling.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the bootstrap resampling (0 or more).")] = 0,
     bootstrap: Annotated[
         int,
         typer.Option(min=100, help="Bootstrap resamples behind every confidence interval (fewer: faster, coarser)."),
@@ -189,6 +224,7 @@ def report(
     except ImportError as exc:
         raise fail(f"the report needs the bench extra: pip install 'geocon[bench]' ({exc})") from None
     try:
+        _check_report_out(results, out_dir)
         result = build_report(
             results,
             out_dir,

@@ -263,15 +263,23 @@ def _pose_settings(
 
 
 def check_inputs(
-    out_dir: Path, *, pose_log: Path | None = None, masks: Path | None = None, rrd: Path | None = None
+    out_dir: Path,
+    *,
+    pose_log: Path | None = None,
+    masks: Path | None = None,
+    rrd: Path | None = None,
+    clip: Path | None = None,
 ) -> None:
     """Everything a scoring command names besides the clip, checked before the clip is decoded:
-    the output folder, the pose log, the masks' layout and the recording's path (``ValueError``
-    with one sentence)."""
+    the output folder, the pose log, the masks' layout and the recording's path, and that no output
+    would write over an input or into the record's own files (``ValueError`` with one sentence)."""
     from geocon_core.masks.external import check_masks_path
-    from geocon_core.paths import check_out_dir, check_out_file
+    from geocon_core.paths import check_apart, check_out_dir, check_out_file
     from geocon_core.pose import load_pose_log
 
+    inputs = [(what, p) for what, p in (("clip", clip), ("masks", masks), ("pose log", pose_log)) if p is not None]
+    outputs = [("--out", out_dir)] + ([] if rrd is None else [("--rrd", rrd)])
+    check_apart(outputs, inputs, records=[out_dir])
     check_out_dir(out_dir, "--out")
     if pose_log is not None:
         load_pose_log(pose_log)
@@ -387,7 +395,7 @@ def score(
             sam2_size=sam2_size,
         )
         cfg = _pose_settings(cfg, pose, pose_log, dust3r_checkpoint, dust3r_path)
-        check_inputs(target, pose_log=pose_log, masks=mask_path, rrd=rrd)
+        check_inputs(target, pose_log=pose_log, masks=mask_path, rrd=rrd, clip=clip)
     except ValueError as exc:
         raise fail(str(exc)) from None
     try:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -60,6 +60,16 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
             raise
         raise fail(str(exc)) from None
     return folder
+
+
+def _check_outputs(record: Any, folder: Path, rrd: Path, screenshot: Path | None) -> None:
+    """The recording and the screenshot never replace the clip, the masks or the record's own files."""
+    from geocon_core.paths import check_apart, check_out_file
+
+    inputs = [("clip", Path(record.video.path))]
+    outputs = [("--save", rrd)] + ([] if screenshot is None else [("--screenshot", screenshot)])
+    check_apart(outputs, inputs, records=[folder])
+    check_out_file(rrd, "--save")
 
 
 def view(
@@ -117,6 +127,10 @@ def view(
     if at is not None and at >= n:
         raise fail(f"--at {at} is past the last frame of {record.clip}: it has {n} frames (0 to {n - 1})")
     rrd = save or folder / "audit.rrd"
+    try:
+        _check_outputs(record, folder, rrd, screenshot)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
     try:
         with progress_bar("rendering", "frames", elapsed=False, eta=False) as bar:
             task = bar.add_task("render", total=None)
