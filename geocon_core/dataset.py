@@ -150,12 +150,16 @@ def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
 
 def _read_sidecar(sidecar: Path, name: str) -> tuple[dict[str, Any] | None, str]:
     """The parsed sidecar, or None and the problem with it."""
+    from .jsonin import strict_json
+
     try:
-        meta = json.loads(sidecar.read_text())
+        meta = strict_json(sidecar.read_text(), name)
     except (OSError, UnicodeDecodeError) as exc:
         return None, f"{name}: cannot be read ({exc})"
     except json.JSONDecodeError as exc:
         return None, f"{name}: not valid JSON ({exc.msg} at line {exc.lineno})"
+    except ValueError as exc:
+        return None, str(exc)
     if not isinstance(meta, dict):
         return None, f"{name}: must hold a JSON object"
     return meta, ""
@@ -192,6 +196,7 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
     problems: list[str] = []
     entries: list[ClipEntry] = []
     seen: dict[str, Path] = {}
+    videos: dict[tuple[int, int], Path] = {}
     for sidecar in sidecars:
         name = str(sidecar.relative_to(base))
         meta, problem = _read_sidecar(sidecar, name)
@@ -204,6 +209,14 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
             mine.append(f"{name}: clip_id {cid!r} is also used by {seen[cid].relative_to(base)}")
         video = _find_video(sidecar, meta)
         mine += _video_problems(name, sidecar, meta, video, check_clips)
+        if video is not None and video.exists():
+            st = video.stat()
+            first = videos.setdefault((st.st_dev, st.st_ino), sidecar)
+            if first != sidecar:
+                mine.append(
+                    f"{name}: names the same clip file as {first.relative_to(base)} ({video.name}); one clip, one "
+                    "sidecar (a clip scored twice would count twice in every table)"
+                )
         masks = None
         if isinstance(meta.get("masks_path"), str):
             masks = sidecar.parent / meta["masks_path"]

@@ -784,6 +784,15 @@ POSES = [
         forbids=("codec can't decode", "invalid start byte", "Traceback"),
     ),
     pose_case("empty", "empty.json", b""),
+    pose_case(
+        "repeated-key",
+        "rep.json",
+        '{"format": "geocon-pose/1", "pose_present": true, "pose_present": false, "T_cam0_camT": null}',
+        ("pose_present", "twice"),
+    ),
+    pose_case(
+        "5000-digit-number", "long.json", '{"format": "geocon-pose/1", "scale": 1' + "0" * 5000 + "}", ("number",)
+    ),
     pose_case("invalid-json", "broken.json", '{"format": "geocon-pose/1", "T_cam0_camT": [[1, 0, 0'),
     pose_case("wrong-format", "wrong.json", {"format": "nope"}, says=("format",)),
     pose_case("json-array", "list.json", [1, 2, 3]),
@@ -1136,6 +1145,7 @@ OUTPUTS = [
     Case("report-out-holds-the-results", results_folder, ("report", "res", "--out", "."), 2, ("--out",)),
     Case("report-out-in-the-records", results_folder, ("report", "res", "--out", "res/clips"), 2, ("--out",)),
     Case("report-out-in-the-tables", results_folder, ("report", "res", "--out", "res/tables/r"), 2, ("--out",)),
+    Case("synth-size-100000", nothing, ("synth", "C1", "--out", "s", "--size", "100000x100000"), 2, ("--size", "8192")),
     Case("bench-out-is-the-dataset", dataset, ("bench", "ds", "--out", "ds", *FAST, "--no-rrd"), 2, ("--out", "ds")),
 ]
 
@@ -1236,3 +1246,10 @@ def test_a_negative_report_seed_is_refused_before_any_work(tmp_path, monkeypatch
     res = CliRunner().invoke(app, ["report", "res", "--seed", "-1"])
     assert res.exit_code == 2 and "--seed" in res.output
     assert snapshot(tmp_path) == before  # nothing read into a report, nothing written
+
+
+@pytest.mark.parametrize("option", [("--fps", "1e308"), ("--fps", "nan"), ("--seed", "-1"), ("--frames", "1")])
+def test_absurd_synth_options_are_refused_before_anything_is_written(tmp_path, monkeypatch, option):
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(app, ["synth", "C1", "--out", "s", *option])
+    assert res.exit_code == 2 and option[0] in res.output and not (tmp_path / "s").exists()

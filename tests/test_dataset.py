@@ -102,3 +102,26 @@ def test_required_fields_follow_the_spec():
         "category",
         "scene_id",
     }
+
+
+def test_two_sidecars_naming_one_clip_and_repeated_keys_are_refused(tiny_dataset, tmp_path):
+    root = _copy(tiny_dataset, tmp_path / "d")
+    c1 = _sidecar(root, "clean-c1_static-s0")
+    meta = json.loads(c1.read_text())
+    video = (c1.parent / meta["video"]).resolve()
+    (c1.parent / "again.meta.json").write_text(json.dumps({**meta, "clip_id": "again", "video": meta["video"]}))
+    link = c1.parent / "link.mp4"
+    link.symlink_to(video)  # the same file under another name is the same clip
+    (c1.parent / "linked.meta.json").write_text(json.dumps({**meta, "clip_id": "linked", "video": "link.mp4"}))
+    c4 = _sidecar(root, "clean-c4_objects-s0")
+    text = c4.read_text()
+    c4.write_text(text.rstrip()[:-1] + ', "fps": 8}')  # fps given twice
+    with pytest.raises(DatasetError) as exc:
+        load_dataset(root)
+    problems = exc.value.problems
+    assert sum("names the same clip file as" in p for p in problems) == 2, problems
+    assert any(p.endswith("key 'fps' is given twice (a JSON object names each key once)") for p in problems)
+    huge = root / "huge.meta.json"
+    huge.write_text('{"clip_id": "h", "fps": 1' + "0" * 5000 + "}")
+    with pytest.raises(DatasetError, match=r"huge.meta.json: a number of 5001 characters"):
+        load_dataset(root)

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from ..geometry import rotation_angle_deg
+from ..jsonin import strict_json
 from .base import PoseEstimate, check_inputs, failure, focal_of
 
 __all__ = ["POSE_LOG_FORMAT", "MAX_T_UNIT", "MAX_POSE_LOG_BYTES", "PoseLog", "load_pose_log"]
@@ -98,11 +99,13 @@ def _read_json(path: Path) -> Any:
             raise ValueError(
                 f"pose log {where} is larger than {MAX_POSE_LOG_BYTES} bytes; a pose log is a small JSON file"
             )
-        return json.loads(path.read_bytes().decode("utf-8"))
+        return strict_json(path.read_bytes().decode("utf-8"), f"pose log {where}")
     except UnicodeDecodeError:
         raise ValueError(f"pose log {where} is not UTF-8 text (a geocon-pose/1 JSON file is expected)") from None
     except json.JSONDecodeError as e:
         raise ValueError(f"pose log {where} is not valid JSON: {e}") from None
+    except ValueError as e:  # a repeated key, an absurd number: the sentence names the file
+        raise ValueError(str(e)) from None
     except RecursionError:
         raise ValueError(f"pose log {where} is not a pose log (JSON nested too deeply)") from None
     except OSError as e:

@@ -110,8 +110,10 @@ def synth(
     out_dir: Annotated[Path, typer.Option("--out", help="Output folder (created if missing).")],
     frames: Annotated[int, typer.Option(min=2, help="Frames per clip.")] = 48,
     size: Annotated[str, typer.Option(help="Frame size WxH (even numbers).")] = "640x360",
-    fps: Annotated[float, typer.Option(min=0.1, help="Frames per second.")] = 24.0,
-    seed: Annotated[int, typer.Option(help="Random seed; the same seed gives identical files.")] = 0,
+    fps: Annotated[float, typer.Option(min=0.1, max=1000.0, help="Frames per second (0.1 to 1000).")] = 24.0,
+    seed: Annotated[
+        int, typer.Option(min=0, max=2**32 - 1, help="Random seed (0 or more); the same seed gives identical files.")
+    ] = 0,
     failure: Annotated[
         Optional[str],
         typer.Option(help="Inject a failure: breathing, slide, missing_parallax, elastic, boiling, letterbox."),

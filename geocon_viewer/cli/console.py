@@ -43,14 +43,20 @@ def fail(message: str) -> typer.Exit:
     return typer.Exit(code=2)
 
 
+MAX_SIDE = 8192
+"""The largest width or height ``--size`` accepts (8K; H.264 encoders and a laptop's memory stop near it)."""
+
+
 def parse_size(size: str) -> tuple[int, int]:
-    """``"640x360"`` -> (640, 360); even sizes of at least 16 px (H.264 4:2:0)."""
+    """``"640x360"`` -> (640, 360); even sizes of 16 to :data:`MAX_SIDE` px (H.264 4:2:0)."""
     try:
         w, h = (int(v) for v in size.lower().split("x"))
     except ValueError:
         raise fail(f"--size must look like 640x360, got {size!r}") from None
     if w % 2 or h % 2 or w < 16 or h < 16:
         raise fail(f"--size needs an even width and height of at least 16 (H.264 4:2:0), got {size!r}")
+    if w > MAX_SIDE or h > MAX_SIDE:
+        raise fail(f"--size {size} is larger than {MAX_SIDE} px on a side (8K), which no encoder here writes")
     return w, h
 
 
