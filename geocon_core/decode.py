@@ -10,8 +10,12 @@ that stops before its trailer).
 from __future__ import annotations
 
 import math
+import os
 import re
-from collections.abc import Iterator
+import shutil
+import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -32,11 +36,66 @@ __all__ = [
     "container_frame_count",
     "gif_cut",
     "image_frames",
+    "imread_any",
+    "imwrite_any",
+    "native_path",
+    "native_safe",
     "open_video",
     "resolve_clip",
 ]
 
 ClipKind = Literal["video", "gif", "images"]
+
+
+def native_safe(name: str) -> bool:
+    """Whether ``name`` can be handed to a native library as it is: valid UTF-8 text (a name read
+    from a Latin-1 or zip archive holds undecodable bytes, which OpenCV's bindings do not survive)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+@contextmanager
+def native_path(name: str) -> Iterator[str]:
+    """``name`` in a form native libraries accept: itself when it is :func:`native_safe`, else a
+    link with a plain name in a private temporary folder, removed when the block ends (a decoder
+    that opened the file keeps it open)."""
+    if native_safe(name):
+        yield name
+        return
+    folder = tempfile.mkdtemp(prefix="geocon-link-")
+    link = os.path.join(
+        folder, "clip" + "".join(c for c in Path(name).suffix if c.isascii() and c.isalnum() or c == ".")
+    )
+    try:
+        os.symlink(os.path.abspath(name), link)
+        yield link
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def imread_any(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None:
+    """``cv2.imread`` for any file name (the bytes are read by Python, decoded by OpenCV); None
+    when the file cannot be read or decoded."""
+    try:
+        data = np.fromfile(os.fspath(path), dtype=np.uint8)
+        return cv2.imdecode(data, flags) if data.size else None
+    except (cv2.error, OSError, ValueError):
+        return None
+
+
+def imwrite_any(path: str | Path, image: np.ndarray, params: Sequence[int] = ()) -> bool:
+    """``cv2.imwrite`` for any file name: encoded by OpenCV (format from the suffix), written by
+    Python. False when it cannot be encoded; ``OSError`` when it cannot be written (a full disk)."""
+    ok, buf = cv2.imencode(Path(path).suffix or ".png", image, list(params))
+    if not ok:
+        return False
+    with open(path, "wb") as fh:
+        fh.write(buf.tobytes())
+    return True
+
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg"})
 """File suffixes (lower case) read as frames of an image folder."""
@@ -127,11 +186,7 @@ def _natural_key(path: Path) -> tuple[list[tuple[int, int | str]], str]:
 
 def _imread(path: Path) -> np.ndarray | None:
     """(h, w, 3) uint8 BGR of an image file (grey and alpha converted, 16 bit reduced), or None."""
-    try:
-        data = np.fromfile(str(path), dtype=np.uint8)
-        return cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
-    except (cv2.error, OSError):
-        return None
+    return imread_any(path)
 
 
 def image_frames(files: list[Path], name: str) -> Iterator[np.ndarray]:
@@ -150,8 +205,9 @@ def image_frames(files: list[Path], name: str) -> Iterator[np.ndarray]:
 def _open_capture(name: str) -> cv2.VideoCapture:
     """An opened FFmpeg capture of ``name``; :class:`ClipError` if it cannot be opened."""
     try:
-        cap = cv2.VideoCapture(name, cv2.CAP_FFMPEG)
-        opened = cap.isOpened()
+        with native_path(name) as safe:
+            cap = cv2.VideoCapture(safe, cv2.CAP_FFMPEG)
+            opened = cap.isOpened()
     except cv2.error as err:
         raise ClipError(f"{name}: unreadable bytes ({_cv_reason(err)})") from None
     if not opened:
@@ -220,7 +276,7 @@ def container_frame_count(name: str) -> FrameCount | None:
     import av  # a core dependency; loaded only when a clip is probed
 
     try:
-        with av.open(name) as container:
+        with native_path(name) as safe, av.open(safe) as container:
             if not container.streams.video:
                 return None
             stream = container.streams.video[0]

@@ -30,6 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .decode import imread_any, imwrite_any
 from .reader import Frame
 
 __all__ = [
@@ -188,7 +189,7 @@ class OverlayWriter:
 
 
 def _imwrite(path: Path, image: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), image):
+    if not imwrite_any(path, image):
         raise OSError(f"could not write {path}")
 
 
@@ -226,7 +227,7 @@ class Overlays:
         e = self.entries.get(t)
         if e is None or e.labels is None:
             return None
-        labels = cv2.imread(str(self.folder / e.labels), cv2.IMREAD_UNCHANGED)
+        labels = imread_any(self.folder / e.labels, cv2.IMREAD_UNCHANGED)
         if labels is None:
             raise _missing(self.folder / e.labels)
         return np.asarray(labels)
@@ -235,7 +236,7 @@ class Overlays:
         e = self.entries.get(t)
         out = []
         for f in () if e is None else e.flows:
-            bgra = cv2.imread(str(self.folder / f.file), cv2.IMREAD_UNCHANGED)
+            bgra = imread_any(self.folder / f.file, cv2.IMREAD_UNCHANGED)
             if bgra is None or bgra.ndim != 3 or bgra.shape[2] != 4:
                 raise _missing(self.folder / f.file)
             img = cv2.cvtColor(bgra, cv2.COLOR_BGRA2RGBA)

@@ -8,6 +8,7 @@ complete, so a run that fails or is killed leaves the previous folder exactly as
 
 from __future__ import annotations
 
+import hashlib
 import os
 import secrets
 import shutil
@@ -183,10 +184,25 @@ def deferred_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -
             os.kill(os.getpid(), caught[0])
 
 
+NAME_ROOM = 180
+"""Bytes of a target's name kept in its temporary siblings' names; a longer name is cut and
+marked with a hash of the whole, so ``.NAME.part-<pid>-<token>`` stays within the 255-byte name
+limit of common file systems (a legal 251-byte file name must not make its temporary name illegal)."""
+
+
+def short_name(name: str) -> str:
+    """``name`` when it fits :data:`NAME_ROOM` bytes, else its start and a hash of the whole."""
+    raw = os.fsencode(name)
+    if len(raw) <= NAME_ROOM:
+        return name
+    digest = hashlib.sha256(raw).hexdigest()[:12]
+    return os.fsdecode(raw[: NAME_ROOM - 13]) + "~" + digest
+
+
 def part_prefix(target: Path) -> str:
     """Name prefix of the temporary siblings in which ``target`` is built (``.NAME.part-``,
-    followed by the writer's pid)."""
-    return f".{target.name}.part-"
+    followed by the writer's pid); a long NAME is shortened (:func:`short_name`)."""
+    return f".{short_name(target.name)}.part-"
 
 
 def part_path(target: Path) -> Path:
@@ -232,7 +248,7 @@ def replace_dir(target: Path) -> Iterator[Path]:
     try:
         yield tmp
         if target.exists() or target.is_symlink():
-            old = parent / f".{target.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+            old = parent / f".{short_name(target.name)}.old-{os.getpid()}-{secrets.token_hex(4)}"
             target.rename(old)
             try:
                 tmp.rename(target)

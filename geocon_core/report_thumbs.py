@@ -24,7 +24,7 @@ from typing import Iterable, Iterator, Mapping
 import cv2
 import numpy as np
 
-from .decode import ClipError, image_frames, resolve_clip
+from .decode import ClipError, image_frames, native_path, resolve_clip
 from .reader import ClipInfo, layout_of, to_working
 from .record import ClipRecord, PairRecord, read_record
 from .regate import pair_inliers
@@ -139,7 +139,8 @@ def _video_frames(info: ClipInfo, want: list[int]) -> Iterator[tuple[int, np.nda
         return
     if not Path(name).is_file():
         raise ClipError(f"{name}: no such file")
-    cap = cv2.VideoCapture(name, cv2.CAP_FFMPEG)
+    with native_path(name) as safe:
+        cap = cv2.VideoCapture(safe, cv2.CAP_FFMPEG)
     try:
         if not cap.isOpened():
             raise ClipError(f"{name}: cannot be decoded any more")

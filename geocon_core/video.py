@@ -4,6 +4,7 @@ a folder (the image-folder input of :mod:`geocon_core.reader`)."""
 
 from __future__ import annotations
 
+import contextlib
 from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
@@ -27,7 +28,14 @@ class Mp4Writer:
             raise ValueError(f"H.264 (yuv420p) needs an even width and height, got {width}x{height}")
         self.path = Path(path)
         self.width, self.height = width, height
-        self._container: Any = av.open(str(self.path), mode="w", format="mp4")
+        # Written through a Python file: any file name works, and a full disk is an OSError here
+        # rather than a failure inside the encoder's own file handling.
+        self._file: Any = open(self.path, "wb")  # noqa: SIM115  # closed in close()
+        try:
+            self._container: Any = av.open(self._file, mode="w", format="mp4")
+        except BaseException:
+            self._file.close()
+            raise
         rate = Fraction(fps).limit_denominator(1001)
         # x264's macroblock-tree rate control gave different bytes for the same frames from run to
         # run (seen with PyAV 18.1 / libx264 in its wheel); without it the output is reproducible.
@@ -50,10 +58,13 @@ class Mp4Writer:
     def close(self) -> None:
         if self._container is None:
             return
-        for packet in self._stream.encode():
-            self._container.mux(packet)
-        self._container.close()
-        self._container = None
+        try:
+            for packet in self._stream.encode():
+                self._container.mux(packet)
+            self._container.close()
+        finally:
+            self._container = None
+            self._file.close()
 
     def __enter__(self) -> "Mp4Writer":
         return self
@@ -61,9 +72,21 @@ class Mp4Writer:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close()
-        if exc_type is not None:
-            self.path.unlink(missing_ok=True)
+        if exc_type is None:
+            self.close()
+            return
+        self.abort()
+
+    def abort(self) -> None:
+        """Stop without flushing the encoder (after a failure: a full disk, an interrupt) and
+        remove the partial file; errors of the abandoned container are not raised over the first."""
+        container, self._container = self._container, None
+        if container is not None:
+            with contextlib.suppress(Exception):
+                container.close()
+        with contextlib.suppress(OSError):
+            self._file.close()
+        self.path.unlink(missing_ok=True)
 
 
 class PngSequenceWriter:
@@ -80,10 +103,12 @@ class PngSequenceWriter:
     def write(self, rgb: np.ndarray) -> None:
         import cv2
 
+        from .decode import imwrite_any
+
         if rgb.shape != (self.height, self.width, 3) or rgb.dtype != np.uint8:
             raise ValueError(f"expected ({self.height}, {self.width}, 3) uint8, got {rgb.shape} {rgb.dtype}")
         name = self.path / f"{self.frames_written:05d}.png"
-        if not cv2.imwrite(str(name), np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 3]):
+        if not imwrite_any(name, np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 3]):
             raise OSError(f"could not write frame {name}")
         self.frames_written += 1
 

@@ -202,6 +202,8 @@ class Ctx:
             stderr=subprocess.PIPE,
             stdin=subprocess.DEVNULL,
             text=True,
+            encoding="utf-8",
+            errors="replace",  # a file name that is not UTF-8 is printed as its bytes
             start_new_session=True,
         )
         try:
@@ -1149,7 +1151,38 @@ OUTPUTS = [
     Case("bench-out-is-the-dataset", dataset, ("bench", "ds", "--out", "ds", *FAST, "--no-rrd"), 2, ("--out", "ds")),
 ]
 
-CASES = CLIPS + MASKS + POSES + OPTIONS + OUTPUTS
+# --- names that native libraries choke on ---------------------------------------------------------
+
+LATIN1 = os.fsdecode(b"caf\xe9.mp4")
+"""A file name that is not UTF-8 (a Latin-1 byte, as zip and old archives write them)."""
+LONG = "l" * 247 + ".mp4"
+"""A legal 251-byte file name."""
+
+
+def named(name: str) -> Callable[[Ctx], None]:
+    return lambda ctx: ctx.pan(name)
+
+
+def scored_out(ctx: Ctx, _res: Outcome) -> None:
+    assert record(ctx)["video"]["num_frames"] == N
+
+
+NAMES = [
+    Case("score-latin1-name", named(LATIN1), score(LATIN1), 0, check=scored_out, runner="subprocess"),
+    Case("score-latin1-out", lambda c: c.pan(), score("clip.mp4", out=os.fsdecode(b"out/r\xe9s")), 0,
+         runner="subprocess"),
+    Case("score-latin1-rrd", lambda c: c.pan(), score("clip.mp4", "--rrd", os.fsdecode(b"out/\xe9.rrd")), 0,
+         runner="subprocess", needs=("rerun",)),
+    Case("synth-latin1-out", nothing, ("synth", "C1", "--out", os.fsdecode(b"out/s\xe9"), "--frames", "4",
+         "--size", "64x48"), 0, runner="subprocess"),
+    Case("score-251-byte-name", named(LONG), score(LONG), 0, check=scored_out),
+    Case("score-251-byte-name-default-out", named(LONG), score(LONG, out=None), 0),
+    Case("score-251-byte-rrd", lambda c: c.pan(), score("clip.mp4", "--rrd", "out/" + "r" * 247 + ".rrd"), 0,
+         needs=("rerun",)),
+    Case("score-latin1-missing", nothing, score(LATIN1), 2, ("caf",), runner="subprocess"),
+]  # fmt: skip
+
+CASES = CLIPS + MASKS + POSES + OPTIONS + OUTPUTS + NAMES
 
 
 def test_the_catalogue_is_complete():

@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..decode import imread_any, native_path
 from ..npz import NPZ_ERRORS
 from ..reader import ClipInfo, Frame
 from .base import MAX_ID, Coverage, labels_to_canvas
@@ -72,7 +73,7 @@ def _read_palette_png(path: Path) -> np.ndarray | None:
     import av
 
     try:
-        with av.open(str(path)) as container:
+        with native_path(str(path)) as safe, av.open(safe) as container:
             for frame in container.decode(video=0):
                 if frame.format.name == "pal8":
                     indices, _palette = frame.to_ndarray()
@@ -89,7 +90,7 @@ def _read_png(path: Path) -> np.ndarray:
         if ids is None:
             raise ValueError(f"{path}: cannot be read as an indexed (palette) PNG")
         return ids
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = imread_any(path, cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ValueError(f"{path}: cannot be read as an image")
     if img.ndim == 3:

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from .._version import __version__
+from ..decode import imwrite_any
 from ..geometry import relative_pose, rotation_angle_deg, t_inf_from_pose
 from ..verdict import binary_gate, hysteresis_gate
 from .failures import FAILURES, failure_spec, make_failure
@@ -168,7 +169,7 @@ def write_clip(
                 if t == 0:
                     first_depth = frame.depth
                 writer.write(_add_noise(frame.rgb, noise, seed, t))
-                if not cv2.imwrite(str(tmp_masks / f"{t:05d}.png"), frame.labels, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
+                if not imwrite_any(tmp_masks / f"{t:05d}.png", frame.labels, [cv2.IMWRITE_PNG_COMPRESSION, 3]):
                     raise OSError(f"could not write mask {tmp_masks / f'{t:05d}.png'}")
                 masked_share[t] = np.count_nonzero(frame.labels[y0:y1, x0:x1]) / content_area
                 for oid in np.unique(frame.labels):
