@@ -18,13 +18,17 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, Union
 
 import cv2
 import numpy as np
 
 __all__ = [
+    "ANIMATED_SUFFIXES",
     "CaptureFrames",
+    "Frames",
+    "PillowFrames",
+    "PyAVFrames",
     "ClipError",
     "ClipKind",
     "DEFAULT_FPS",
@@ -98,6 +102,8 @@ def imwrite_any(path: str | Path, image: np.ndarray, params: Sequence[int] = ())
 
 
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg"})
+ANIMATED_SUFFIXES: frozenset[str] = frozenset({".png", ".apng", ".webp"})
+"""Single files that may hold an animation (read as a clip when they hold 2 frames or more)."""
 """File suffixes (lower case) read as frames of an image folder."""
 
 DEFAULT_FPS = 24.0
@@ -164,6 +170,8 @@ def resolve_clip(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
         return "images", files
     if not path.is_file():
         raise ClipError(f"{name}: not a regular file")
+    if path.suffix.lower() in ANIMATED_SUFFIXES and _animated_frames(path) >= 2:
+        return "video", None  # an animated PNG or WebP: decoded by Pillow (open_video)
     if path.suffix.lower() in IMAGE_SUFFIXES:
         if _imread(path) is None:
             raise ClipError(f"{name}: cannot be decoded as a video or image sequence")
@@ -218,16 +226,206 @@ def _open_capture(name: str) -> cv2.VideoCapture:
     return cap
 
 
-def open_video(name: str) -> tuple[float, "CaptureFrames"]:
-    """The frame rate of the video or GIF ``name`` (:data:`DEFAULT_FPS` when the container reports
-    none) and an iterator over its (h, w, 3) uint8 BGR frames until the decoder stops."""
-    cap = _open_capture(name)
+def _fps(value: float | None) -> float:
+    return value if value is not None and math.isfinite(value) and 0.0 < value < 1000.0 else DEFAULT_FPS
+
+
+def open_video(name: str) -> tuple[float, "Frames"]:
+    """The frame rate of the video, GIF or animated image ``name`` (:data:`DEFAULT_FPS` when the
+    container reports none) and an iterator over its (h, w, 3) uint8 BGR frames until the decoder
+    stops.
+
+    One decoder policy: OpenCV where it reads the stream (fast, the frames every record so far
+    was scored on); PyAV for what OpenCV cannot read (AV1, and any stream OpenCV opens but decodes
+    no frame of) and for interlaced streams, which it deinterlaces (``yadif``: one frame per frame);
+    Pillow for animated PNG and WebP. The iterator's ``decoder`` names the one used."""
+    if Path(name).suffix.lower() in ANIMATED_SUFFIXES and _animated_frames(Path(name)) >= 2:
+        animated = PillowFrames(name)
+        return animated.fps, animated
+    peek = _pyav_peek(name)
+    if peek is not None and peek.interlaced:
+        return _fps(peek.fps), PyAVFrames(name, deinterlace=True)
+    try:
+        cap = _open_capture(name)
+    except ClipError:
+        if peek is None or not peek.decodes:
+            raise
+        return _fps(peek.fps), PyAVFrames(name)
     try:
         fps = float(cap.get(cv2.CAP_PROP_FPS))
     except cv2.error:
         fps = 0.0
-    fps = fps if math.isfinite(fps) and 0.0 < fps < 1000.0 else DEFAULT_FPS
-    return fps, CaptureFrames(cap, name)
+    frames = CaptureFrames(cap, name)
+    try:
+        frames._pending = next(frames)
+    except (StopIteration, ClipError):
+        frames.close()
+        if peek is not None and peek.decodes:
+            return _fps(peek.fps), PyAVFrames(name)
+        if frames.decoded == 0 and peek is None:
+            raise ClipError(f"{name}: unreadable bytes (the container opened but no frame could be decoded)") from None
+    return _fps(fps), frames
+
+
+@dataclass(frozen=True)
+class _Peek:
+    """What PyAV sees of a video's first frame: whether it decodes, is interlaced, the frame rate."""
+
+    decodes: bool
+    interlaced: bool
+    fps: float | None
+
+
+def _pyav_peek(name: str) -> _Peek | None:
+    """PyAV's view of the first video frame of ``name`` (None when PyAV cannot open it)."""
+    import av
+
+    try:
+        with native_path(name) as safe, av.open(safe) as container:
+            if not container.streams.video:
+                return None
+            stream = container.streams.video[0]
+            rate = stream.average_rate or stream.guessed_rate
+            fps = float(rate) if rate else None
+            for frame in container.decode(stream):
+                return _Peek(True, bool(getattr(frame, "interlaced_frame", False)), fps)
+            return _Peek(False, False, fps)
+    except (av.FFmpegError, OSError, ValueError, UnicodeError):
+        return None
+
+
+class PyAVFrames(Iterator[np.ndarray]):
+    """(h, w, 3) uint8 BGR frames decoded by PyAV (FFmpeg), with ``deinterlace`` through
+    FFmpeg's ``yadif`` (one output frame per input frame). Same interface as
+    :class:`CaptureFrames`."""
+
+    def __init__(self, name: str, *, deinterlace: bool = False) -> None:
+        import av
+
+        self._av = av
+        self._name = name
+        self.decoded = 0
+        self.error: str | None = None
+        self.decoder = "pyav (deinterlaced: yadif)" if deinterlace else "pyav"
+        with native_path(name) as safe:
+            self._container: Any = av.open(safe)  # the file stays open after the link is gone
+        stream = self._container.streams.video[0]
+        self._decode = self._container.decode(stream)
+        self._graph: Any = None
+        self._queue: list[Any] = []
+        self._flushed = False
+        if deinterlace:
+            graph = av.filter.Graph()
+            src = graph.add_buffer(template=stream)
+            yadif = graph.add("yadif", "mode=send_frame:parity=auto:deint=interlaced")
+            sink = graph.add("buffersink")
+            src.link_to(yadif)
+            yadif.link_to(sink)
+            graph.configure()
+            self._graph = graph
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                self._queue.append(self._graph.pull())
+            except (self._av.BlockingIOError, self._av.EOFError):
+                return
+
+    def _next_frame(self) -> Any:
+        if self._graph is None:
+            return next(self._decode)
+        while not self._queue:
+            if self._flushed:
+                raise StopIteration
+            try:
+                self._graph.push(next(self._decode))
+            except StopIteration:
+                self._graph.push(None)
+                self._flushed = True
+            self._drain()
+        return self._queue.pop(0)
+
+    def __next__(self) -> np.ndarray:
+        if self._container is None:
+            raise StopIteration
+        try:
+            frame = self._next_frame()
+        except StopIteration:
+            self.close()
+            raise
+        except self._av.FFmpegError as err:
+            self.close()
+            if self.decoded == 0:
+                raise ClipError(f"{self._name}: unreadable bytes ({err})") from None
+            self.error = str(err)
+            raise StopIteration from None
+        self.decoded += 1
+        return frame.to_ndarray(format="bgr24")
+
+    def close(self) -> None:
+        if self._container is not None:
+            self._container.close()
+            self._container = None
+
+    def __del__(self) -> None:
+        self.close()
+
+
+class PillowFrames(Iterator[np.ndarray]):
+    """(h, w, 3) uint8 BGR frames of an animated PNG or WebP, decoded by Pillow; ``fps`` from
+    the first frame's duration. Same interface as :class:`CaptureFrames`."""
+
+    decoder = "pillow"
+
+    def __init__(self, name: str) -> None:
+        from PIL import Image
+
+        self._name = name
+        self._image: Any = Image.open(name)
+        self._count = int(getattr(self._image, "n_frames", 1))
+        duration = float(self._image.info.get("duration") or 0.0)  # ms
+        self.fps = _fps(1000.0 / duration if duration > 0 else None)
+        self.decoded = 0
+        self.error: str | None = None
+
+    def __next__(self) -> np.ndarray:
+        if self._image is None or self.decoded >= self._count:
+            self.close()
+            raise StopIteration
+        try:
+            self._image.seek(self.decoded)
+            rgb = np.asarray(self._image.convert("RGB"))
+        except (OSError, EOFError, ValueError) as err:
+            self.close()
+            if self.decoded == 0:
+                raise ClipError(f"{self._name}: unreadable bytes ({err})") from None
+            self.error = str(err)
+            raise StopIteration from None
+        self.decoded += 1
+        return np.ascontiguousarray(rgb[..., ::-1])
+
+    def close(self) -> None:
+        if self._image is not None:
+            self._image.close()
+            self._image = None
+
+    def __del__(self) -> None:
+        self.close()
+
+
+Frames = Union["CaptureFrames", PyAVFrames, PillowFrames]
+"""A decoder's frame iterator (``decoded``, ``error``, ``decoder``, ``close()``)."""
+
+
+def _animated_frames(path: Path) -> int:
+    """Frames of an animated PNG or WebP (1 for a still image, 0 when Pillow cannot read it)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return int(getattr(im, "n_frames", 1))
+    except Exception:  # any unreadable image is "not animated"; the caller's own reading says why
+        return 0
 
 
 class CaptureFrames(Iterator[np.ndarray]):
@@ -235,15 +433,23 @@ class CaptureFrames(Iterator[np.ndarray]):
     capture when exhausted or closed. A decoder error before the first frame raises
     :class:`ClipError`; one after it ends the frames and is kept in :attr:`error`."""
 
+    decoder = "opencv"
+    """Which library decodes the frames (``opencv``; :class:`PyAVFrames` and :class:`PillowFrames`
+    say theirs)."""
+
     def __init__(self, cap: cv2.VideoCapture, name: str) -> None:
         self._cap: cv2.VideoCapture | None = cap
         self._name = name
+        self._pending: np.ndarray | None = None
         self.decoded = 0
         """Frames yielded so far."""
         self.error: str | None = None
         """The decoder's message if an error ended the stream after :attr:`decoded` frames."""
 
     def __next__(self) -> np.ndarray:
+        if self._pending is not None:
+            frame, self._pending = self._pending, None
+            return frame
         if self._cap is None:
             raise StopIteration
         try:

@@ -52,10 +52,10 @@ from .config import ScoreConfig
 from .decode import (
     DEFAULT_FPS,
     IMAGE_SUFFIXES,
-    CaptureFrames,
     ClipError,
     ClipKind,
     FrameCount,
+    Frames,
     container_frame_count,
     gif_cut,
     image_frames,
@@ -263,13 +263,13 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
     fade_thumbs: list[np.ndarray] = []
     n = 0
     size = (0, 0)
-    video: CaptureFrames | None = None
+    video: Frames | None = None
     frames: Iterator[np.ndarray]
     if files is not None:
         frames = image_frames(files, name)
     else:
-        fps, video = open_video(name)
-        frames = video
+        fps, opened = open_video(name)
+        frames = video = opened
     for bgr in frames:
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         h, w = gray.shape
@@ -327,8 +327,23 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         duplicates=duplicates,
         cuts=cuts,
         fades=fades,
-        warnings=_damage_warnings(Path(path), kind, n, None if video is None else video.error, promise),
+        warnings=_damage_warnings(Path(path), kind, n, None if video is None else video.error, promise)
+        + _decoder_note(video),
     )
+
+
+DECODER_NOTES = {
+    "pyav": "decoded with PyAV (a stream OpenCV cannot read, e.g. AV1)",
+    "pyav (deinterlaced: yadif)": "an interlaced stream: deinterlaced with FFmpeg's yadif (one frame per frame) "
+    "before scoring; its geometry is that of the deinterlaced frames",
+    "pillow": "an animated image: decoded with Pillow",
+}
+"""What the record says when a clip was not decoded by OpenCV (:func:`~geocon_core.decode.open_video`)."""
+
+
+def _decoder_note(video: Frames | None) -> tuple[str, ...]:
+    decoder = getattr(video, "decoder", "opencv")
+    return (DECODER_NOTES[decoder],) if decoder in DECODER_NOTES else ()
 
 
 def _damage_warnings(

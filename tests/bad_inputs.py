@@ -24,6 +24,7 @@ __all__ = [
     "write_gif",
     "write_audio_only",
     "write_pngs",
+    "write_animated",
     "write_palette_png",
     "POSITIONS",
     "mutate",
@@ -65,13 +66,14 @@ def write_video(
     intra: bool = False,
     pts_ms: Sequence[int] | None = None,
     pix_fmt: str = "yuv420p",
+    extra: dict[str, str] | None = None,
 ) -> Path:
     """Encode RGB ``frames`` with PyAV (single-threaded, so the bytes are reproducible).
 
     ``container`` forces the format (``"mov"``); ``faststart`` puts the ``moov`` box before the
     media data; ``intra`` makes every frame a key frame (frames of similar size, so a byte
     truncation cuts a predictable share of them); ``pts_ms`` gives each frame its own timestamp in
-    milliseconds (a variable frame rate)."""
+    milliseconds (a variable frame rate); ``extra`` adds encoder options (``x264-params``: interlaced=1)."""
     import av
 
     path = Path(path)
@@ -81,10 +83,12 @@ def write_video(
         options["preset"] = "ultrafast"
     if intra:
         options["g"] = "1"
+    options.update(extra or {})
     with av.open(str(path), mode="w", format=container, options={"movflags": "faststart"} if faststart else {}) as c:
         stream = c.add_stream(codec, rate=fps, options=options)
         stream.width, stream.height, stream.pix_fmt = w, h, pix_fmt
-        stream.thread_count = 1
+        if codec != "libsvtav1":  # SVT-AV1 needs its own threads
+            stream.thread_count = 1
         if pts_ms is not None:
             stream.codec_context.time_base = Fraction(1, 1000)
             stream.time_base = Fraction(1, 1000)
@@ -268,3 +272,14 @@ def broken_bench_clip(root: Path) -> None:
         "scene_id": "C1-seed0",
     }
     (root / "broken" / "frames-c1.meta.json").write_text(json.dumps(meta))
+
+
+def write_animated(path: str | Path, frames: Sequence[np.ndarray], fps: int = 8) -> Path:
+    """An animated PNG (``.png``) or WebP (``.webp``, lossless) of RGB ``frames``, written by Pillow."""
+    from PIL import Image
+
+    path = Path(path)
+    images = [Image.fromarray(np.ascontiguousarray(f)) for f in frames]
+    extra = {"lossless": True} if path.suffix.lower() == ".webp" else {}
+    images[0].save(path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0, **extra)
+    return path

@@ -39,6 +39,7 @@ from geocon_viewer.cli import app
 from .bad_inputs import (
     pan_frames,
     snapshot,
+    write_animated,
     write_audio_only,
     write_gif,
     write_palette_png,
@@ -1182,7 +1183,48 @@ NAMES = [
     Case("score-latin1-missing", nothing, score(LATIN1), 2, ("caf",), runner="subprocess"),
 ]  # fmt: skip
 
-CASES = CLIPS + MASKS + POSES + OPTIONS + OUTPUTS + NAMES
+# --- formats a phone or a generator writes --------------------------------------------------------
+
+
+def encoded(name: str, codec: str, height: int = H, **options: object) -> Callable[[Ctx], None]:
+    """``name``: the pan encoded with ``codec`` (interlaced coding needs a height divisible by 4)."""
+    return lambda ctx: ctx.video(name, frames_of("pan", height=height), codec=codec, **options)  # type: ignore[arg-type]
+
+
+def animated(name: str) -> Callable[[Ctx], None]:
+    return lambda ctx: write_animated(ctx.tmp / name, frames_of("pan"))
+
+
+def decoded_by(note: str | None) -> Callable[[Ctx, Outcome], None]:
+    """A check: every frame scored, the pan found consistent, the decoder named in the warnings."""
+
+    def check(ctx: Ctx, _res: Outcome) -> None:
+        rec = record(ctx)
+        assert rec["video"]["num_frames"] == N, rec["video"]
+        assert rec["summary"]["verdict"]["verdict"] == "consistent", rec["summary"]["verdict"]
+        named = [w for w in rec["warnings"] if note is not None and note in w]
+        assert bool(named) == (note is not None), rec["warnings"]
+
+    return check
+
+
+INTERLACED = {"x264-params": "interlaced=1"}
+FORMATS = [
+    Case("av1-mp4", encoded("c.mp4", "libsvtav1"), score("c.mp4"), 0, check=decoded_by("PyAV")),
+    Case("av1-webm", encoded("c.webm", "libsvtav1", container="webm"), score("c.webm"), 0, check=decoded_by("PyAV")),
+    Case("vp9-webm", encoded("c.webm", "libvpx-vp9", container="webm"), score("c.webm"), 0, check=decoded_by(None)),
+    Case("h264-10bit", encoded("c.mp4", "libx264", pix_fmt="yuv420p10le"), score("c.mp4"), 0, check=decoded_by(None)),
+    Case("h264-interlaced", encoded("c.mp4", "libx264", 96, extra=INTERLACED), score("c.mp4"), 0,
+         check=decoded_by("interlaced")),
+    Case("mpeg2-interlaced", encoded("c.mpg", "mpeg2video", 96, container="mpeg", extra={"flags": "+ilme+ildct"}),
+         score("c.mpg"), 0, check=decoded_by("interlaced")),
+    Case("apng", animated("c.png"), score("c.png"), 0, check=decoded_by("Pillow")),
+    Case("apng-suffix", animated("c.apng"), score("c.apng"), 0, check=decoded_by("Pillow")),
+    Case("animated-webp", animated("c.webp"), score("c.webp"), 0, check=decoded_by("Pillow")),
+    Case("still-webp", lambda c: c.write("s.webp", b"RIFF\x00\x00\x00\x00WEBPVP8 "), score("s.webp"), 2, ("s.webp",)),
+]  # fmt: skip
+
+CASES = CLIPS + MASKS + POSES + OPTIONS + OUTPUTS + NAMES + FORMATS
 
 
 def test_the_catalogue_is_complete():
