@@ -39,9 +39,11 @@ the canvas, (W, H). A source pixel edge ``x`` maps to ``offset + x * scale`` in 
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -74,6 +76,9 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "SkipReason",
     "check_clip",
+    "clip_fingerprint",
+    "locate_clip",
+    "OtherClipError",
     "iter_frames",
     "probe_clip",
     "find_fades",
@@ -124,6 +129,14 @@ class ClipInfo:
     """(s, e) of each cross-fade, sorted: frames ``s + 1 .. e - 1`` blend frame ``s`` (the last of
     a shot) into frame ``e`` (the first of the next); ``s + 1`` and ``e`` are in :attr:`cuts`, and
     the frames between belong to no shot. Absent from records written before fades were found."""
+    abs_path: str | None = None
+    """The clip's absolute path when it was probed (None in records written before it)."""
+    fingerprint: str | None = None
+    """``size:sha256`` of the clip's bytes (:func:`clip_fingerprint`): which clip this is, wherever
+    it lies now (None in records written before it)."""
+    from_record: str | None = None
+    """The clip's path relative to the folder that holds the record folder, set when the record is
+    written: found again when record and clip move together."""
     warnings: tuple[str, ...] = ()
     """One sentence each about frames lost to damage (the container promised more frames than
     decoded, a decoder error ended the stream, a GIF stops before its trailer); the clip is scored
@@ -208,7 +221,10 @@ class ClipInfo:
         """The :class:`ClipInfo` that :meth:`to_dict` made ``d`` from (:attr:`warnings` may be
         absent: records written before it hold none)."""
         names = {f.name for f in fields(cls)}
-        unknown, missing = set(d) - names, names - set(d) - {"warnings", "fades"}
+        unknown, missing = (
+            set(d) - names,
+            names - set(d) - {"warnings", "fades", "abs_path", "fingerprint", "from_record"},
+        )
         if unknown or missing:
             raise ValueError(f"ClipInfo keys: unknown {sorted(unknown)}, missing {sorted(missing)}")
         kw: dict[str, Any] = {
@@ -315,6 +331,8 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         cuts = tuple(sorted({c for c in cuts if c not in inside} | {t for s, e in fades for t in (s + 1, e)}))
     return ClipInfo(
         path=name,
+        abs_path=os.path.abspath(name),
+        fingerprint=clip_fingerprint(Path(path)),
         kind=kind,
         source_size=(w, h),
         fps=fps,
@@ -344,6 +362,72 @@ DECODER_NOTES = {
 def _decoder_note(video: Frames | None) -> tuple[str, ...]:
     decoder = getattr(video, "decoder", "opencv")
     return (DECODER_NOTES[decoder],) if decoder in DECODER_NOTES else ()
+
+
+FINGERPRINT_BYTES = 1 << 20
+"""Bytes hashed from each end of a clip file (and of the first and last file of an image folder)."""
+
+
+def clip_fingerprint(path: Path) -> str | None:
+    """``size:sha256`` of a clip: its byte count and a hash of its first and last
+    :data:`FINGERPRINT_BYTES` (a folder: its file names and sizes, and its first and last files
+    likewise). Cheap on any size, and different for another clip of the same name. None when the
+    clip cannot be read."""
+    h = hashlib.sha256()
+    try:
+        if path.is_dir():
+            _, files = resolve_clip(path, str(path))
+            assert files is not None
+            sizes = [f.stat().st_size for f in files]
+            for f, size in zip(files, sizes, strict=True):
+                h.update(os.fsencode(f.name) + b"\0" + str(size).encode() + b"\0")
+            parts, total = [files[0], files[-1]], sum(sizes)
+        else:
+            parts, total = [path], path.stat().st_size
+        for part in parts:
+            with open(part, "rb") as fh:
+                h.update(fh.read(FINGERPRINT_BYTES))
+                size = os.fstat(fh.fileno()).st_size
+                if size > FINGERPRINT_BYTES:
+                    fh.seek(max(FINGERPRINT_BYTES, size - FINGERPRINT_BYTES))
+                    h.update(fh.read())
+    except (OSError, ClipError):
+        return None
+    return f"{total}:{h.hexdigest()}"
+
+
+class OtherClipError(ClipError):
+    """The clip found where a record's clip should be is another clip (its bytes differ)."""
+
+
+def locate_clip(info: ClipInfo, record_dir: str | Path) -> ClipInfo:
+    """The record's clip where it lies now, as a :class:`ClipInfo` whose ``path`` can be read: the
+    path as given (from here), its absolute path when scored, or its place relative to the record
+    (record and clip moved together). A clip found there must be the one scored (same
+    :attr:`~ClipInfo.fingerprint`, when the record has one). Raises :class:`ClipError` with one
+    sentence when the clip is gone, :class:`OtherClipError` when every candidate is another clip."""
+    folder = Path(record_dir)
+    candidates = [Path(info.path)]
+    if info.abs_path:
+        candidates.append(Path(info.abs_path))
+    if info.from_record:
+        candidates.append(Path(os.path.normpath(folder.resolve().parent / info.from_record)))
+    seen: list[Path] = []
+    other: Path | None = None
+    for cand in candidates:
+        if cand in seen or not cand.exists():
+            continue
+        seen.append(cand)
+        if info.fingerprint is None or clip_fingerprint(cand) == info.fingerprint:
+            return replace(info, path=str(cand))
+        other = other or cand
+    if other is not None:
+        raise OtherClipError(
+            f"{other} is not the clip this record was scored on (its bytes differ; the record's clip was "
+            f"{info.abs_path or info.path}); score it again or put the original back"
+        )
+    looked = ", ".join(dict.fromkeys(str(c) for c in candidates))
+    raise ClipError(f"the clip of this record is gone (looked at {looked})")
 
 
 def _damage_warnings(

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -311,7 +312,10 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
             arr = io.BytesIO()
             np.lib.format.write_array(arr, np.ascontiguousarray(value), allow_pickle=False)
             zf.writestr(info, arr.getvalue())
-    for name, data in (("matches.npz", buf.getvalue()), ("record.json", _dumps(record.to_json_dict()).encode())):
+    doc = record.to_json_dict()
+    if record.video.abs_path is not None:  # where the clip lies seen from the record: found again when both move
+        doc["video"]["from_record"] = os.path.relpath(record.video.abs_path, os.path.abspath(out.parent))
+    for name, data in (("matches.npz", buf.getvalue()), ("record.json", _dumps(doc).encode())):
         tmp = out / f".{name}.part"
         tmp.write_bytes(data)
         tmp.replace(out / name)

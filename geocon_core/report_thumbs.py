@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from .decode import ClipError, image_frames, native_path, resolve_clip
-from .reader import ClipInfo, layout_of, to_working
+from .reader import ClipInfo, layout_of, locate_clip, to_working
 from .record import ClipRecord, PairRecord, read_record
 from .regate import pair_inliers
 from .verdict import Family, Thresholds
@@ -209,7 +209,7 @@ def clip_thumbs(folder: str | Path, clip_id: str | None = None, *, width: int = 
     except Exception as exc:  # a report must not fail on one clip: any reason becomes the note
         return ClipThumbs(cid, note=f"No thumbnails: the record cannot be read ({_one_line(exc)}).")
     try:
-        info = record.video
+        info = locate_clip(record.video, folder)
         last = info.num_frames - 1
         worst = worst_pair(record)
         frames = read_frames(info, {0, last} | ({worst.pair.t0} if worst is not None else set()))

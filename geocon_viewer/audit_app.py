@@ -328,13 +328,13 @@ class AuditApp(AuditPanels, ServedApp):
         is still the selected clip: a clip switch (or a pair switch, which rebuilds the frustums)
         holds the same lock, so no write can reach a handle it removed. The thread stops as soon as
         another clip is selected or the app stops."""
-        from geocon_core.reader import ClipError, iter_frames
+        from geocon_core.reader import ClipError, iter_frames, locate_clip
 
         def current() -> bool:
             return view is self.view and not view.cancel.is_set() and not self._stop.is_set()
 
         try:
-            info = view.record.video
+            info = locate_clip(view.record.video, view.folder)
             for f in iter_frames(info):
                 if not current():
                     return

@@ -337,17 +337,20 @@ def write_rrd(
     """Re-render the recording of a saved record (``record.json`` + ``matches.npz`` + ``overlays/``)
     without re-scoring: frames are decoded again from the clip the record names."""
     from geocon_core.diagnostics import read_overlays
-    from geocon_core.reader import iter_frames, probe_clip
+    from geocon_core.reader import ClipError, ClipInfo, iter_frames, locate_clip, probe_clip
     from geocon_core.record import read_record
 
     record = read_record(record_dir)
     overlays = read_overlays(record_dir)
     sink = RrdSink(path, connect=connect)
     fps = record.video.fps
-    clip = Path(record.clip)
     try:
-        if clip.exists():
-            info = probe_clip(clip, record.config)
+        found: ClipInfo | None = locate_clip(record.video, record_dir)
+    except ClipError as exc:
+        found, missing = None, str(exc)
+    try:
+        if found is not None:
+            info = probe_clip(found.path, record.config)
             for frame in iter_frames(info):
                 labels = flows = None
                 if overlays is not None:
@@ -358,7 +361,7 @@ def write_rrd(
         else:
             sink.rec.log(
                 "audit/missing_clip",
-                rr.TextDocument(f"the clip {clip} was not found: frames are not shown"),
+                rr.TextDocument(f"{missing}: frames are not shown"),
                 static=True,
             )
         return sink.finish(record)

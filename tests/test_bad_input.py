@@ -1224,7 +1224,48 @@ FORMATS = [
     Case("still-webp", lambda c: c.write("s.webp", b"RIFF\x00\x00\x00\x00WEBPVP8 "), score("s.webp"), 2, ("s.webp",)),
 ]  # fmt: skip
 
-CASES = CLIPS + MASKS + POSES + OPTIONS + OUTPUTS + NAMES + FORMATS
+# --- records know their clip ----------------------------------------------------------------------
+
+
+def project_moved(ctx: Ctx) -> None:
+    """``p/videos/a.mp4`` scored into ``p/recs/a`` from inside ``p``, then ``p`` renamed ``q``."""
+    ctx.pan("p/videos/a.mp4")
+    os.chdir(ctx.tmp / "p")
+    try:
+        res = ctx.invoke(list(score("videos/a.mp4", out="recs/a")))
+    finally:
+        os.chdir(ctx.tmp)
+    assert res.code == 0, res.describe()
+    (ctx.tmp / "p").rename(ctx.tmp / "q")
+
+
+def clip_replaced(ctx: Ctx) -> None:
+    project_moved(ctx)
+    ctx.video("q/videos/a.mp4", frames_of("noise"))
+
+
+def clip_gone(ctx: Ctx) -> None:
+    project_moved(ctx)
+    (ctx.tmp / "q" / "videos" / "a.mp4").unlink()
+
+
+def found_quietly(_ctx: Ctx, res: Outcome) -> None:
+    assert "warning" not in res.stderr, res.stderr
+
+
+def warned_gone(_ctx: Ctx, res: Outcome) -> None:
+    assert "warning: the clip of this record is gone" in res.stderr, res.stderr
+
+
+CLIP_IDENTITY = [
+    Case("view-record-moved-with-its-clip", project_moved, ("view", "q/recs/a", "--headless"), 0, check=found_quietly,
+         needs=("rerun",)),
+    Case("view-clip-replaced-by-another", clip_replaced, ("view", "q/recs/a", "--headless"), 2, ("not the clip",),
+         needs=("rerun",)),
+    Case("view-clip-gone", clip_gone, ("view", "q/recs/a", "--headless"), 0, check=warned_gone, needs=("rerun",)),
+]  # fmt: skip
+
+CASES = CLIPS + MASKS + POSES + OPTIONS + OUTPUTS + NAMES + FORMATS + CLIP_IDENTITY
 
 
 def test_the_catalogue_is_complete():

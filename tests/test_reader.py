@@ -425,3 +425,35 @@ def test_frames_of_different_sizes(tmp_path):
     with pytest.raises(ClipError) as err:
         probe_clip(folder)
     assert_one_sentence(err, str(folder), "frame 2 (frame_2.png) is 60x42 but frame 0 is 60x40")
+
+
+def test_a_record_finds_its_clip_where_it_moved_and_refuses_another(tmp_path):
+    from dataclasses import replace
+
+    from geocon_core.reader import OtherClipError, clip_fingerprint, locate_clip
+
+    from .bad_inputs import pan_frames, write_video
+
+    clip = write_video(tmp_path / "a.mp4", pan_frames(96, 64, 6, seed=1))
+    info = probe_clip(clip)
+    assert info.abs_path == str(clip) and info.fingerprint == clip_fingerprint(clip) is not None
+    assert locate_clip(info, tmp_path / "rec").path == str(clip)
+    moved = tmp_path / "x" / "a.mp4"
+    moved.parent.mkdir()
+    clip.rename(moved)
+    gone = replace(info, path="a.mp4", abs_path=str(clip), from_record="x/a.mp4")  # record at tmp_path/rec
+    assert locate_clip(gone, tmp_path / "rec").path == str(moved)
+    write_video(moved, pan_frames(96, 64, 6, seed=2))  # the same name, another clip
+    with pytest.raises(OtherClipError, match="not the clip this record was scored on"):
+        locate_clip(gone, tmp_path / "rec")
+    assert locate_clip(replace(gone, fingerprint=None), tmp_path / "rec").path == str(moved)  # an old record
+    moved.unlink()
+    with pytest.raises(ClipError, match="the clip of this record is gone"):
+        locate_clip(gone, tmp_path / "rec")
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for t, f in enumerate(pan_frames(96, 64, 3, seed=1)):
+        cv2.imwrite(str(folder / f"{t:03d}.png"), f)
+    first = clip_fingerprint(folder)
+    cv2.imwrite(str(folder / "001.png"), pan_frames(96, 64, 3, seed=5)[1])  # a middle frame replaced
+    assert first is not None and clip_fingerprint(folder) not in (None, first)

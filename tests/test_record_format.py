@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -41,10 +42,15 @@ def test_video_and_pose_are_typed(folder):
 
 def test_write_read_write_is_byte_identical(folder, tmp_path):
     rec = read_record(folder)
-    write_record(rec, tmp_path / "again")
+    again = folder.parent / "again"  # beside it: the clip's path seen from the record is the same
+    write_record(rec, again)
     for name in ("record.json", "matches.npz"):
-        assert (folder / name).read_bytes() == (tmp_path / "again" / name).read_bytes(), name
-    back = read_record(tmp_path / "again")
+        assert (folder / name).read_bytes() == (again / name).read_bytes(), name
+    elsewhere = tmp_path / "deeper" / "again"
+    write_record(rec, elsewhere)
+    moved = read_record(elsewhere).video
+    assert moved.from_record == os.path.relpath(str(rec.video.abs_path), str(elsewhere.parent))
+    back = read_record(again)
     assert back.video == rec.video
     assert back.gate.pose.to_dict() == rec.gate.pose.to_dict()
     assert back.gate.timeline == rec.gate.timeline and back.pairs == rec.pairs

@@ -117,13 +117,16 @@ def _peer_done(folder: Path, clip: str) -> bool:
     return saved.get("version") == PEER_VERSION and saved.get("clip") == clip
 
 
-def _finished(folder: Path, digest: str, clip: Path) -> dict | None:
-    """The saved status of a case scored earlier from ``clip`` with the same configuration."""
+def _finished(folder: Path, digest: str, clip: Path | None) -> dict | None:
+    """The saved status of a case scored earlier from ``clip`` (any clip when None) with the same
+    configuration."""
     try:
         status = json.loads((folder / CASE_FILE).read_text())
     except (OSError, json.JSONDecodeError):
         return None
-    if status.get("status") != "ok" or status.get("config_hash") != digest or status.get("clip") != str(clip):
+    if status.get("status") != "ok" or status.get("config_hash") != digest:
+        return None
+    if clip is not None and status.get("clip") != str(clip):
         return None
     if status.get("truth") is not None and "labels" not in status:  # scored before labels were kept
         return None
@@ -233,6 +236,8 @@ def run_cases(
         folder = folders.get(prepare_key(case, plan, code))
         if folder is not None:
             statuses[i] = _finished(case_folder(out_dir, case), digest, clip_for(case, Path(folder)).clip)
+        elif not score:  # a report of what was scored: the record counts whichever clip cache made it
+            statuses[i] = _finished(case_folder(out_dir, case), digest, None)
         if statuses[i] is None and score:
             todo.append(i)
     done = len(cases) - len(todo)

@@ -62,6 +62,19 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
     return folder
 
 
+def _say_where_the_clip_is(record: Any, folder: Path) -> None:
+    """Refuse a record whose clip was replaced by another; warn (and show the scores without
+    frames) when the clip is gone."""
+    from geocon_core.reader import ClipError, OtherClipError, locate_clip
+
+    try:
+        locate_clip(record.video, folder)
+    except OtherClipError as exc:
+        raise fail(str(exc)) from None
+    except ClipError as exc:
+        err.print(f"warning: {exc}; the recording shows the scores without frames", soft_wrap=True, highlight=False)
+
+
 def _check_outputs(record: Any, folder: Path, rrd: Path, screenshot: Path | None) -> None:
     """The recording and the screenshot never replace the clip, the masks or the record's own files."""
     from geocon_core.paths import check_apart, check_out_file
@@ -126,6 +139,7 @@ def view(
     n = record.video.num_frames
     if at is not None and at >= n:
         raise fail(f"--at {at} is past the last frame of {record.clip}: it has {n} frames (0 to {n - 1})")
+    _say_where_the_clip_is(record, folder)
     rrd = save or folder / "audit.rrd"
     try:
         _check_outputs(record, folder, rrd, screenshot)
