@@ -330,3 +330,58 @@ def test_mutated_png_frame(seeds, tmp_path):
 def test_mutated_palette_mask_png(seeds, tmp_path):
     """Frame 0 of a DAVIS-layout masks folder (indexed PNGs, read through PyAV) mutated."""
     fuzz_folder_frame(seeds["davis"], "00000.png", read_masks, tmp_path, 80, "palette mask PNG mutants")
+
+
+# --- file names and container flags ---------------------------------------------------------------
+
+NAME_BYTES = st.binary(min_size=1, max_size=250).map(lambda b: bytes(c for c in b if c not in (0, 47)) or b"x")
+"""Any byte but NUL and '/', 1 to 250 bytes: every name a Linux file system holds (255-byte limit
+with the suffix), including names that are not UTF-8, start with '-' or '.', or hold newlines."""
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(raw=NAME_BYTES, suffix=st.sampled_from([".mp4", ".gif", ".MP4", ""]))
+def test_any_file_name_is_read_or_refused_in_one_sentence(seeds, tmp_path, raw, suffix):
+    """Every legal file name reaches the decoders safely: the clip reads the same as under a plain
+    name (a name with no suffix too), its fingerprint is found again, and an image written under a
+    name of the same bytes reads back."""
+    import os
+
+    from geocon_core.decode import imread_any, imwrite_any
+    from geocon_core.reader import clip_fingerprint, locate_clip
+
+    name = os.fsdecode(raw[: 250 - len(suffix)]) + suffix
+    if name in (".", ".."):
+        return
+    src = seeds["mp4"] if suffix.lower() != ".gif" else seeds["gif"]
+    folder = tmp_path / "names"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir()
+    clip = folder / name
+    shutil.copyfile(src, clip)
+    info = probe_clip(clip)
+    plain = probe_clip(src)
+    assert (info.num_frames, info.source_size, info.cuts) == (plain.num_frames, plain.source_size, plain.cuts)
+    frames = [f.rgb for f in iter_frames(info)]
+    assert all(np.array_equal(a.rgb, b) for a, b in zip(iter_frames(plain), frames, strict=True))
+    assert info.fingerprint == clip_fingerprint(src) and locate_clip(info, tmp_path / "rec").path == str(clip)
+    png = folder / (name[:200] + ".png")
+    assert imwrite_any(png, frames[0][..., ::-1]) and np.array_equal(imread_any(png)[..., ::-1], frames[0])
+
+
+@settings(max_examples=12, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    container=st.sampled_from(["mp4", "mov", "matroska", "avi"]),
+    faststart=st.booleans(),
+    intra=st.booleans(),
+    fps=st.sampled_from([1, 8, 24, 60, 240]),
+)
+def test_container_flags_read_the_same_frames(tmp_path, container, faststart, intra, fps):
+    """One clip written with each container, ``movflags``, key-frame layout and frame rate decodes
+    to the same number of frames and size, with the frame rate the container states."""
+    suffix = {"matroska": ".mkv"}.get(container, f".{container}")
+    path = write_video(tmp_path / f"c{suffix}", pan_frames(96, 64, 6, seed=4), container=container,
+                       faststart=faststart and container in ("mp4", "mov"), intra=intra, fps=fps)  # fmt: skip
+    info = probe_clip(path)
+    assert (info.num_frames, info.source_size) == (6, (96, 64))
+    assert abs(info.fps - fps) < 0.01 * fps
