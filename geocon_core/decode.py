@@ -38,6 +38,7 @@ __all__ = [
     "SHORTFALL_EXACT",
     "SHORTFALL_ESTIMATED",
     "container_frame_count",
+    "timing_note",
     "gif_cut",
     "image_frames",
     "imread_any",
@@ -473,6 +474,47 @@ class CaptureFrames(Iterator[np.ndarray]):
 
     def __del__(self) -> None:
         self.close()
+
+
+TIMING_TOLERANCE = 0.25
+"""Frame intervals that differ from their median by more than this share (or a median that differs
+from the stated frame rate by more) are reported (:func:`timing_note`)."""
+
+
+def timing_note(name: str, fps: float) -> str | None:
+    """One sentence when the container's timestamps disagree with a steady ``fps``: a variable
+    frame rate (intervals that differ from their median by more than :data:`TIMING_TOLERANCE`), or
+    a stated rate the timestamps do not keep. Reads packet timestamps only (no decoding); None when
+    they agree or cannot be read."""
+    import av
+
+    try:
+        with native_path(name) as safe, av.open(safe) as container:
+            if not container.streams.video:
+                return None
+            stream = container.streams.video[0]
+            base = stream.time_base
+            pts = sorted(p.pts for p in container.demux(stream) if p.pts is not None)
+    except (av.FFmpegError, OSError, ValueError, UnicodeError):
+        return None
+    if base is None or len(pts) < 3:
+        return None
+    gaps = np.diff(np.asarray(pts, dtype=np.float64)) * float(base)
+    gaps = gaps[gaps > 0]
+    if len(gaps) < 2:
+        return None
+    median, low, high = float(np.median(gaps)), float(gaps.min()), float(gaps.max())
+    if high > median * (1 + TIMING_TOLERANCE) or low < median * (1 - TIMING_TOLERANCE):
+        return (
+            f"variable frame rate: frames are {1000 * low:.0f} to {1000 * high:.0f} ms apart (the container states "
+            f"{fps:g} frames/s); frame pairs are taken frame by frame, so a gap of g frames is not a fixed time"
+        )
+    if abs(1.0 / median - fps) > TIMING_TOLERANCE * fps:
+        return (
+            f"the container states {fps:g} frames/s but its timestamps are {1000 * median:.0f} ms apart "
+            f"({1.0 / median:.3g} frames/s); durations in the record use the stated rate"
+        )
+    return None
 
 
 def container_frame_count(name: str) -> FrameCount | None:

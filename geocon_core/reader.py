@@ -63,6 +63,7 @@ from .decode import (
     image_frames,
     open_video,
     resolve_clip,
+    timing_note,
 )
 from .stage_configs import BarConfig, CutConfig
 
@@ -346,7 +347,8 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         cuts=cuts,
         fades=fades,
         warnings=_damage_warnings(Path(path), kind, n, None if video is None else video.error, promise)
-        + _decoder_note(video),
+        + _decoder_note(video)
+        + _timing_notes(name, kind, fps, video),
     )
 
 
@@ -428,6 +430,14 @@ def locate_clip(info: ClipInfo, record_dir: str | Path) -> ClipInfo:
         )
     looked = ", ".join(dict.fromkeys(str(c) for c in candidates))
     raise ClipError(f"the clip of this record is gone (looked at {looked})")
+
+
+def _timing_notes(name: str, kind: ClipKind, fps: float, video: Frames | None) -> tuple[str, ...]:
+    """The timestamps of a video (not a GIF, an animated image or a frame folder) against its rate."""
+    if kind != "video" or video is None or getattr(video, "decoder", "") == "pillow":
+        return ()
+    note = timing_note(name, fps)
+    return () if note is None else (note,)
 
 
 def _damage_warnings(

@@ -306,6 +306,24 @@ def video_is(**expected: object) -> Callable[[Ctx, Outcome], None]:
     return check
 
 
+def warned(words: str) -> Callable[[Ctx, Outcome], None]:
+    """A check: the record warns with ``words``, and so does the terminal summary."""
+
+    def check(ctx: Ctx, res: Outcome) -> None:
+        assert any(words in w for w in record(ctx)["warnings"]), record(ctx)["warnings"]
+        assert words.split()[0] in res.stdout, res.stdout
+
+    return check
+
+
+def build_all_checks(*checks: Callable[[Ctx, Outcome], None]) -> Callable[[Ctx, Outcome], None]:
+    def check(ctx: Ctx, res: Outcome) -> None:
+        for one in checks:
+            one(ctx, res)
+
+    return check
+
+
 def big_is_downscaled(ctx: Ctx, _res: Outcome) -> None:
     video = record(ctx)["video"]
     assert video["source_size"] == [3840, 2160] and video["scale"] < 1 and video["num_frames"] == 3, video
@@ -669,7 +687,9 @@ CLIPS = [
     Case("gif-duplicated-frames", gif_with_duplicates, score("dup.gif"), 0, check=video_is(duplicates=[1, 3, 6])),
     Case("hard-cut", hard_cut, score("cut.mp4"), 0, check=video_is(cuts=[6])),
     Case("thin-letterbox", letterbox, score("letterbox.mp4"), 0, check=bars_found),
-    Case("vfr", vfr, score("vfr.mp4"), 0, check=video_is(num_frames=N)),
+    Case(
+        "vfr", vfr, score("vfr.mp4"), 0, check=build_all_checks(video_is(num_frames=N), warned("variable frame rate"))
+    ),
     Case(
         "webm",
         lambda c: c.video("clip.webm", frames_of("pan"), codec="libvpx"),

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import signal
 import sys
 from typing import Annotated
 
@@ -137,6 +138,8 @@ def main() -> None:
     small = _address_space_sentence()
     if small is not None and not {"--help", "--version"} & set(sys.argv[1:]):
         _say_and_exit(small, 1)
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # `kill` stops as cleanly as Ctrl-C: no partial files
+        signal.signal(signal.SIGTERM, _terminated)
     try:
         app(standalone_mode=True)
     except OSError as exc:
@@ -149,6 +152,10 @@ def main() -> None:
             "try a smaller --working-size or fewer workers; the previous results are unchanged",
             1,
         )
+
+
+def _terminated(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def _say_and_exit(sentence: str, code: int) -> None:
