@@ -141,3 +141,29 @@ def test_kill_during_scoring_leaves_the_previous_record_and_no_partial_files(tmp
     assert proc.returncode == 130 and "Traceback" not in stderr, stderr
     assert (snapshot(tmp_path / "rec"), (tmp_path / "rec.rrd").read_bytes()) == before
     assert not [p.name for p in tmp_path.iterdir() if ".part" in p.name]
+
+
+SHIM = """
+import errno, pathlib, sys
+real = pathlib.Path.write_bytes
+def full(self, data):  # the disk fills up just as the record is written
+    if self.name.startswith(".matches.npz"):
+        raise OSError(errno.ENOSPC, "No space left on device", str(self))
+    return real(self, data)
+pathlib.Path.write_bytes = full
+from geocon_viewer.cli import main
+sys.argv = ["geocon", "score", "clip.mp4", "--preset", "fast", "--out", "rec", "--fov", "70"]
+main()
+"""
+
+
+def test_a_disk_that_fills_while_the_record_is_written_keeps_the_previous_one(tmp_path):
+    """The same promise where no tmpfs can be mounted: a file-system shim fails the record's write."""
+    write_video(tmp_path / "clip.mp4", pan_frames(160, 90, 12, seed=1))
+    first = _geocon(["score", "clip.mp4", "--preset", "fast", "--out", "rec"], tmp_path)
+    assert first.returncode == 0, first.stderr
+    before = snapshot(tmp_path / "rec")
+    res = subprocess.run([sys.executable, "-c", SHIM], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    _one_sentence(res, "the disk is full")
+    assert snapshot(tmp_path / "rec") == before
+    assert not [p.name for p in tmp_path.iterdir() if ".part" in p.name]
