@@ -9,6 +9,8 @@ that stops before its trailer).
 
 from __future__ import annotations
 
+import functools
+import itertools
 import math
 import os
 import re
@@ -278,7 +280,17 @@ class _Peek:
 
 
 def _pyav_peek(name: str) -> _Peek | None:
-    """PyAV's view of the first video frame of ``name`` (None when PyAV cannot open it)."""
+    """PyAV's view of the first video frame of ``name`` (None when PyAV cannot open it); kept for
+    the file as it is (a clip is opened twice per score: probe, then frames)."""
+    try:
+        st = os.stat(name)
+    except OSError:
+        return None
+    return _pyav_peek_file(name, st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _pyav_peek_file(name: str, _size: int, _mtime_ns: int) -> _Peek | None:
     import av
 
     try:
@@ -476,6 +488,8 @@ class CaptureFrames(Iterator[np.ndarray]):
         self.close()
 
 
+TIMING_PACKETS = 1000
+"""Packets whose timestamps :func:`timing_note` reads (the start of a long clip tells)."""
 TIMING_TOLERANCE = 0.25
 """Frame intervals that differ from their median by more than this share (or a median that differs
 from the stated frame rate by more) are reported (:func:`timing_note`)."""
@@ -494,7 +508,7 @@ def timing_note(name: str, fps: float) -> str | None:
                 return None
             stream = container.streams.video[0]
             base = stream.time_base
-            pts = sorted(p.pts for p in container.demux(stream) if p.pts is not None)
+            pts = sorted(p.pts for p in itertools.islice(container.demux(stream), TIMING_PACKETS) if p.pts is not None)
     except (av.FFmpegError, OSError, ValueError, UnicodeError):
         return None
     if base is None or len(pts) < 3:
