@@ -307,7 +307,31 @@ def _pyav_peek_file(name: str, _size: int, _mtime_ns: int) -> _Peek | None:
         return None
 
 
-class PyAVFrames(Iterator[np.ndarray]):
+class _LibraryFrames(Iterator[np.ndarray]):
+    """What :class:`PyAVFrames` and :class:`PillowFrames` share: the count of decoded frames, the
+    error that ended the stream after the first one, and closing."""
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+        self.decoded = 0
+        self.error: str | None = None
+
+    def _stopped(self, err: Exception) -> StopIteration:
+        """Close; before the first frame raise :class:`ClipError`, after it keep ``err`` and end."""
+        self.close()
+        if self.decoded == 0:
+            raise ClipError(f"{self._name}: unreadable bytes ({err})") from None
+        self.error = str(err)
+        return StopIteration()
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __del__(self) -> None:
+        self.close()
+
+
+class PyAVFrames(_LibraryFrames):
     """(h, w, 3) uint8 BGR frames decoded by PyAV (FFmpeg), with ``deinterlace`` through
     FFmpeg's ``yadif`` (one output frame per input frame). Same interface as
     :class:`CaptureFrames`."""
@@ -315,10 +339,8 @@ class PyAVFrames(Iterator[np.ndarray]):
     def __init__(self, name: str, *, deinterlace: bool = False) -> None:
         import av
 
+        super().__init__(name)
         self._av = av
-        self._name = name
-        self.decoded = 0
-        self.error: str | None = None
         self.decoder = "pyav (deinterlaced: yadif)" if deinterlace else "pyav"
         with native_path(name) as safe:
             self._container: Any = av.open(safe)  # the file stays open after the link is gone
@@ -367,24 +389,17 @@ class PyAVFrames(Iterator[np.ndarray]):
             self.close()
             raise
         except self._av.FFmpegError as err:
-            self.close()
-            if self.decoded == 0:
-                raise ClipError(f"{self._name}: unreadable bytes ({err})") from None
-            self.error = str(err)
-            raise StopIteration from None
+            raise self._stopped(err) from None
         self.decoded += 1
         return frame.to_ndarray(format="bgr24")
 
     def close(self) -> None:
-        if self._container is not None:
+        if getattr(self, "_container", None) is not None:
             self._container.close()
             self._container = None
 
-    def __del__(self) -> None:
-        self.close()
 
-
-class PillowFrames(Iterator[np.ndarray]):
+class PillowFrames(_LibraryFrames):
     """(h, w, 3) uint8 BGR frames of an animated PNG or WebP, decoded by Pillow; ``fps`` from
     the first frame's duration. Same interface as :class:`CaptureFrames`."""
 
@@ -393,13 +408,11 @@ class PillowFrames(Iterator[np.ndarray]):
     def __init__(self, name: str) -> None:
         from PIL import Image
 
-        self._name = name
+        super().__init__(name)
         self._image: Any = Image.open(name)
         self._count = int(getattr(self._image, "n_frames", 1))
         duration = float(self._image.info.get("duration") or 0.0)  # ms
         self.fps = _fps(1000.0 / duration if duration > 0 else None)
-        self.decoded = 0
-        self.error: str | None = None
 
     def __next__(self) -> np.ndarray:
         if self._image is None or self.decoded >= self._count:
@@ -409,21 +422,14 @@ class PillowFrames(Iterator[np.ndarray]):
             self._image.seek(self.decoded)
             rgb = np.asarray(self._image.convert("RGB"))
         except (OSError, EOFError, ValueError) as err:
-            self.close()
-            if self.decoded == 0:
-                raise ClipError(f"{self._name}: unreadable bytes ({err})") from None
-            self.error = str(err)
-            raise StopIteration from None
+            raise self._stopped(err) from None
         self.decoded += 1
         return np.ascontiguousarray(rgb[..., ::-1])
 
     def close(self) -> None:
-        if self._image is not None:
+        if getattr(self, "_image", None) is not None:
             self._image.close()
             self._image = None
-
-    def __del__(self) -> None:
-        self.close()
 
 
 Frames = Union["CaptureFrames", PyAVFrames, PillowFrames]
