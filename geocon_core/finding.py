@@ -2,7 +2,7 @@
 
 ``clip_score`` runs from 0 (sound) to 1 (broken); it is the number the validation's AUCs are
 computed on. It is a smooth, monotone reading of the report gate's headroom
-(:func:`~geocon_core.verdict.report_margin`, negative when the background fails):
+(:func:`report_margin`, negative when the background fails; :mod:`geocon_core.verdict` re-exports it):
 ``1 / (1 + exp(CLIP_SCORE_SLOPE * margin))``, so 0.5 sits exactly on the gate, a clip that fails
 reads above 0.5 and one that passes below it, and the order of clips is the order of their
 headroom. A clip that cannot be judged has no score (None) and the verdict ``cannot judge`` with
@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["CLIP_SCORE_SLOPE", "VERDICT_WORDS", "ClipFinding", "clip_score", "clip_finding"]
+__all__ = ["CLIP_SCORE_SLOPE", "VERDICT_WORDS", "ClipFinding", "clip_score", "clip_finding", "report_margin"]
 
 CLIP_SCORE_SLOPE = 4.0
 VERDICT_WORDS = ("consistent", "inconsistent", "cannot judge")
@@ -33,6 +33,16 @@ class ClipFinding:
 
     def to_dict(self) -> dict[str, object]:
         return {"verdict": self.verdict, "reason": self.reason}
+
+
+def report_margin(ir: float | None, ge: float | None, ir_gate: float, ge_gate: float) -> float | None:
+    """Headroom to the report gate as a fraction of each gate's range, the smaller of
+    ``(ir - ir_gate) / (1 - ir_gate)`` and ``(ge_gate - ge) / ge_gate``: negative exactly when the
+    clip fails the report gate, None when it cannot be judged."""
+    if ir is None or ge is None:
+        return None
+    ir_room = (ir - ir_gate) / (1.0 - ir_gate) if ir_gate < 1.0 else ir - ir_gate
+    return float(min(ir_room, (ge_gate - ge) / ge_gate if ge_gate > 0 else ge_gate - ge))
 
 
 def clip_score(margin: float | None) -> float | None:

@@ -26,7 +26,7 @@ import numpy as np
 from . import record_parts
 from .config import ScoreConfig
 from .dense_cloud import DenseCloud, WindowCloud
-from .finding import ClipFinding, clip_finding
+from .finding import ClipFinding, clip_finding, report_margin
 from .npz import NPZ_ERRORS
 from .reader import ClipInfo
 from .record_parts import (
@@ -143,8 +143,6 @@ class ClipRecord:
 
     def finding(self) -> ClipFinding:
         """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.finding`)."""
-        from .verdict import report_margin
-
         bg, cfg = self.background, self.config
         return clip_finding(
             model=bg.model,

@@ -23,6 +23,7 @@ from typing import Iterable, Literal, NamedTuple, Protocol, Sequence
 import numpy as np
 
 from .config import ScoreConfig
+from .finding import report_margin
 from .models import PairFits, family_spec
 from .record import FamilySummary, GapSummary, ScaleSummary
 
@@ -352,16 +353,6 @@ def report_verdict(ir: float | None, ge: float | None, ir_gate: float, ge_gate: 
     if ir is None or ge is None:
         return None
     return bool(ir >= ir_gate and ge <= ge_gate)
-
-
-def report_margin(ir: float | None, ge: float | None, ir_gate: float, ge_gate: float) -> float | None:
-    """Headroom to the report gate as a fraction of each gate's range, the smaller of
-    ``(ir - ir_gate) / (1 - ir_gate)`` and ``(ge_gate - ge) / ge_gate``: negative exactly when the
-    clip fails the report gate, None when it cannot be judged."""
-    if ir is None or ge is None:
-        return None
-    ir_room = (ir - ir_gate) / (1.0 - ir_gate) if ir_gate < 1.0 else ir - ir_gate
-    return float(min(ir_room, (ge_gate - ge) / ge_gate if ge_gate > 0 else ge_gate - ge))
 
 
 @dataclass(frozen=True)

@@ -279,7 +279,7 @@ def test_report_refuses_bad_paths_in_one_sentence(two_runs, tmp_path):
         ),
         (
             (str(results), "--out", str(results)),
-            f"--out {results} holds files that are not part of a report (bench.json",
+            f"--out {results} is the results folder, and a report folder is replaced whole",
         ),
         ((str(tmp_path / "nothing"),), f"results folder {tmp_path / 'nothing'} does not exist"),
         ((str(afile),), f"{afile} is a file, not a results folder written by `geocon bench`"),

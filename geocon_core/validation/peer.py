@@ -31,6 +31,7 @@ import numpy as np
 
 __all__ = [
     "PEER_NAME",
+    "PEER_FILE",
     "PEER_VERSION",
     "PEER_SIZE",
     "PEER_FEATURES",
@@ -44,6 +45,8 @@ __all__ = [
 ]
 
 PEER_NAME = "GVGC keep rate"
+PEER_FILE = "peer.json"
+"""The peer's score of a validation case (:class:`PeerScore` as JSON), beside its record."""
 PEER_VERSION = 1
 """Bumped whenever what the peer measures changes (saved peer scores of another version are recomputed)."""
 PEER_SIZE = (854, 480)

@@ -19,7 +19,6 @@ if TYPE_CHECKING:
     from ..record import ClipRecord
 
 __all__ = [
-    "PEER_FILE",
     "peer_score",
     "CaseResult",
     "case_result",
@@ -33,9 +32,6 @@ __all__ = [
 F_PX_STEPS = (0.5, 1.0, 2.0, 4.0)
 """Source-pixel thresholds at which the validation reports the share of background matches an F
 model keeps (:attr:`CaseResult.f_within`)."""
-
-PEER_FILE = "peer.json"
-"""The peer's score of a case (:class:`~.peer.PeerScore` as JSON), beside its record."""
 
 MIN_VISIBLE_PX = 100
 """A true object counts as visible in a frame when its mask covers at least this many pixels at
@@ -272,9 +268,9 @@ def f_within_px(rec: ClipRecord, steps: Sequence[float] = F_PX_STEPS) -> tuple[t
 
 
 def peer_score(folder: Path) -> float | None:
-    """``1 - keep rate`` of the peer saved in a case folder (``peer.json``, :data:`PEER_FILE`),
+    """``1 - keep rate`` of the peer saved in a case folder (``peer.json``, :data:`~.peer.PEER_FILE`),
     None when absent, of another peer version, or without a keep rate."""
-    from .peer import PEER_VERSION
+    from .peer import PEER_FILE, PEER_VERSION
 
     try:
         saved = json.loads((folder / PEER_FILE).read_text())

@@ -91,8 +91,7 @@ def _peer_one(clip: str, folder: str, max_frames: int) -> dict:
     record. A clip the peer cannot read is saved with its error (keep rate None), never dropped."""
     import cv2
 
-    from .peer import PEER_VERSION, peer_keep_rate
-    from .results import PEER_FILE
+    from .peer import PEER_FILE, PEER_VERSION, peer_keep_rate
 
     cv2.setNumThreads(1)
     try:
@@ -107,8 +106,7 @@ def _peer_one(clip: str, folder: str, max_frames: int) -> dict:
 
 
 def _peer_done(folder: Path, clip: str) -> bool:
-    from .peer import PEER_VERSION
-    from .results import PEER_FILE
+    from .peer import PEER_FILE, PEER_VERSION
 
     try:
         saved = json.loads((folder / PEER_FILE).read_text())

@@ -192,18 +192,17 @@ def _check_report_out(results: Path, out_dir: Path | None) -> None:
 
     if out_dir is None:
         return
-    if (
-        out_dir.exists()
-        and results.exists()
-        and (
-            os.path.samefile(out_dir, results)
-            or Path(os.path.realpath(out_dir)) in Path(os.path.realpath(results)).parents
-        )
-    ):
-        raise OutPathError(
-            f"--out {out_dir} holds the results folder {results}, and a report folder is replaced whole; "
-            "choose another folder (default: RESULTS/report)"
-        )
+    if out_dir.exists() and results.exists():
+        if os.path.samefile(out_dir, results):
+            raise OutPathError(
+                f"--out {out_dir} is the results folder, and a report folder is replaced whole; "
+                "choose another folder (default: RESULTS/report)"
+            )
+        if Path(os.path.realpath(out_dir)) in Path(os.path.realpath(results)).parents:
+            raise OutPathError(
+                f"--out {out_dir} holds the results folder {results}, and a report folder is replaced whole; "
+                "choose another folder (default: RESULTS/report)"
+            )
     for part in ("clips", "tables"):
         check_apart([("--out", out_dir)], [(f"results' {part} folder", results / part)])
 
