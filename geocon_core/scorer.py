@@ -464,10 +464,12 @@ def _import_aside(module: str) -> None:
 
 
 def _import_quietly(module: str) -> None:
-    """Import ``module``; a failure is left to the import where the module is used, which says why."""
+    """Import ``module``; a failure is left to the import where the module is used, which says why.
+    Any failure is silent here: a short run may end while this side import is still going, and an
+    import cut off by the interpreter's shutdown must not print a traceback after a finished run."""
     try:
         importlib.import_module(module)
-    except ImportError:
+    except Exception:  # noqa: BLE001  # re-raised by the real import, where it matters
         pass
 
 

@@ -1363,7 +1363,8 @@ def judge(case: Case, ctx: Ctx, res: Outcome, before: dict[str, str]) -> list[st
     if res.exception is not None:
         problems.append(f"uncaught {type(res.exception).__name__}: {res.exception}")
     if "Traceback" in res.stderr or "Traceback" in res.stdout:
-        problems.append("a traceback was printed")
+        tail = (res.stderr if "Traceback" in res.stderr else res.stdout).strip().splitlines()[-6:]
+        problems.append("a traceback was printed, ending: " + " | ".join(tail))
     if res.code not in case.codes():
         problems.append(f"exit code {res.code}, expected {' or '.join(map(str, case.codes()))}")
     after = snapshot(ctx.tmp)
