@@ -154,7 +154,18 @@ def main() -> None:
         )
 
 
+TERM_GRACE_S = 10.0
+"""After ``kill`` (SIGTERM), seconds the run may take to clean up before it exits regardless."""
+
+
 def _terminated(_signum: int, _frame: object) -> None:
+    """``kill``: stop as Ctrl-C does (staging folders removed, nothing half-moved), and exit
+    anyway after :data:`TERM_GRACE_S` should the clean-up wait on worker threads."""
+    import threading
+
+    timer = threading.Timer(TERM_GRACE_S, os._exit, args=(130,))
+    timer.daemon = True
+    timer.start()
     raise KeyboardInterrupt
 
 
