@@ -22,7 +22,7 @@ from .procs import pid_alive
 
 __all__ = [
     "OutPathError",
-    "RECORD_PARTS",
+    "PROTECTED_PARTS",
     "check_apart",
     "deferred_signals",
     "record_parts",
@@ -90,8 +90,9 @@ def check_out_file(path: Path, option: str) -> Path:
     return path
 
 
-RECORD_PARTS = ("record.json", "matches.npz", "overlays")
-"""What a record folder holds of its own (replaced whole when the record is written)."""
+PROTECTED_PARTS = ("record.json", "matches.npz", "overlays")
+"""The parts of a record folder no output may replace (the record itself; its recording
+``audit.rrd``, also one of :data:`geocon_core.staging.RECORD_PARTS`, is re-rendered in place)."""
 
 
 def _real(path: Path) -> Path:
@@ -118,8 +119,8 @@ def _within(path: Path, folder: Path) -> bool:
 
 
 def record_parts(folder: Path) -> list[Path]:
-    """The paths a record folder owns (:data:`RECORD_PARTS`)."""
-    return [folder / name for name in RECORD_PARTS]
+    """The paths of a record folder no output may replace (:data:`PROTECTED_PARTS`)."""
+    return [folder / name for name in PROTECTED_PARTS]
 
 
 def check_apart(
@@ -132,7 +133,7 @@ def check_apart(
     ``outputs``: (option, path) of every file or folder a command writes; ``inputs``: (what, path)
     of everything it reads (the clip, its frame folder, masks, a pose log, the record viewed);
     ``records``: record folders an output may sit beside but never inside of (their
-    :data:`RECORD_PARTS`). Compared by resolved path and by inode, so links and hard links are
+    :data:`PROTECTED_PARTS`). Compared by resolved path and by inode, so links and hard links are
     seen through. Raises :class:`OutPathError` with one sentence naming the option, the path and
     the input it would destroy."""
     for option, out in outputs:

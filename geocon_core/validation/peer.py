@@ -20,6 +20,7 @@ Everything is seeded (``cv2.setRNGSeed``): the same clip gives the same keep rat
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Iterator
@@ -39,6 +40,7 @@ __all__ = [
     "PEER_RANSAC_PX",
     "PEER_GAP",
     "PeerScore",
+    "read_peer",
     "pair_keep",
     "peer_keep_rate",
     "raw_frames",
@@ -77,6 +79,16 @@ class PeerScore:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def read_peer(folder: Path) -> dict | None:
+    """The peer's saved score in a case folder (``peer.json``), None when absent, unreadable or
+    of another :data:`PEER_VERSION` (then it is computed again)."""
+    try:
+        saved = json.loads((folder / PEER_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return saved if isinstance(saved, dict) and saved.get("version") == PEER_VERSION else None
 
 
 def raw_frames(path: str | Path, max_frames: int | None = None) -> Iterator[np.ndarray]:

@@ -4,7 +4,6 @@ and what the saved record says. Everything here is read from ``record.json`` and
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -268,16 +267,13 @@ def f_within_px(rec: ClipRecord, steps: Sequence[float] = F_PX_STEPS) -> tuple[t
 
 
 def peer_score(folder: Path) -> float | None:
-    """``1 - keep rate`` of the peer saved in a case folder (``peer.json``, :data:`~.peer.PEER_FILE`),
-    None when absent, of another peer version, or without a keep rate."""
-    from .peer import PEER_FILE, PEER_VERSION
+    """``1 - keep rate`` of the peer saved in a case folder (:func:`~.peer.read_peer`), None when
+    absent, of another peer version, or without a keep rate."""
+    from .peer import read_peer
 
-    try:
-        saved = json.loads((folder / PEER_FILE).read_text())
-    except (OSError, ValueError):
-        return None
-    keep = saved.get("keep_rate")
-    return None if saved.get("version") != PEER_VERSION or keep is None else 1.0 - float(keep)
+    saved = read_peer(folder)
+    keep = None if saved is None else saved.get("keep_rate")
+    return None if keep is None else 1.0 - float(keep)
 
 
 def _report_margin(rec: ClipRecord) -> float | None:

@@ -106,13 +106,10 @@ def _peer_one(clip: str, folder: str, max_frames: int) -> dict:
 
 
 def _peer_done(folder: Path, clip: str) -> bool:
-    from .peer import PEER_FILE, PEER_VERSION
+    from .peer import read_peer
 
-    try:
-        saved = json.loads((folder / PEER_FILE).read_text())
-    except (OSError, ValueError):
-        return False
-    return saved.get("version") == PEER_VERSION and saved.get("clip") == clip
+    saved = read_peer(folder)
+    return saved is not None and saved.get("clip") == clip
 
 
 def _finished(folder: Path, digest: str, clip: Path | None) -> dict | None:
