@@ -6,6 +6,7 @@
     .venv/bin/python benchmarks/bench_score.py --matcher klt # another matcher than the preset's
     .venv/bin/python benchmarks/bench_score.py --rrd         # cost and size of the Rerun recording
     .venv/bin/python benchmarks/bench_score.py --rrd --family C3  # ... of a translation clip
+    .venv/bin/python benchmarks/bench_score.py --multiview-cost --family C3  # audit with / without the check
 
 Renders a C4 clip (static camera, two moving objects) once into a cache folder, then scores
 it in a fresh process per measurement, without and with mask-first separation (built-in
@@ -58,7 +59,12 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
         sink = RrdSink(rrd)
     u0 = resource.getrusage(resource.RUSAGE_SELF)
     t0 = time.perf_counter()
-    cfg = preset(preset_name).with_(masks=masks)
+    base, _, variant = preset_name.partition(":")
+    cfg = preset(base).with_(masks=masks)
+    if variant == "no-multiview":  # the preset without the multi-view check (its cost)
+        from geocon_core.config import MultiViewConfig
+
+        cfg = cfg.with_(multiview=MultiViewConfig())
     if matcher != "-":
         cfg = cfg.with_(matcher=matcher)
     dense = None
@@ -120,11 +126,39 @@ def rrd_overhead(path: Path, preset_name: str, matcher: str, repeats: int = 2) -
         )
 
 
+def multiview_cost(path: Path, repeats: int) -> None:
+    """``audit`` without and with the multi-view check (motion masks, as ``geocon score``): the
+    fastest of ``repeats`` runs each, the ratio of their wall times and both peak memories."""
+    runs = {}
+    for name in ("audit:no-multiview", "audit"):
+        runs[name] = min(
+            (_child(path, name, "motion", "-", "-") for _ in range(max(1, repeats))), key=lambda r: r["wall_s"]
+        )
+        r = runs[name]
+        print(
+            f"{path.parent.name}: {r['frames']} frames, {name:18} wall {r['wall_s']:6.1f} s  "
+            f"{r['fps']:5.2f} frames/s  peak RSS {r['peak_rss_mib']:7.1f} MiB  stages {r['stages_s']}",
+            flush=True,
+        )
+    ratio = runs["audit"]["wall_s"] / runs["audit:no-multiview"]["wall_s"]
+    print(f"the multi-view check: {ratio:.2f}x the time of audit without it (target <= 1.3x)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--size", default="1024x720")
-    ap.add_argument("--preset", default=None, help="paper, strict, audit or fast (default: paper, strict, fast)")
+    ap.add_argument(
+        "--preset",
+        default=None,
+        help="paper, strict, audit or fast (default: paper, strict, fast); audit:no-multiview is audit "
+        "without the multi-view check",
+    )
+    ap.add_argument(
+        "--multiview-cost",
+        action="store_true",
+        help="audit with and without the multi-view check, side by side, and the ratio of their times",
+    )
     ap.add_argument("--repeats", type=int, default=1, help="runs per measurement; the fastest is shown")
     ap.add_argument("--memory", action="store_true", help="compare peak memory at 120 and 480 frames")
     ap.add_argument("--matcher", default="-", help="replaces the preset's matcher (sift, orb, klt, klt_tracks)")
@@ -139,6 +173,9 @@ def main() -> None:
         return
     if args.rrd:
         rrd_overhead(clip(args.frames, args.size, args.family), args.preset or "paper", args.matcher)
+        return
+    if args.multiview_cost:
+        multiview_cost(clip(args.frames, args.size, args.family), args.repeats)
         return
     presets = [args.preset] if args.preset else ["paper", "strict", "fast"]
     lengths = [120, 480] if args.memory else [args.frames]

@@ -21,6 +21,7 @@ from .stage_configs import (
     FlowConfig,
     IndependentConfig,
     MotionConfig,
+    MultiViewConfig,
     PoseConfig,
     Sam2Config,
     ScanConfig,
@@ -37,6 +38,7 @@ SUB_CONFIGS: dict[str, type] = {
     "dust3r": Dust3rConfig,
     "category": CategoryConfig,
     "scans": ScanConfig,
+    "multiview": MultiViewConfig,
 }
 """The nested sub-configurations of :class:`ScoreConfig` by field name."""
 
@@ -245,6 +247,9 @@ class ScoreConfig:
     """Thresholds of the scene family rule."""
     scans: ScanConfig = field(default_factory=ScanConfig)
     """Grids of the threshold-sensitivity scan."""
+    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
+    """One reconstruction per clip and the layers that drift against it (:mod:`geocon_core.multiview`;
+    beyond the paper, on in ``audit``)."""
 
     def __post_init__(self) -> None:
         if not self.scales or any(not 0 < s <= 1 for s in self.scales):
@@ -368,6 +373,7 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             tau_t_window=0.03,
             untrusted_share=0.5,
             cuts=CutConfig(fade_frames=30),
+            multiview=MultiViewConfig(enabled=True),
         ),
     ),
     "fast": (
@@ -446,5 +452,7 @@ def config_hash(config: ScoreConfig) -> str:
     for key, (name, value) in UNUSED_BACKENDS.items():
         if d.get(name) != value:
             d.pop(key, None)
+    if not config.multiview.enabled:  # off: its settings cannot change a number
+        d.pop("multiview", None)
     blob = json.dumps(d, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

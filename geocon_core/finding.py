@@ -19,6 +19,9 @@ from dataclasses import dataclass
 __all__ = ["CLIP_SCORE_SLOPE", "VERDICT_WORDS", "ClipFinding", "clip_score", "clip_finding", "report_margin"]
 
 CLIP_SCORE_SLOPE = 4.0
+DRIFT_MARGIN = 0.25
+"""The headroom a clip failed by the multi-view check reads at most (minus this): its clip score
+is then above 0.73 whatever its pair fits' headroom."""
 VERDICT_WORDS = ("consistent", "inconsistent", "cannot judge")
 
 
@@ -63,11 +66,13 @@ def clip_finding(
     ge_gate: float,
     note: str,
     shots: int = 0,
+    drift: str | None = None,
 ) -> ClipFinding:
     """The finding of a background verdict (``consistent`` True / False / None) with its IR, GE,
     the report gates, the headroom ``margin`` and the background's own ``note`` (why the model was
     chosen, or why it could not be judged). ``shots``: the number of shots of a clip with cuts
-    (the background is then that of the shot that decides)."""
+    (the background is then that of the shot that decides). ``drift``: what the multi-view check
+    found when it failed the background (:mod:`geocon_core.multiview`), whose pair fits pass."""
     where = f" (the shot that decides, of {shots})" if shots > 1 else ""
     if consistent is None or ir is None or ge is None:
         return ClipFinding("cannot judge", note or "the background could not be judged", None)
@@ -79,6 +84,12 @@ def clip_finding(
             clip_score(margin),
         )
     fails = []
+    if drift is not None and ir >= ir_gate and ge <= ge_gate:
+        return ClipFinding(
+            "inconsistent",
+            f"the background fits its {model} model pair by pair ({values}), but {drift}",
+            clip_score(margin if margin is None else min(margin, -DRIFT_MARGIN)),
+        )
     if ir < ir_gate:
         fails.append(f"only {ir:.1%} of its matches fit (needs {ir_gate:.0%})")
     if ge > ge_gate:

@@ -27,6 +27,8 @@ from . import record_parts
 from .config import ScoreConfig
 from .dense_cloud import DenseCloud, WindowCloud
 from .finding import ClipFinding, clip_finding, report_margin
+from .multiview import ARRAY_NAMES as MV_ARRAYS
+from .multiview import MultiViewResult
 from .npz import NPZ_ERRORS
 from .reader import ClipInfo
 from .record_parts import (
@@ -140,6 +142,7 @@ class ClipRecord:
     pointmaps: PointMaps | None = None
     shots: tuple[ShotRecord, ...] = ()
     dynamic_share: tuple[float, ...] = ()
+    multiview: MultiViewResult | None = None
 
     def finding(self) -> ClipFinding:
         """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.finding`)."""
@@ -154,7 +157,16 @@ class ClipRecord:
             ge_gate=cfg.ge_gate,
             note=bg.choice_note,
             shots=len(self.shots),
+            drift=self.drift_finding(),
         )
+
+    def drift_finding(self) -> str | None:
+        """What the multi-view check found when it fails the background (its largest drifting
+        layer), else None (:mod:`geocon_core.multiview`)."""
+        mv = self.multiview
+        if mv is None or not mv.flagged or not self.config.multiview.enabled:
+            return None
+        return mv.layers[0].describe()
 
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
@@ -213,6 +225,7 @@ class ClipRecord:
             ],
             "masks": self.masks_source,
             **({"dynamic_background": float(np.median(self.dynamic_share))} if self.dynamic_share else {}),
+            **({"multiview": self.multiview.summary()} if self.multiview is not None else {}),
             "category": None if self.category is None else self.category.label,
             "preset": self.config.preset,
             "config_hash": self.config_hash,
@@ -262,6 +275,7 @@ class ClipRecord:
             "dense": [_dense_entry(w) for w in self.dense],
             **({"shots": [asdict(s) for s in self.shots]} if self.shots else {}),
             **({"dynamic_share": list(self.dynamic_share)} if self.dynamic_share else {}),
+            **({"multiview": self.multiview.to_json_dict()} if self.multiview is not None else {}),
         }
 
 
@@ -303,6 +317,8 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
         arrays.update({f"pointmaps_{name}": getattr(record.pointmaps, name) for name in PointMaps.NAMES})
     if record.dense:
         arrays.update(_dense_arrays(record.dense))
+    if record.multiview is not None:
+        arrays.update(record.multiview.arrays())
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -473,7 +489,7 @@ def read_record(path: str | Path) -> ClipRecord:
     z = read_matches(
         folder,
         MatchArrays.NAMES,
-        (*MatchArrays.OPTIONAL, *cells_names, "cloud_xyz", "cloud_rgb", *dense_names, *pointmaps_names),
+        (*MatchArrays.OPTIONAL, *cells_names, "cloud_xyz", "cloud_rgb", *dense_names, *pointmaps_names, *MV_ARRAYS),
     )
     try:
         return _record_from(d, z)
@@ -533,4 +549,5 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         pointmaps=pointmaps,
         shots=tuple(ShotRecord(**s) for s in d.get("shots", [])),
         dynamic_share=tuple(float(v) for v in d.get("dynamic_share", [])),
+        multiview=None if d.get("multiview") is None else MultiViewResult.from_parts(d["multiview"], z),
     )

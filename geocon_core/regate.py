@@ -12,7 +12,7 @@ reproduces the record's IR and GE and :func:`regate_clip` the record's verdict e
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -20,7 +20,9 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from .config import ScoreConfig
+from .finding import DRIFT_MARGIN
 from .models import FAMILIES, family_spec, inlier_mask, segment_inlier_stats, segment_order
+from .multiview import DriftLayer
 from .record import (
     ClipRecord,
     GapSummary,
@@ -44,6 +46,7 @@ from .verdict import (
 )
 
 __all__ = [
+    "with_drift",
     "Regated",
     "regate_family",
     "regate_pairs",
@@ -284,7 +287,11 @@ class Residuals:
         pose_present: bool,
         shots: tuple[ShotGate, ...] = (),
         t_window: float | None = None,
+        drift: str | None = None,
     ) -> None:
+        self.drift = drift
+        """What the multi-view check found when it failed the background (it does not depend on
+        the thresholds re-gating moves), else None."""
         self.config = config
         self.pairs = pairs
         self.matches = matches
@@ -305,7 +312,14 @@ class Residuals:
         )
         t_window = window_t_inf(rows, (0, record.video.num_frames - 1))
         return cls(
-            record.config, record.pairs, record.matches, record.gate.t_inf, record.gate.pose_present, shots, t_window
+            record.config,
+            record.pairs,
+            record.matches,
+            record.gate.t_inf,
+            record.gate.pose_present,
+            shots,
+            t_window,
+            record.drift_finding(),
         )
 
     @cached_property
@@ -332,7 +346,14 @@ def load_residuals(folder: str | Path) -> Residuals:
     )
     cfg = ScoreConfig.from_dict(d["config"])
     t_window = window_t_inf(rows, (0, int(d["video"]["num_frames"]) - 1))
-    return Residuals(cfg, pairs, arrays, gate["t_inf"], bool(gate["pose_present"]), shots, t_window)
+    mv = d.get("multiview") or {}
+    layers = mv.get("layers") or []
+    drift = (
+        DriftLayer.from_dict(layers[0]).describe()
+        if layers and cfg.multiview.enabled and not mv.get("reason")
+        else None
+    )
+    return Residuals(cfg, pairs, arrays, gate["t_inf"], bool(gate["pose_present"]), shots, t_window, drift)
 
 
 def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipVerdict:
@@ -352,9 +373,22 @@ def regate_clip(source: ClipRecord | Residuals, thresholds: Thresholds) -> ClipV
             )
             for s in res.shots
         ]
-        return combine_shots(verdicts, gate_shot([(s.start, s.end) for s in res.shots]))
+        return with_drift(combine_shots(verdicts, gate_shot([(s.start, s.end) for s in res.shots])), res.drift)
     h = regate_family(res, "H", thresholds.tau("H"))
     f = regate_family(res, "F", thresholds.tau("F"))
-    return family_verdict(
-        h, f, t_inf=res.t_inf, pose_present=res.pose_present, thresholds=thresholds, t_window=res.t_window
+    return with_drift(
+        family_verdict(
+            h, f, t_inf=res.t_inf, pose_present=res.pose_present, thresholds=thresholds, t_window=res.t_window
+        ),
+        res.drift,
     )
+
+
+def with_drift(verdict: ClipVerdict, drift: str | None) -> ClipVerdict:
+    """A verdict the multi-view check fails when it found a drifting layer (as the scorer does):
+    a background that passes its pair fits becomes inconsistent, its headroom at most minus
+    :data:`~geocon_core.finding.DRIFT_MARGIN`."""
+    if drift is None or verdict.consistent is not True:
+        return verdict
+    margin = -DRIFT_MARGIN if verdict.report_margin is None else min(verdict.report_margin, -DRIFT_MARGIN)
+    return replace(verdict, consistent=False, report_margin=margin)

@@ -48,6 +48,8 @@ THUMB_WIDTH = 200
 JPEG_QUALITY = 80
 INLIER_RGB = (40, 210, 60)
 OUTLIER_RGB = (255, 40, 40)
+LAYER_RGB = (230, 60, 220)
+"""Colour of a drifting layer's tracks (as the viewers draw them)."""
 
 
 @dataclass(frozen=True)
@@ -187,6 +189,48 @@ def draw_matches(rgb: np.ndarray, x1: np.ndarray, x2: np.ndarray, inliers: np.nd
     return _resize(big, width)
 
 
+def _drift_frame(record: ClipRecord) -> int | None:
+    """The keyframe to draw a drifting layer on (the middle keyframe most of its tracks were
+    placed at), or None when the multi-view check failed no layer."""
+    mv = record.multiview
+    if record.drift_finding() is None or mv is None or mv.layer_of is None or mv.track_frame is None:
+        return None
+    frames = mv.track_frame[mv.layer_of == 0]
+    values, counts = np.unique(frames, return_counts=True)
+    return int(values[np.argmax(counts)]) if len(values) else None
+
+
+def _drift_thumb(record: ClipRecord, rgb: np.ndarray, t: int, width: int) -> Thumb:
+    """The drifting layer on frame ``t``: the judged tracks placed there as dots (the layer's in
+    magenta, the others green), the layer's box and an arrow of its drift (drawn 5 times longer)."""
+    mv = record.multiview
+    assert mv is not None and mv.layer_of is not None and mv.track_frame is not None and mv.track_xy is not None
+    layer = mv.layers[0]
+    big = _resize(rgb, 2 * width)
+    gray = cv2.cvtColor(big, cv2.COLOR_RGB2GRAY)
+    big = cv2.cvtColor((gray * 0.55 + 70).astype(np.uint8), cv2.COLOR_GRAY2RGB)
+    kw, s = big.shape[1] / rgb.shape[1], record.video.scale  # working -> picture px; source -> working px
+    ox, oy = record.video.offset
+
+    def pic(x: float, y: float) -> tuple[int, int]:
+        return round((x * s + ox) * kw), round((y * s + oy) * kw)
+
+    at = mv.track_frame == t
+    for sel, col in ((at & (mv.layer_of != 0), INLIER_RGB), (at & (mv.layer_of == 0), LAYER_RGB)):
+        for x, y in mv.track_xy[sel]:
+            cv2.circle(big, pic(x, y), 2, col, -1, cv2.LINE_AA)
+    x0, y0, x1, y1 = layer.box
+    cv2.rectangle(big, pic(x0, y0), pic(x1, y1), LAYER_RGB, 2, cv2.LINE_AA)
+    cx, cy = pic((x0 + x1) / 2, (y0 + y1) / 2)
+    dx, dy = (5 * layer.drift_px * s * kw * d for d in layer.direction)
+    cv2.arrowedLine(big, (cx, cy), (round(cx + dx), round(cy + dy)), (255, 255, 255), 3, cv2.LINE_AA, tipLength=0.25)
+    return _thumb(
+        f"drifting layer: ~{layer.drift_px:.1f} px",
+        f"the multi-view check: {layer.describe()} (tracks of frame {t}: magenta in the layer; arrow 5x its drift)",
+        _resize(big, width),
+    )
+
+
 def _jpeg(rgb: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     if not ok:
@@ -212,8 +256,16 @@ def clip_thumbs(folder: str | Path, clip_id: str | None = None, *, width: int = 
         info = locate_clip(record.video, folder)
         last = info.num_frames - 1
         worst = worst_pair(record)
-        frames = read_frames(info, {0, last} | ({worst.pair.t0} if worst is not None else set()))
+        drift_at = _drift_frame(record)
+        wanted = (
+            {0, last}
+            | ({worst.pair.t0} if worst is not None else set())
+            | ({drift_at} if drift_at is not None else set())
+        )
+        frames = read_frames(info, wanted)
         thumbs = [_thumb("first frame", f"frame 0 of {info.num_frames}", _resize(frames[0], width))]
+        if drift_at is not None:
+            thumbs.append(_drift_thumb(record, frames[drift_at], drift_at, width))
         note = None
         if worst is not None:
             p = worst.pair

@@ -11,6 +11,7 @@ from typing import Any
 from .dataset import expected_model
 from .layout import RRD_NAME, STATUS_NAME, clip_folders, read_status, tables_dir
 from .models import family_spec
+from .multiview import DriftLayer
 from .record import read_record_json
 from .regate import timeline_rows
 from .verdict import window_t_inf
@@ -46,6 +47,9 @@ class ResultClip:
     n_objects: int = 0
     shots: int = 0
     """Shots judged on their own (0: one shot); such a clip is re-gated shot by shot."""
+    drift: str | None = None
+    """What the multi-view check found when it failed the background (it does not depend on the
+    thresholds re-gating moves), else None."""
 
     def scores(self, family: str) -> tuple[float | None, float | None]:
         """The recorded ``(IR, GE)`` of background ``family``."""
@@ -107,7 +111,18 @@ def clip_from_record_json(
         adap90_max=max(adap90) if adap90 else None,
         n_objects=len(d.get("objects", [])),
         shots=len(d.get("shots", [])),
+        drift=drift_of_json(d),
     )
+
+
+def drift_of_json(d: dict[str, Any]) -> str | None:
+    """The multi-view check's finding of a parsed ``record.json`` when it failed the background
+    (as :meth:`~geocon_core.record.ClipRecord.drift_finding`), else None."""
+    mv = d.get("multiview") or {}
+    layers = mv.get("layers") or []
+    if not layers or mv.get("reason") or not (d.get("config", {}).get("multiview") or {}).get("enabled"):
+        return None
+    return DriftLayer.from_dict(layers[0]).describe()
 
 
 def _failed_clip(clip_id: str, status: dict[str, Any], folder: Path) -> ResultClip:
@@ -134,8 +149,16 @@ def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]
     if not {"shots", "t_window", "ind_h", "ind_f"} <= set(schema.names):  # tables of an earlier version
         return {}
     cols += ["shots", "t_window", "ind_h", "ind_f"]
+    if "mv_finding" in schema.names:
+        cols += ["mv_finding", "mv_drift_px"]
     table = pq.read_table(path, columns=cols).to_pydict()
     return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
+
+
+def _drift_of_row(row: dict[str, Any]) -> str | None:
+    """The multi-view finding of a ``clips`` table row when it failed the background, else None."""
+    finding, drift = row.get("mv_finding"), _num(row.get("mv_drift_px"))
+    return finding if finding and drift is not None and drift > 0 else None
 
 
 def read_bench_clips(root: Path) -> list[ResultClip]:
@@ -178,6 +201,7 @@ def read_bench_clips(root: Path) -> list[ResultClip]:
                 adap90_max=_num(row["adap90_max"]),
                 n_objects=int(row["n_objects"]),
                 shots=int(row["shots"]),
+                drift=_drift_of_row(row),
             )
         )
     return clips

@@ -24,7 +24,7 @@ from .config import ScoreConfig
 from .layout import BENCH_FORMAT, MANIFEST_NAME, clip_folders, read_manifest, read_status
 from .models import family_spec
 from .record import RecordError, read_record_json
-from .regate import Residuals, load_residuals, regate_clip, regate_family
+from .regate import Residuals, load_residuals, regate_clip, regate_family, with_drift
 from .result_clips import ResultClip, _failed_clip, clip_from_record_json, read_bench_clips
 from .verdict import ClipVerdict, Scores, Thresholds, family_verdict, is_flagged
 
@@ -279,8 +279,11 @@ class ResultsIndex:
             h, f = (Scores(*self._family(clip, fam, thresholds.tau(fam)), clip.moved(fam)) for fam in ("H", "F"))
         except ResultsError:  # its record turned out unreadable: listed as broken from now on
             return None
-        return family_verdict(
-            h, f, t_inf=clip.t_inf, pose_present=clip.pose_present, thresholds=thresholds, t_window=clip.t_window
+        return with_drift(
+            family_verdict(
+                h, f, t_inf=clip.t_inf, pose_present=clip.pose_present, thresholds=thresholds, t_window=clip.t_window
+            ),
+            clip.drift,
         )
 
     def triage(

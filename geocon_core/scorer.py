@@ -40,6 +40,7 @@ from .geometry import scale_intrinsics, two_view_cloud
 from .masks import MaskSource, make_mask_source
 from .masks.external import check_masks_path
 from .models import FAMILIES, ModelFit, PairFits, independent_motion, with_independent
+from .multiview import LongTracks, TrackObservations, reconstruct
 from .pose import PoseBackend, PoseEstimate, default_intrinsics, load_pose_log, make_pose_backend
 from .pose.base import failure as pose_failure
 from .pose.base import focal_of
@@ -112,6 +113,10 @@ class _Pipeline:
         """Those frames' content at the motion analysis size (grey) and their object masks."""
         self.still_maps: dict[tuple[int, int], np.ndarray] = {}
         """Per span (clip or shot) of a still camera, its pixels that did not move (test size)."""
+        self.tracks = (
+            LongTracks(config.multiview, info.num_frames, info.working_size) if config.multiview.enabled else None
+        )
+        """The multi-view check's long tracks (:mod:`geocon_core.multiview`), when it is on."""
 
     # --- masks (the mask lane) -----------------------------------------------------------------
     def push(self, frame: Frame) -> None:
@@ -153,6 +158,12 @@ class _Pipeline:
             self.anchor_rgb[frame.index] = frame.rgb
         if frame.index in self.still_frames:
             self.still[frame.index] = _reduced(frame.gray, labels, self.info, self.config.motion.analysis_size)
+        if self.tracks is not None:
+            start = time.perf_counter()
+            self.tracks.observe(
+                frame.index, frame.gray, frame.content if labels is None else frame.content & (labels == 0)
+            )
+            self.timer.add("multiview", start)
 
     def still_test(self, span: tuple[int, int], est: PoseEstimate, K: np.ndarray) -> PoseEstimate:
         """The still-camera test of frames ``span`` (``ScoreConfig.still_share``): when it passes,
@@ -454,6 +465,34 @@ def _mask_source(
     return None
 
 
+def _with_multiview(record: ClipRecord, obs: TrackObservations, K: np.ndarray, cfg: ScoreConfig) -> ClipRecord:
+    """The record with its multi-view check (:mod:`geocon_core.multiview`): one reconstruction
+    per shot under the model its gate chose; a drifting layer fails the background. With cuts,
+    the result kept is that of the first shot with a drifting layer, else of the longest shot."""
+    info = record.video
+    spans = [(s.start, s.end, s.model) for s in record.shots] or [(0, info.num_frames - 1, record.background.model)]
+    results = []
+    for start, end, model in spans:
+        keep = [i for i, t in enumerate(obs.frames) if start <= t <= end]
+        part = TrackObservations([obs.frames[i] for i in keep], [obs.ids[i] for i in keep], [obs.xy[i] for i in keep])
+        results.append(
+            (
+                end - start,
+                reconstruct(
+                    part, K, info.working_size, "H" if model == "H" else "F", cfg.multiview, px_scale=info.scale
+                ),
+            )
+        )
+    flagged = [r for _, r in results if r.flagged]
+    result = flagged[0] if flagged else max(results, key=lambda lr: lr[0])[1]
+    record = replace(record, multiview=result)
+    if result.flagged and record.background.consistent is not False:
+        bg = record.background
+        note = f"{bg.choice_note}; the multi-view check: {result.layers[0].describe()}".lstrip("; ")
+        record = replace(record, background=replace(bg, consistent=False, choice_note=note))
+    return record
+
+
 def _import_aside(module: str) -> None:
     """Start importing ``module`` on a side thread. POT takes about a second to import (it loads
     much of SciPy); imported where first used, on a worker in the middle of the clip, it stalls
@@ -620,6 +659,10 @@ def score_clip(
         start = time.perf_counter()
         record = replace(record, dense=builder.clouds(K, {**by_window, (0, n - 1): pose}))
         timer.add("dense", start)
+    if stages.tracks is not None:
+        start = time.perf_counter()
+        record = _with_multiview(record, stages.tracks.observations, K, cfg)
+        timer.add("multiview", start)
     return add_objects(
         replace(record, cloud=cloud, pointmaps=stages.pointmaps),
         objects,

@@ -24,6 +24,7 @@ __all__ = [
     "Dust3rConfig",
     "CategoryConfig",
     "ScanConfig",
+    "MultiViewConfig",
 ]
 
 DIS_PRESET_NAMES = ("ultrafast", "fast", "medium")
@@ -403,3 +404,87 @@ class ScanConfig:
     def __post_init__(self) -> None:
         if not self.tau_h_grid or not self.tau_f_grid or min(*self.tau_h_grid, *self.tau_f_grid) <= 0:
             raise ValueError("scans: the tau grids must be non-empty and positive")
+
+
+@dataclass(frozen=True)
+class MultiViewConfig:
+    """One reconstruction per clip (:mod:`geocon_core.multiview`): long tracks, one bundle
+    adjustment, and the background layers that drift against it. Off in ``paper`` and
+    ``strict`` (beyond the paper's protocol)."""
+
+    enabled: bool = False
+    """Build the reconstruction and let a drifting layer fail the background."""
+    track_side: int = 1280
+    """Long side of the image the tracks are followed on, px (a smaller clip at its own size)."""
+    max_tracks: int = 1200
+    """Tracks kept alive at once."""
+    min_distance: int = 8
+    """Least distance between two tracks' corners, px of the tracking image."""
+    fb_px: float = 0.5
+    """A track is kept when tracking back lands within this many px (tracking image) of its start."""
+    max_views: int = 32
+    """Keyframes (spread evenly, first and last included) the reconstruction holds."""
+    min_views: int = 4
+    """A track seen at fewer registered keyframes is not judged."""
+    min_tracks: int = 40
+    """Fewer judged tracks: the clip cannot be judged."""
+    min_init_tracks: int = 40
+    """Tracks the first and the start keyframe must share (F)."""
+    min_angle_deg: float = 1.0
+    """Median triangulation angle of the start pair (F), degrees; points need half of it."""
+    min_registered: float = 0.6
+    """Share of keyframes that must be posed for the clip to be judged."""
+    max_iterations: int = 30
+    """Bundle adjustment iterations (Ceres)."""
+    zoom_share: float = 0.01
+    """H: a focal length per keyframe when the chained zoom moves the focal more than this share;
+    one shared otherwise."""
+    rotation_rounds: int = 3
+    """H: rounds of adjusting the cameras with the points held, then the points (the mean of their rays)."""
+    keep_factor: float = 3.0
+    """A track joins the next adjustment when its residual is at most ``tau_px`` and this many
+    times the median residual."""
+    ba_tracks: int = 400
+    """Tracks the bundle adjustment holds (the longest-lived of each cell of an 8x8 grid, in
+    turn); every other track is triangulated with the adjusted cameras."""
+    refine_intrinsics: bool = True
+    """F: a second adjustment refines the shared focal length and one radial distortion term ..."""
+    max_focal_ratio: float = 1.6
+    """... kept when the focal stays within this factor of the prior's ..."""
+    refine_gain: float = 0.1
+    """... and the median residual of the adjusted tracks drops by at least this share (a focal
+    the clip cannot pin down, a near-pure translation, wanders to fit noise)."""
+    loss_px: float = 1.0
+    """Scale of the Cauchy loss, source px."""
+    tau_px: float = 1.5
+    """A track is consistent with the reconstruction when its RMS residual is at most this, source px (MV-IR)."""
+    max_floor_px: float = 0.4
+    """The tracks outside any layer must fit the reconstruction this well (median residual, source
+    px) for the clip to be judged: above it, noise (rolling shutter, lens, compression, tracking on
+    low-resolution footage) hides a drift of a few pixels (measured on the tune half of the
+    real-camera clips, see the validation report)."""
+    max_outlier_share: float = 0.5
+    """More inconsistent tracks than this share: the reconstruction failed, the clip cannot be judged."""
+    track_drift_px: float = 1.0
+    """A track drifts when the line fitted to its residual moves it this far over its life, source px ..."""
+    slope_sigmas: float = 3.0
+    """... and the line's slope is this many standard errors from zero."""
+    layer_radius: float = 0.1
+    """Inconsistent tracks closer than this share of the tracks' extent (diagonal) are neighbours."""
+    layer_cosine: float = 0.7
+    """Neighbours join one layer when their drifts' directions agree this well (cosine)."""
+    layer_core_share: float = 0.5
+    """A drifting track is a layer's core when at least this share of its neighbours drift with it;
+    layers grow from cores (stray drifting tracks do not chain regions together)."""
+    layer_min_tracks: int = 12
+    """A layer holds at least this many tracks ..."""
+    layer_min_share: float = 0.05
+    """... and at least this share of the judged tracks ..."""
+    drift_px: float = 3.0
+    """... and its tracks' median slope carries it this far over the frames they span, source px."""
+
+    def __post_init__(self) -> None:
+        if self.max_views < 3 or self.min_views < 2 or self.max_tracks < 16 or self.track_side < 64:
+            raise ValueError("multiview: max_views >= 3, min_views >= 2, max_tracks >= 16 and track_side >= 64")
+        if not (self.tau_px > 0 and self.loss_px > 0 and self.drift_px >= 0 and 0 < self.max_outlier_share <= 1):
+            raise ValueError("multiview: tau_px and loss_px positive, drift_px >= 0, max_outlier_share in (0, 1]")

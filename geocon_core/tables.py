@@ -87,8 +87,24 @@ def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) ->
         adadfrc_max=max(adadfrc) if adadfrc else _NAN,
         adap90_max=max(adap90) if adap90 else _NAN,
         masked_share_mean=float(sum(record.masked_share) / len(record.masked_share)) if record.masked_share else _NAN,
+        **_multiview_cols(record),
     )
     return row
+
+
+def _multiview_cols(record: ClipRecord) -> dict[str, Any]:
+    """The multi-view check's columns (NaN / None where the record has no reconstruction)."""
+    mv = record.multiview
+    if mv is None:
+        return {"mv_ir": _NAN, "mv_ge": _NAN, "mv_floor_px": _NAN, "mv_drift_px": _NAN, "mv_finding": None}
+    layer = mv.layers[0] if mv.layers else None
+    return {
+        "mv_ir": _num(mv.mv_ir),
+        "mv_ge": _num(mv.mv_ge),
+        "mv_floor_px": _num(mv.floor_px),
+        "mv_drift_px": layer.drift_px if layer is not None else (_NAN if mv.reason else 0.0),
+        "mv_finding": layer.describe() if layer is not None else (f"cannot judge: {mv.reason}" if mv.reason else None),
+    }
 
 
 def _fit_cols(prefix: str, fit) -> dict[str, Any]:
@@ -220,6 +236,11 @@ COLUMNS: dict[str, list[str]] = {
         "adadfrc_max",
         "adap90_max",
         "masked_share_mean",
+        "mv_ir",
+        "mv_ge",
+        "mv_floor_px",
+        "mv_drift_px",
+        "mv_finding",
     ],
     "pairs": _GROUP
     + [
@@ -267,6 +288,10 @@ _FLOAT = {
     "adadfrc_max",
     "adap90_max",
     "masked_share_mean",
+    "mv_ir",
+    "mv_ge",
+    "mv_floor_px",
+    "mv_drift_px",
     "scale",
     "h_ir",
     "h_ge",

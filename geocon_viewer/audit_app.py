@@ -50,6 +50,7 @@ from .audit_views import (
     dense_legend_html,
     draw_frame,
     frame_text,
+    move_clip_camera,
     pair_options,
     pair_text,
     render_plots,
@@ -264,7 +265,8 @@ class AuditApp(AuditPanels, ServedApp):
             self.slider.max = max(1, n - 1)
             self.frame = min(self.frame, n - 1)
             self._show_pairs(record)
-            self.cloud_handle = render_scene(self.server, self.view)
+            self.cloud_handle = render_scene(self.server, self.view, self._pair_index)
+            move_clip_camera(view, self.frame)
             self._refresh_selected()
             self.rrd_md.content = self._rrd_text()
         self._decoder = threading.Thread(target=self._decode_frames, args=(view,), name="geocon-frames", daemon=True)
@@ -273,11 +275,12 @@ class AuditApp(AuditPanels, ServedApp):
     def _show_pairs(self, record: ClipRecord) -> None:
         """The 3D tab of a newly selected clip: its pairs, the first/last one shown, the legend."""
         options = pair_options(record)
-        self._pair_index = 0
+        # a clip the multi-view check failed opens on its evidence: the clip's one reconstruction
+        self._pair_index = len(options) - 1 if record.drift_finding() is not None else 0
         self.pair.options = options
-        if self.pair.value != options[0]:
-            self.pair.value = options[0]  # type: ignore[misc]  # viser setter typing gap
-        self.pair_md.content = pair_text(record, 0)
+        if self.pair.value != options[self._pair_index]:
+            self.pair.value = options[self._pair_index]  # type: ignore[misc]  # viser setter typing gap
+        self.pair_md.content = pair_text(record, self._pair_index)
         self.legend_html.content = dense_legend_html(record)
 
     def _on_pair(self, value: str) -> None:
@@ -290,6 +293,7 @@ class AuditApp(AuditPanels, ServedApp):
                 return
             self._pair_index = index
             self.cloud_handle = render_scene(self.server, view, index)
+            move_clip_camera(view, self.frame)
             self.pair_md.content = pair_text(view.record, index)
 
     def _show_failed(self, clip_id: str) -> None:
@@ -362,6 +366,8 @@ class AuditApp(AuditPanels, ServedApp):
 
     def _on_frame(self, t: int) -> None:
         self.frame = t
+        if self.view is not None:
+            move_clip_camera(self.view, t)
         self._render_frame()
 
     def _play_loop(self) -> None:

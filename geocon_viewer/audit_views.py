@@ -44,6 +44,10 @@ __all__ = [
     "pair_text",
     "dense_legend_html",
     "PAIR_FIRST_LAST",
+    "PAIR_CLIP",
+    "has_reconstruction",
+    "move_clip_camera",
+    "render_reconstruction",
     "DENSE_POINTS",
     "render_plots",
     "clip_card",
@@ -71,6 +75,9 @@ class ClipView:
     cancel: threading.Event = field(default_factory=threading.Event)
     frustums: dict[int, Any] = field(default_factory=dict)
     """Scene handles of the first/last camera by frame index (their images arrive with the frames)."""
+    clip_camera: Any = None
+    """Scene handle of the current camera of the clip's one reconstruction (moved by the frame
+    slider), when that scene is shown."""
 
     @property
     def num_frames(self) -> int:
@@ -152,12 +159,19 @@ class Plots:
 
 
 PAIR_FIRST_LAST = "first/last"
+PAIR_CLIP = "one camera for the clip"
+
+
+def has_reconstruction(record: ClipRecord) -> bool:
+    """Whether the record holds the clip's one reconstruction (:mod:`geocon_core.multiview`)."""
+    return record.multiview is not None and record.multiview.cam_from_world is not None
 
 
 def pair_options(record: ClipRecord) -> list[str]:
     """The pairs the 3D scene can show: the first/last pair, then each gate window with a dense
-    cloud (``"window a-b"``)."""
-    return [PAIR_FIRST_LAST, *(f"window {w.start}-{w.end}" for w in record.dense[1:])]
+    cloud (``"window a-b"``), then the clip's one reconstruction when the record has it."""
+    clip = [PAIR_CLIP] if has_reconstruction(record) else []
+    return [PAIR_FIRST_LAST, *(f"window {w.start}-{w.end}" for w in record.dense[1:]), *clip]
 
 
 def dense_legend_html(record: ClipRecord) -> str:
@@ -179,6 +193,16 @@ def dense_legend_html(record: ClipRecord) -> str:
 
 def pair_text(record: ClipRecord, pair: int) -> str:
     """What the 3D scene shows for ``pair`` (an index of :func:`pair_options`), in words."""
+    if pair_options(record)[min(max(pair, 0), len(pair_options(record)) - 1)] == PAIR_CLIP:
+        mv = record.multiview
+        assert mv is not None
+        what = "; ".join(layer.describe() for layer in mv.layers) or mv.reason or "no layer drifts against it"
+        ir = "-" if mv.mv_ir is None else f"{mv.mv_ir:.3f}"
+        ge = "-" if mv.mv_ge is None else f"{mv.mv_ge:.2f} px"
+        return (
+            f"one reconstruction ({mv.model}) of {len(mv.registered)} keyframes and {mv.tracks} tracks, "
+            f"points coloured by residual (magenta: a drifting layer); MV-IR {ir}, MV-GE {ge}; {what}"
+        )
     if not record.dense:
         cloud = record.cloud
         return "no point cloud" if cloud is None else f"sparse cloud: {len(cloud.xyz)} points; {cloud.note}"
@@ -201,7 +225,10 @@ def render_scene(server: viser.ViserServer, view: ClipView | None, pair: int = 0
     if view is None:
         return None
     view.frustums.clear()
+    view.clip_camera = None
     rec = view.record
+    if pair_options(rec)[min(max(pair, 0), len(pair_options(rec)) - 1)] == PAIR_CLIP:
+        return render_reconstruction(server, view)
     w, h = view.working_size
     fy = float(np.asarray(rec.intrinsics)[1, 1]) * rec.gate.pose.focal_scale
     fov = 2.0 * math.atan(h / 2.0 / fy)
@@ -257,14 +284,71 @@ def render_scene(server: viser.ViserServer, view: ClipView | None, pair: int = 0
                 thickness_units="screen",
             )
     scene.add_label("/note", note, position=(0.0, -0.12 * depth, 0.0))
-    look_at, position, up = (0.0, 0.0, depth), (0.3 * depth, -0.45 * depth, -0.7 * depth), (0.0, -1.0, 0.0)
+    _look(server, (0.0, 0.0, depth), (0.3 * depth, -0.45 * depth, -0.7 * depth))
+    return cloud_handle
+
+
+def _look(server: viser.ViserServer, look_at: Any, position: Any) -> None:
+    """Point the scene's camera (new and connected clients) from ``position`` at ``look_at``, y down."""
+    up = (0.0, -1.0, 0.0)
+    look_at, position = tuple(float(v) for v in look_at), tuple(float(v) for v in position)
     cam = server.initial_camera
     cam.look_at, cam.position, cam.up = look_at, position, up
     for client in server.get_clients().values():
         client.camera.look_at = look_at
         client.camera.position = position
         client.camera.up_direction = up
-    return cloud_handle
+
+
+def render_reconstruction(server: viser.ViserServer, view: ClipView) -> Any:
+    """The clip's one reconstruction: its points coloured by residual (the drifting layer in
+    magenta), the camera path, and the current keyframe's camera (:func:`move_clip_camera`)."""
+    from .rerun_multiview import residual_colors
+
+    scene, rec = server.scene, view.record
+    mv = rec.multiview
+    assert mv is not None and mv.cam_from_world is not None and mv.points is not None and mv.residual is not None
+    pts = np.asarray(mv.points, dtype=float) * (10.0 if mv.model == "H" else 1.0)
+    colors = residual_colors(mv.residual, rec.config.multiview.tau_px, mv.layer_of)[:, :3]
+    ok = np.all(np.isfinite(pts), axis=1)
+    if ok.any():
+        lo, hi = np.percentile(pts[ok], [2, 98], axis=0)
+        ok &= np.all((pts >= lo - 0.5 * (hi - lo)) & (pts <= hi + 0.5 * (hi - lo)), axis=1)
+    poses = np.asarray(mv.cam_from_world, dtype=float)
+    centres = np.zeros((len(poses), 3)) if mv.model == "H" else np.stack([-P[:, :3].T @ P[:, 3] for P in poses])
+    depth = float(np.median(np.linalg.norm(pts[ok] - centres[0], axis=1))) if ok.any() else 1.0
+    middle = np.median(pts[ok], axis=0) if ok.any() else np.array([0.0, 0.0, depth])
+    _look(server, middle, centres.mean(axis=0) + np.array([0.35, -0.5, -0.9]) * depth)
+    handle = scene.add_point_cloud(
+        "/clip/points",
+        points=pts[ok].astype(np.float32),
+        colors=colors[ok],
+        point_size=0.004 * depth,
+        precision="float32",
+        point_shape="circle",
+    )
+    if mv.model != "H" and len(centres) > 1:
+        segments = np.stack([centres[:-1], centres[1:]], axis=1).astype(np.float32)
+        scene.add_line_segments("/clip/path", segments, colors=(255, 255, 255), thickness=2.0, thickness_units="screen")
+    w, h = view.working_size
+    f = mv.focal_px or float(np.asarray(rec.intrinsics)[1, 1])
+    view.clip_camera = scene.add_camera_frustum(
+        "/clip/camera", fov=2.0 * math.atan(h / 2.0 / f), aspect=w / h, scale=0.08 * depth, color=(90, 200, 255)
+    )
+    scene.add_label("/clip/note", pair_text(rec, len(pair_options(rec)) - 1)[:160], position=(0.0, -0.12 * depth, 0.0))
+    return handle
+
+
+def move_clip_camera(view: ClipView, t: int) -> None:
+    """Put the reconstruction's current camera at the last keyframe at or before frame ``t``."""
+    mv = view.record.multiview
+    if view.clip_camera is None or mv is None or mv.cam_from_world is None or not len(mv.registered):
+        return
+    k = max(0, int(np.searchsorted(np.asarray(mv.registered), t, side="right")) - 1)
+    P = np.asarray(mv.cam_from_world[k], dtype=float)
+    R = P[:, :3]
+    view.clip_camera.wxyz = vtf.SO3.from_matrix(R.T).wxyz
+    view.clip_camera.position = (0.0, 0.0, 0.0) if mv.model == "H" else tuple(-R.T @ P[:, 3])
 
 
 def render_plots(plots: Plots, view: ClipView | None, v: ClipVerdict | None, th: Thresholds) -> None:

@@ -16,6 +16,7 @@ from geocon_core.record import ClipRecord, FitSummary
 from .clouds import clean_cloud
 from .rerun_dense import log_dense, log_pointmaps
 from .rerun_images import colormap, object_rgba, png_bytes, residual_map
+from .rerun_multiview import log_multiview
 
 __all__ = ["RecordLayers", "ARROW_GAIN", "INLIER", "OUTLIER"]
 
@@ -52,6 +53,7 @@ class RecordLayers:
         self._log_cells(record)
         self._log_series(record)
         self._log_world(record)
+        log_multiview(self.rec, record, self._time)
 
     def _time(self, t: int) -> None:
         self.rec.set_time("frame", sequence=int(t))

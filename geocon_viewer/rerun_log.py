@@ -234,7 +234,7 @@ def blueprint() -> rrb.Blueprint:
     frame_view = rrb.Spatial2DView(
         name="Frame + background matches",
         origin="frame",
-        contents=["+ frame/image", "+ frame/content", "+ frame/objects", "+ frame/matches/**"],
+        contents=["+ frame/image", "+ frame/content", "+ frame/objects", "+ frame/matches/**", "+ frame/multiview"],
     )
     residual_view = rrb.Spatial2DView(
         name="Residual map", origin="frame", contents=["+ frame/image", "+ frame/residual_map/**"]
@@ -249,6 +249,7 @@ def blueprint() -> rrb.Blueprint:
             rrb.Horizontal(frame_view, residual_view, object_view),
             rrb.Horizontal(
                 rrb.Tabs(
+                    rrb.Spatial3DView(name="One camera for the clip", origin="clip3d"),
                     rrb.Spatial3DView(name="First/last two-view geometry", origin="world"),
                     rrb.Spatial3DView(name="Gate window: dense cloud", origin="window"),
                 ),

@@ -40,8 +40,9 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
-from geocon_core.config import preset
+from geocon_core.config import MultiViewConfig, preset
 from geocon_core.diagnostics import FrameDiagnostics
+from geocon_core.record import ClipRecord
 from geocon_core.scorer import score_clip
 from geocon_core.verdict import Thresholds
 
@@ -65,7 +66,8 @@ __all__ = ["TeachApp", "TeachParams", "TeachUpdate", "PRESET", "DEBOUNCE_S", "HI
 log = logging.getLogger("geocon.teach")
 
 PRESET = "fast"
-"""The scoring preset of every update."""
+"""The scoring preset of every update, with the multi-view check on (a sliding panel flags the
+clip and the 3D panel shows the clip's one reconstruction)."""
 DISPLAY_WIDTH = 640
 """Width (px) the frame is shown at."""
 DEBOUNCE_S = 0.08
@@ -104,7 +106,7 @@ class TeachApp(ServedApp):
         self.params = params or TeachParams()
         self.debounce_s = debounce_s
         self.on_update = on_update
-        self.cfg = preset(PRESET)
+        self.cfg = preset(PRESET).with_(multiview=MultiViewConfig(enabled=True))
         self.updates: list[TeachUpdate] = []
         """The last :data:`HISTORY` updates shown, oldest first, without their frames."""
         self.last: TeachUpdate | None = None
@@ -404,6 +406,33 @@ class TeachApp(ServedApp):
                 f"{model_name(model)} ({model}, τ {tau:g} {unit}); red: outliers; objects tinted"
             )
 
+    def _draw_reconstruction(self, rec: ClipRecord, depth: float) -> None:
+        """The clip's one reconstruction beside the two-view cloud: its points coloured by residual
+        (a drifting layer in magenta), scaled to the same median distance; on a sphere for a
+        camera that only turns."""
+        from .rerun_multiview import residual_colors
+
+        scene, mv = self.server.scene, rec.multiview
+        if mv is None or mv.points is None or mv.residual is None or not len(mv.points):
+            scene.remove_by_name("/clip_points")
+            return
+        pts = np.asarray(mv.points, dtype=float)
+        ok = np.all(np.isfinite(pts), axis=1) & (pts[:, 2] > 0)
+        if not ok.any():
+            scene.remove_by_name("/clip_points")
+            return
+        dist = np.linalg.norm(pts, axis=1)
+        pts = pts / float(np.median(dist[ok])) * depth
+        ok &= dist <= 5 * float(np.median(dist[ok]))  # a few far points would shrink the rest to a dot
+        colors = residual_colors(mv.residual, rec.config.multiview.tau_px, mv.layer_of)[:, :3]
+        scene.add_point_cloud(
+            "/clip_points",
+            points=pts[ok].astype(np.float32),
+            colors=colors[ok],
+            point_size=0.015 * depth,
+            precision="float32",
+        )
+
     def _draw_scene(self, update: TeachUpdate) -> None:
         """The two-view cloud of the record, the first camera, the last one where the gate's pose
         puts it (orange) and where the renderer put it (grey), both at unit mean scene distance."""
@@ -427,6 +456,7 @@ class TeachApp(ServedApp):
         else:
             scene.remove_by_name("/cloud")
         scene.add_label("/note", "no point cloud" if cloud is None else cloud.note, position=(0.0, -0.15 * depth, 0.0))
+        self._draw_reconstruction(rec, depth)
 
         def frustum(name: str, T_cam0_cam: np.ndarray, color: tuple[int, int, int], t: int | None) -> None:
             img = None if t is None else update.frames.get(t)

@@ -87,7 +87,7 @@ class TeachParams:
 
     rotation_deg: float = 0.0
     """Pan to the left at the last frame, degrees."""
-    translation: float = 0.02
+    translation: float = 0.0
     """Camera travel to the right at the last frame, as a share of the mean scene distance."""
     breathing_px: float = 0.0
     """Peak displacement of the background's rubber-sheet warp, px (0: none)."""

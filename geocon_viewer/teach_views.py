@@ -159,6 +159,12 @@ def _verdict_clause(old: ClipRecord, rec: ClipRecord) -> str:
         return "too few pairs have a valid fit, so the background cannot be judged"
     if bg1.consistent:
         return f"IR {fmt(bg0.ir)} → {fmt(bg1.ir)}: the background passes the report gate again"
+    drift = rec.drift_finding()
+    if drift is not None and bg1.ir is not None and bg1.ir >= th.ir_gate:
+        return (
+            f"every pair still fits one {model_name(bg1.model)} (IR {fmt(bg1.ir)}), but the whole clip does not fit "
+            f"one camera: {drift}"
+        )
     if bg1.ir is not None and bg1.ir < th.ir_gate:
         return (
             f"IR {fmt(bg0.ir)} → {fmt(bg1.ir)} < {th.ir_gate:g}: no single {model_name(bg1.model)} fits the "
@@ -334,6 +340,23 @@ def _background_html(rec: ClipRecord, th: Thresholds) -> str:
         f"fundamental matrix (F) IR {fmt(f.ir if f else None)}"
         + _meter(h.ir if h else None, 0.5, 1.0, [(0.5, th.ir_gate, _FAIL, ""), (th.ir_gate, 1.0, _PASS, "")])
         + "</div>"
+        + _multiview_html(rec)
+    )
+
+
+def _multiview_html(rec: ClipRecord) -> str:
+    """The multi-view check's line: MV-IR, MV-GE and the drifting layer, if any."""
+    mv = rec.multiview
+    if mv is None:
+        return ""
+    if not mv.judged:
+        return f'<div style="margin-top:6px">one camera for the clip: cannot judge ({mv.reason})</div>'
+    layer = mv.layers[0].describe() if mv.layers else "no layer drifts against it"
+    colour = "#b00020" if mv.layers else "#2e7d32"
+    return (
+        f'<div style="margin-top:6px">one camera for the clip ({mv.model}, {len(mv.registered)} keyframes): '
+        f"MV-IR <b>{fmt(mv.mv_ir)}</b>, MV-GE <b>{fmt(mv.mv_ge, '.2f')} px</b> · "
+        f'<span style="color:{colour}">{layer}</span></div>'
     )
 
 

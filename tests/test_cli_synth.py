@@ -30,7 +30,16 @@ def test_synth_all_writes_every_family_and_failure_variant(tmp_path):
     families = {r["family"] for r in rows if r["failure"] is None}
     kinds = {r["failure"]["kind"] for r in rows if r["failure"]}
     assert families == set(FAMILIES)
-    assert kinds == {"breathing", "slide", "missing_parallax", "elastic", "boiling", "letterbox"}
+    assert kinds == {
+        "breathing",
+        "slide",
+        "slide_along",
+        "slide_across",
+        "missing_parallax",
+        "elastic",
+        "boiling",
+        "letterbox",
+    }
     for row in rows:
         cid = row["clip_id"]
         gt = load_ground_truth(tmp_path / f"{cid}.gt.json")

@@ -22,6 +22,7 @@ from geocon_core.config import (
     CutConfig,
     FlowConfig,
     MotionConfig,
+    MultiViewConfig,
     PoseConfig,
     ScanConfig,
     ScoreConfig,
@@ -97,6 +98,8 @@ def _first_valid(name: str, value: Any, build: Callable[[Any], ScoreConfig]) -> 
 
 
 VARIANTS = _variants()
+AUDIT_HASH = "57d09f1072a2f778"
+"""The hash of ``audit`` (renewed whenever a setting of it changes)."""
 
 
 def test_every_field_is_enumerated() -> None:
@@ -117,6 +120,14 @@ def test_every_field_changes_the_hash(name: str, config: ScoreConfig) -> None:
         assert config_hash(config) == config_hash(ScoreConfig()), name
         assert config_hash(config.with_(**{field: value})) != config_hash(ScoreConfig().with_(**{field: value}))
         return
+    if top == "multiview" and name != "multiview.enabled":
+        # the multi-view check's settings count once it is on (audit), and only then
+        assert config_hash(config) == config_hash(ScoreConfig()), name
+        on = dataclasses.replace(config.multiview, enabled=True)
+        assert config_hash(config.with_(multiview=on)) != config_hash(
+            ScoreConfig(multiview=MultiViewConfig(enabled=True))
+        )
+        return
     assert config_hash(config) != config_hash(ScoreConfig()), name
 
 
@@ -124,7 +135,8 @@ def test_adding_an_optional_backend_keeps_the_hashes_of_the_presets() -> None:
     # the hashes the presets had when SAM-2 and DUSt3R were added (an optional backend's settings
     # leave them alone), as renewed on 2026-11-26 by the scoring settings added then (independent
     # motion, the still-camera test, shots, chain lengths, gate windows, the untrusted share, fades)
-    assert config_hash(preset("audit")) == "de188b80dff97eb9"
+    # and on 2026-11-27 by the multi-view check in audit (paper, without it, kept its hash)
+    assert config_hash(preset("audit")) == AUDIT_HASH
     assert config_hash(preset("paper")) == "9406eeccc05e551f"
 
 

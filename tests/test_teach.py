@@ -90,6 +90,19 @@ def test_breathing_lowers_the_strict_ir_shown(app, capsys):
     assert after.explanation.startswith("Background breathing 12 px")
 
 
+def test_the_slide_slider_flags_the_clip_through_the_one_camera_check(app, capsys):
+    before = _at(app, capsys, TeachParams(rotation_deg=3.0))
+    assert before.record is not None and before.record.multiview is not None
+    assert not before.record.multiview.layers and before.record.background.consistent
+    after = _move(app, capsys, "slide_px", 12.0)
+    rec = after.record
+    assert rec is not None and rec.multiview is not None and rec.multiview.layers
+    assert rec.background.consistent is False and "drifts against the camera path" in rec.finding().reason
+    assert "one camera for the clip" in app.numbers.content and "drifts against the camera path" in app.numbers.content
+    assert "does not fit one camera" in after.explanation
+    assert app.server.scene  # the reconstruction's points are drawn beside the two-view cloud
+
+
 def test_elasticity_raises_the_objects_adadfrc(app, capsys):
     before = _at(app, capsys, TeachParams())
     after = _move(app, capsys, "elastic_px", 20.0)

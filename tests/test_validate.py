@@ -137,7 +137,7 @@ def test_quick_run_table_matches_its_records_and_the_planted_failure(tmp_path):
 
 def test_plan_covers_the_grid():
     cases = plan_cases(ValidationPlan(data=None))
-    assert len(cases) == 5 * 3 * (6 + 3 * 3)
+    assert len(cases) == 5 * 3 * (6 + 3 * 3 + 2 * 2 * 3)  # slide along and across on C2 and C3
     assert {c.width for c in cases} == {456, 682, 910, 1280, 1920}
     with pytest.raises(ValueError, match="unknown codec"):
         ValidationPlan(codecs=("mp3",))

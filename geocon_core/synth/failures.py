@@ -11,6 +11,8 @@ kind                      what it does                                          
                           background, oscillating with a 24-frame period
 ``slide``                 one background depth layer drifts in the image,          px at the
                           inconsistently with the camera, linearly in time         last frame
+``slide_along``           ``slide`` along the direction the camera's motion        px at the
+                          carries the layer (``slide_across``: across it)          last frame
 ``missing_parallax``      the background is rendered as if it were flatter:        fraction
                           each plane is blended towards one fronto-parallel        0..1
                           plane at the mean scene depth (1 = perfectly flat)
@@ -123,17 +125,21 @@ class Breathing(Failure):
 
 class Slide(Failure):
     """One background layer (the scene's ``slide_layer``) drifts by
-    ``severity * t / (T - 1)`` pixels along a fixed direction."""
+    ``severity * t / (T - 1)`` pixels along a fixed direction: within 30 degrees of the image's
+    horizontal, either way (seeded by the scene)."""
 
     kind = "slide"
 
     def __init__(self, scene: Scene, severity: float) -> None:
         super().__init__(scene, severity)
         self.layer = scene.notes["slide_layer"]
+        self.direction = self._direction(scene)
+        self._shape = (scene.height, scene.width, 2)
+
+    def _direction(self, scene: Scene) -> np.ndarray:
         rng = np.random.default_rng([scene.seed, 7101])
         ang = rng.uniform(-math.pi / 6, math.pi / 6) + rng.choice([0.0, math.pi])
-        self.direction = np.array([math.cos(ang), math.sin(ang)])
-        self._shape = (scene.height, scene.width, 2)
+        return np.array([math.cos(ang), math.sin(ang)])
 
     def shift(self, t: int) -> np.ndarray:
         """(2,) pixel shift of the sliding layer at frame t."""
@@ -150,6 +156,42 @@ class Slide(Failure):
             "direction": self.direction.tolist(),
             "formula": "shift_t = severity * t / (T-1) * direction",
         }
+
+
+def travel_direction(scene: Scene, layer: str) -> np.ndarray:
+    """Unit image direction (x right, y down) in which the camera's motion carries the centre of
+    background plane ``layer`` from the first frame to the last (the way its parallax runs); the
+    image's horizontal when the camera does not move it."""
+    plane = next(p for p in scene.background if p.name == layer)
+    h, w = plane.texture.shape[:2]
+    centre = plane.origin + (w - 1) / 2 * plane.axis_u + (h - 1) / 2 * plane.axis_v
+    a = project(scene.K, scene.T_cam_world[0], centre[None])[0]
+    b = project(scene.K, scene.T_cam_world[-1], centre[None])[0]
+    d = b - a
+    n = float(np.linalg.norm(d))
+    return d / n if n > 1e-6 else np.array([1.0, 0.0])
+
+
+class SlideAlong(Slide):
+    """:class:`Slide` along the layer's travel direction (:func:`travel_direction`), against it
+    or with it (seeded by the scene): the drift a two-view model reads as another depth."""
+
+    kind = "slide_along"
+
+    def _direction(self, scene: Scene) -> np.ndarray:
+        sign = np.random.default_rng([scene.seed, 7102]).choice([-1.0, 1.0])
+        return sign * travel_direction(scene, scene.notes["slide_layer"])
+
+
+class SlideAcross(Slide):
+    """:class:`Slide` across the layer's travel direction (perpendicular, either way, seeded)."""
+
+    kind = "slide_across"
+
+    def _direction(self, scene: Scene) -> np.ndarray:
+        sign = np.random.default_rng([scene.seed, 7103]).choice([-1.0, 1.0])
+        dx, dy = travel_direction(scene, scene.notes["slide_layer"])
+        return sign * np.array([-dy, dx])
 
 
 class MissingParallax(Failure):
@@ -341,6 +383,24 @@ FAILURES: dict[str, FailureSpec] = {
     for s in (
         FailureSpec("breathing", "px (peak displacement)", 3.0, 0.0, 50.0, "background rubber-sheet warp", Breathing),
         FailureSpec("slide", "px (drift at the last frame)", 8.0, 0.0, 200.0, "one depth layer slides", Slide),
+        FailureSpec(
+            "slide_along",
+            "px (drift at the last frame)",
+            8.0,
+            0.0,
+            200.0,
+            "a layer slides along its travel",
+            SlideAlong,
+        ),
+        FailureSpec(
+            "slide_across",
+            "px (drift at the last frame)",
+            8.0,
+            0.0,
+            200.0,
+            "a layer slides across its travel",
+            SlideAcross,
+        ),
         FailureSpec(
             "missing_parallax",
             "fraction of parallax removed",

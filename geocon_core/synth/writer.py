@@ -43,6 +43,8 @@ DEFAULT_FAILURE_VARIANTS: tuple[tuple[str, str], ...] = (
     ("C1", "boiling"),
     ("C2", "breathing"),
     ("C3", "slide"),
+    ("C2", "slide_across"),
+    ("C3", "slide_along"),
     ("C3", "missing_parallax"),
     ("C4", "elastic"),
     ("C5", "letterbox"),

@@ -53,14 +53,23 @@ LEVELS: tuple[str, ...] = ("low", "middle", "high")
 SEVERITIES: dict[str, tuple[float, float, float]] = {
     "breathing": (1.0, 2.0, 4.0),
     "slide": (4.0, 8.0, 16.0),
+    "slide_along": (4.0, 8.0, 16.0),
+    "slide_across": (4.0, 8.0, 16.0),
     "elastic": (2.0, 4.0, 8.0),
 }
 """Severity per failure at the low, middle and high level, in the failure's unit (source px: peak
 breathing displacement, slide drift at the last frame, peak elastic displacement). The same source
 pixels at every height: a generator's defect of a few pixels does not grow with the frame, and
 the issue's targets are stated in source pixels."""
-FAILURE_FAMILY: dict[str, str] = {"breathing": "C2", "slide": "C3", "elastic": "C4"}
-"""The scene family each failure is injected into (elastic needs moving objects)."""
+FAILURE_FAMILY: dict[str, tuple[str, ...]] = {
+    "breathing": ("C2",),
+    "slide": ("C3",),
+    "slide_along": ("C2", "C3"),
+    "slide_across": ("C2", "C3"),
+    "elastic": ("C4",),
+}
+"""The scene families each failure is injected into (elastic needs moving objects; a layer
+slides along and across its travel under a rotating (C2) and a translating (C3) camera)."""
 ANNOTATIONS_PATH = Path(__file__).resolve().parents[2] / "assets" / "validation" / "annotations.csv"
 """The annotation file kept in the project (one row per real clip, made by looking at frames)."""
 
@@ -247,11 +256,11 @@ def _synthetic_cases(plan: ValidationPlan) -> list[CaseSpec]:
                     CaseSpec(f"{family}__clean__h{height}__{codec}", "synthetic", family, height=height, codec=codec)
                 )
             for failure in plan.failures:
-                family = FAILURE_FAMILY[failure]
-                for level in plan.levels:
-                    severity = SEVERITIES[failure][LEVELS.index(level)]
-                    cid = f"{family}__{failure}-{level}__h{height}__{codec}"
-                    cases.append(CaseSpec(cid, "synthetic", family, failure, level, severity, height, codec))
+                for family in FAILURE_FAMILY[failure]:
+                    for level in plan.levels:
+                        severity = SEVERITIES[failure][LEVELS.index(level)]
+                        cid = f"{family}__{failure}-{level}__h{height}__{codec}"
+                        cases.append(CaseSpec(cid, "synthetic", family, failure, level, severity, height, codec))
     return cases
 
 

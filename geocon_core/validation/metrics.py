@@ -37,7 +37,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .cases import LEVELS, SEVERITIES
+from .cases import FAILURE_FAMILY, LEVELS, SEVERITIES
 from .results import CaseResult
 
 __all__ = [
@@ -365,27 +365,34 @@ def _detection_rows(rows: list[CaseResult]) -> list[MetricRow]:
     twins = _twins(rows)
     out = []
     for failure in SEVERITIES:
-        for level in LEVELS:
-            group = [r for r in rows if r.failure == failure and r.level == level]
-            if not group:
-                continue
-            sev = SEVERITIES[failure][LEVELS.index(level)]
-            target, ok = ("reported", None) if level == "low" else (">= 90% at every height", None)
-            row = _share(
-                "detection",
-                f"{failure} {level} ({sev:g} px)",
-                group,
-                lambda r: detected(r, twins.get((r.family, r.height, r.codec))),
-                target,
-                ok,
-                True,
-            )
-            if level != "low":
-                per_height = defaultdict(list)
-                for r in group:
-                    per_height[r.height].append(detected(r, twins.get((r.family, r.height, r.codec))))
-                row = replace(row, ok=all(sum(v) / len(v) >= 0.9 for v in per_height.values()))
-            out.append(row)
+        families = FAILURE_FAMILY.get(failure, ())
+        for family in families:
+            for level in LEVELS:
+                group = [
+                    r
+                    for r in rows
+                    if r.failure == failure and r.level == level and (len(families) == 1 or r.family == family)
+                ]
+                if not group:
+                    continue
+                sev = SEVERITIES[failure][LEVELS.index(level)]
+                target, ok = ("reported", None) if level == "low" else (">= 90% at every height", None)
+                where = f" on {family}" if len(families) > 1 else ""
+                row = _share(
+                    "detection",
+                    f"{failure} {level} ({sev:g} px){where}",
+                    group,
+                    lambda r: detected(r, twins.get((r.family, r.height, r.codec))),
+                    target,
+                    ok,
+                    True,
+                )
+                if level != "low":
+                    per_height = defaultdict(list)
+                    for r in group:
+                        per_height[r.height].append(detected(r, twins.get((r.family, r.height, r.codec))))
+                    row = replace(row, ok=all(sum(v) / len(v) >= 0.9 for v in per_height.values()))
+                out.append(row)
     return out
 
 

@@ -56,6 +56,14 @@ def checks() -> list[Check]:
     out_checks = [
         Check("core", "decoding", _have("av") and _have("cv2"), f"PyAV {_version('av')}, OpenCV {cv}"),
         Check("core", "transport (AdaDFRC-W2)", _have("ot"), f"POT {_version('POT')}"),
+        Check(
+            "core",
+            "bundle adjustment (multi-view check, audit)",
+            _have("pycolmap"),
+            f"pycolmap {_version('pycolmap')}"
+            if _have("pycolmap")
+            else "pycolmap is missing: pip install 'pycolmap==4.2.*'",
+        ),
         Check("features", "sift, sift_octaves, orb, klt, klt_tracks", True, f"OpenCV {cv}"),
         Check("flow", "dis", True, f"OpenCV {cv} (default, no weights)"),
         Check(
