@@ -265,4 +265,4 @@ def test_plan_rejects_unknown_names_and_bad_severities():
         plan_clips("C1", "elastic")
     assert ClipPlan("C4", "elastic", 4.0).clip_id == "c4_objects__elastic-s4"
     names = [p.clip_id for p in plan_clips("all")]
-    assert len(names) == 12 and len(set(names)) == 12
+    assert len(names) == 14 and len(set(names)) == 14  # six families and eight failure variants
