@@ -23,6 +23,8 @@ import cv2
 import numpy as np
 
 __all__ = [
+    "triangulate_views",
+    "refine_points",
     "intrinsics_from_fov",
     "rotation_xyz",
     "make_pose",
@@ -316,3 +318,46 @@ def cheirality_pose(
         if best is None or ok.sum() > best[2].sum():
             best = (np.asarray(R, dtype=float), t, ok)
     return best
+
+
+def triangulate_views(P: np.ndarray, xy: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Linear (DLT) triangulation of many points, each from the views that see it: projections
+    ``P`` (K, 3, 4), pixels ``xy`` (T, K, 2) and where each point is seen ``seen`` (T, K);
+    (T, 3), NaN where a point is seen fewer than twice or lies at infinity (the two-view case
+    is :func:`triangulate_dlt`)."""
+    x = np.nan_to_num(xy)
+    A = np.concatenate(
+        [x[..., 0:1] * P[None, :, 2] - P[None, :, 0], x[..., 1:2] * P[None, :, 2] - P[None, :, 1]], axis=1
+    )  # (T, 2K, 4)
+    w = np.concatenate([seen, seen], axis=1).astype(float)[..., None]
+    A = A * w
+    A = A / np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
+    _, _, vt = np.linalg.svd(A)
+    X = vt[:, -1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = X[:, :3] / X[:, 3:4]
+    out[(seen.sum(axis=1) < 2) | (np.abs(X[:, 3]) < 1e-12)] = np.nan
+    return out
+
+
+def refine_points(P: np.ndarray, xy: np.ndarray, seen: np.ndarray, X: np.ndarray, iterations: int = 6) -> np.ndarray:
+    """Each point moved to minimise its reprojection error over the views that see it, the
+    cameras ``P`` (K, 3, 4) held: damped Gauss-Newton, all points at once. A linear (DLT)
+    point is not the one that fits best, and a track that slides across its epipolar lines
+    reads a larger residual from it than it has."""
+    X = X.copy()
+    x = np.nan_to_num(xy)
+    for _ in range(iterations):
+        q = np.einsum("kij,tj->tki", P, np.c_[X, np.ones(len(X))])  # (T, K, 3)
+        z = q[..., 2:3]
+        ok = (z > 1e-9) & seen[..., None]
+        zs = np.where(ok, z, 1.0)
+        proj = q[..., :2] / zs
+        r = np.where(ok, proj - x, 0.0)
+        A = (P[None, :, :2, :3] - proj[..., None] * P[None, :, 2:3, :3]) / zs[..., None]  # d proj / d X
+        A = np.where(ok[..., None], A, 0.0)
+        JtJ = np.einsum("tkai,tkaj->tij", A, A)
+        Jtr = np.einsum("tkai,tka->ti", A, r)
+        damp = (1e-4 * np.trace(JtJ, axis1=1, axis2=2) + 1e-12)[:, None, None] * np.eye(3)
+        X = X - np.linalg.solve(JtJ + damp, Jtr[..., None])[..., 0]
+    return X

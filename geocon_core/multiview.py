@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from .features import _corners, _lk_forward_backward
+from .geometry import refine_points, triangulate_views
 from .stage_configs import MultiViewConfig
 
 __all__ = [
@@ -360,25 +361,6 @@ def _robust_rotation(
     return _kabsch(a[ok], b[ok]) if ok.sum() >= 3 else R, ok
 
 
-def _dlt(P: np.ndarray, xy: np.ndarray, seen: np.ndarray) -> np.ndarray:
-    """Linear (DLT) triangulation of every track at once: projections ``P`` (K, 3, 4), pixels
-    ``xy`` (T, K, 2) and where each track is seen ``seen`` (T, K); (T, 3), NaN where a track is
-    seen fewer than twice or its point is at infinity."""
-    x = np.nan_to_num(xy)
-    A = np.concatenate(
-        [x[..., 0:1] * P[None, :, 2] - P[None, :, 0], x[..., 1:2] * P[None, :, 2] - P[None, :, 1]], axis=1
-    )  # (T, 2K, 4)
-    w = np.concatenate([seen, seen], axis=1).astype(float)[..., None]
-    A = A * w
-    A = A / np.maximum(np.linalg.norm(A, axis=2, keepdims=True), 1e-12)
-    _, _, vt = np.linalg.svd(A)
-    X = vt[:, -1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = X[:, :3] / X[:, 3:4]
-    out[(seen.sum(axis=1) < 2) | (np.abs(X[:, 3]) < 1e-12)] = np.nan
-    return out
-
-
 def _spread_deg(centres: np.ndarray, X: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """(T,) widest angle (degrees) between the rays from the centres (K, 3) of the views that
     see each track to its point X (T, 3), taken between the first and the last such view."""
@@ -420,7 +402,7 @@ def _points(
         return {}
     seen = table.seen()[np.ix_(rows, reg)]
     P = np.stack([K @ poses[k] for k in reg])
-    X = _dlt(P, table.xy[np.ix_(rows, reg)], seen)
+    X = triangulate_views(P, table.xy[np.ix_(rows, reg)], seen)
     centres = np.stack([-poses[k][:, :3].T @ poses[k][:, 3] for k in reg])
     ok = np.all(np.isfinite(X), axis=1)
     ok[ok] &= _spread_deg(centres, X[ok], seen[ok]) >= min_angle
@@ -430,32 +412,9 @@ def _points(
     )
     ok &= np.all((depth > 0) | ~seen, axis=1)
     if refine and ok.any():
-        X[ok] = _refine_points(P, table.xy[np.ix_(rows, reg)][ok], seen[ok], X[ok])
+        X[ok] = refine_points(P, table.xy[np.ix_(rows, reg)][ok], seen[ok], X[ok])
         ok &= np.all(np.isfinite(X), axis=1)
     return {int(r): X[i] for i, r in enumerate(rows) if ok[i]}
-
-
-def _refine_points(P: np.ndarray, xy: np.ndarray, seen: np.ndarray, X: np.ndarray, iterations: int = 6) -> np.ndarray:
-    """Each point moved to minimise its reprojection error over the views that see it, the
-    cameras ``P`` (K, 3, 4) held: damped Gauss-Newton, all points at once. A linear (DLT)
-    point is not the one that fits best, and a track that slides across its epipolar lines
-    reads a larger residual from it than it has."""
-    X = X.copy()
-    x = np.nan_to_num(xy)
-    for _ in range(iterations):
-        q = np.einsum("kij,tj->tki", P, np.c_[X, np.ones(len(X))])  # (T, K, 3)
-        z = q[..., 2:3]
-        ok = (z > 1e-9) & seen[..., None]
-        zs = np.where(ok, z, 1.0)
-        proj = q[..., :2] / zs
-        r = np.where(ok, proj - x, 0.0)
-        A = (P[None, :, :2, :3] - proj[..., None] * P[None, :, 2:3, :3]) / zs[..., None]  # d proj / d X
-        A = np.where(ok[..., None], A, 0.0)
-        JtJ = np.einsum("tkai,tkaj->tij", A, A)
-        Jtr = np.einsum("tkai,tka->ti", A, r)
-        damp = (1e-4 * np.trace(JtJ, axis1=1, axis2=2) + 1e-12)[:, None, None] * np.eye(3)
-        X = X - np.linalg.solve(JtJ + damp, Jtr[..., None])[..., 0]
-    return X
 
 
 # ---------------------------------------------------------------------------------------------

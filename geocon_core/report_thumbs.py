@@ -49,7 +49,7 @@ JPEG_QUALITY = 80
 INLIER_RGB = (40, 210, 60)
 OUTLIER_RGB = (255, 40, 40)
 LAYER_RGB = (230, 60, 220)
-"""Colour of a drifting layer's tracks (as the viewers draw them)."""
+"""Colour of a drifting layer's tracks, in the report and both viewers."""
 
 
 @dataclass(frozen=True)

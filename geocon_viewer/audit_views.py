@@ -25,7 +25,7 @@ from geocon_core.results import ResultClip
 from geocon_core.verdict import ClipVerdict, Thresholds
 
 from .clouds import dense_points
-from .style import EMPTY, dense_legend, fmt, object_color
+from .style import EMPTY, dense_legend, fmt, object_color, track_colors
 
 INLIER = (60, 200, 90)
 OUTLIER = (235, 60, 50)
@@ -303,13 +303,11 @@ def _look(server: viser.ViserServer, look_at: Any, position: Any) -> None:
 def render_reconstruction(server: viser.ViserServer, view: ClipView) -> Any:
     """The clip's one reconstruction: its points coloured by residual (the drifting layer in
     magenta), the camera path, and the current keyframe's camera (:func:`move_clip_camera`)."""
-    from .rerun_multiview import residual_colors
-
     scene, rec = server.scene, view.record
     mv = rec.multiview
     assert mv is not None and mv.cam_from_world is not None and mv.points is not None and mv.residual is not None
     pts = np.asarray(mv.points, dtype=float) * (10.0 if mv.model == "H" else 1.0)
-    colors = residual_colors(mv.residual, rec.config.multiview.tau_px, mv.layer_of)[:, :3]
+    colors = track_colors(mv.residual, rec.config.multiview.tau_px, mv.layer_of)
     ok = np.all(np.isfinite(pts), axis=1)
     if ok.any():
         lo, hi = np.percentile(pts[ok], [2, 98], axis=0)

@@ -15,24 +15,14 @@ import rerun as rr
 
 from geocon_core.record import ClipRecord
 
-__all__ = ["LAYER_RGBA", "log_multiview", "residual_colors"]
+from .style import LAYER_RGB, track_colors
 
-LAYER_RGBA = (230, 60, 220, 255)
+__all__ = ["LAYER_RGBA", "log_multiview"]
+
+LAYER_RGBA = (*LAYER_RGB, 255)
 """Colour of the tracks of a drifting layer."""
 _SPHERE = 10.0
 """Radius of the sphere a rotation-only reconstruction's points are drawn on (world units)."""
-
-
-def residual_colors(residual: np.ndarray, tau_px: float, layer_of: np.ndarray | None = None) -> np.ndarray:
-    """(N, 4) uint8 RGBA: green at 0 px through yellow at ``tau_px`` to red at three times it;
-    tracks of a layer (``layer_of >= 0``) in :data:`LAYER_RGBA`."""
-    u = np.clip(np.asarray(residual, dtype=float) / (3.0 * tau_px), 0.0, 1.0)
-    red = np.clip(2.0 * u, 0.0, 1.0)
-    green = np.clip(2.0 * (1.0 - u), 0.0, 1.0)
-    out = np.stack([red * 255, green * 220, np.full_like(u, 40.0), np.full_like(u, 255.0)], axis=1).astype(np.uint8)
-    if layer_of is not None:
-        out[np.asarray(layer_of) >= 0] = LAYER_RGBA
-    return out
 
 
 def log_multiview(rec: rr.RecordingStream, record: ClipRecord, set_time) -> bool:
@@ -48,7 +38,7 @@ def log_multiview(rec: rr.RecordingStream, record: ClipRecord, set_time) -> bool
         rec.log("clip3d/note", rr.TextDocument(why), static=True)
         return False
     tau = record.config.multiview.tau_px
-    colors = residual_colors(mv.residual, tau, mv.layer_of)
+    colors = track_colors(mv.residual, tau, mv.layer_of)
     poses = np.asarray(mv.cam_from_world, dtype=float)
     centres = np.stack([-P[:, :3].T @ P[:, 3] for P in poses]) if len(poses) else np.zeros((0, 3))
     pts = np.asarray(mv.points, dtype=float)

@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 
+from geocon_core.report_thumbs import LAYER_RGB
+
 __all__ = ["EMPTY", "fmt", "object_color", "dense_colors", "dense_legend", "OUTLIER_SPAN"]
 
 EMPTY = "n/a"
@@ -62,3 +64,14 @@ def dense_legend(tau_px: float) -> list[tuple[str, tuple[int, int, int]]]:
         (f"outlier, residual >= {OUTLIER_SPAN * tau_px:g} px", OUTLIER_HIGH),
         ("moving object (not background)", DENSE_OBJECT),
     ]
+
+
+def track_colors(residual: np.ndarray, tau_px: float, layer_of: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) uint8 colours of the multi-view check's tracks by their residual (px), in the dense
+    clouds' scheme (:func:`dense_colors`: green within ``tau_px``, yellow to red beyond), the
+    tracks of a layer (``layer_of >= 0``) in the report's ``LAYER_RGB``."""
+    r = np.asarray(residual, float)
+    rgb = dense_colors(r, (r > tau_px).astype(int), tau_px)
+    if layer_of is not None:
+        rgb[np.asarray(layer_of) >= 0] = LAYER_RGB
+    return rgb

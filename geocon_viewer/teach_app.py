@@ -49,6 +49,7 @@ from geocon_core.verdict import Thresholds
 from .audit_views import thumb
 from .processes import check_bind
 from .served import ServedApp
+from .style import track_colors
 from .teach_scene import FAMILY, SIZES, SLIDERS, TeachParams, mean_distance, render_teach_clip
 from .teach_views import (
     TeachUpdate,
@@ -410,8 +411,6 @@ class TeachApp(ServedApp):
         """The clip's one reconstruction beside the two-view cloud: its points coloured by residual
         (a drifting layer in magenta), scaled to the same median distance; on a sphere for a
         camera that only turns."""
-        from .rerun_multiview import residual_colors
-
         scene, mv = self.server.scene, rec.multiview
         if mv is None or mv.points is None or mv.residual is None or not len(mv.points):
             scene.remove_by_name("/clip_points")
@@ -424,7 +423,7 @@ class TeachApp(ServedApp):
         dist = np.linalg.norm(pts, axis=1)
         pts = pts / float(np.median(dist[ok])) * depth
         ok &= dist <= 5 * float(np.median(dist[ok]))  # a few far points would shrink the rest to a dot
-        colors = residual_colors(mv.residual, rec.config.multiview.tau_px, mv.layer_of)[:, :3]
+        colors = track_colors(mv.residual, rec.config.multiview.tau_px, mv.layer_of)
         scene.add_point_cloud(
             "/clip_points",
             points=pts[ok].astype(np.float32),
