@@ -1,7 +1,7 @@
 """Scores unchanged? Score the same clips with the code at two git refs and compare every headline number.
 
     python benchmarks/compare_scores.py --before REF [--after REF|worktree] [--clips PATTERN ...]
-        [--out DIR] [--max-frames N] [--cache DIR] [--jobs 2]
+        [--out DIR] [--max-frames N] [--cache DIR] [--jobs 2] [--preset paper]
 
 Clips: the synthetic families C1..C6 (clean), C2 with breathing (also scored with the ``strict``
 preset), C4 with an elastic object, C4 with its external masks, and every video in
@@ -39,7 +39,7 @@ import tarfile
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -314,11 +314,24 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "geocon" / "compare_scores")
     p.add_argument("--data", type=Path, default=DATA, help="real clips (default: ../shared/data)")
     p.add_argument("--jobs", type=int, default=2, help="clips scored at once")
+    p.add_argument("--preset", default="paper", help="the preset every clip is scored with (default: paper)")
     return p.parse_args(argv)
 
 
 def resolve(ref: str) -> str:
     return git("rev-parse", "--verify", f"{ref}^{{commit}}")
+
+
+def select_jobs(args: argparse.Namespace, before_tree: Path, before_commit: str, cache: Path) -> list[Job]:
+    """The clips ``args`` asks for, with the preset and frame cap it gives."""
+    jobs = render_synthetic(before_tree, before_commit, cache) + real_jobs(args.data)
+    if args.clips:
+        jobs = [j for j in jobs if any(fnmatch.fnmatch(j.name, pat) for pat in args.clips)]
+    if args.preset != "paper":
+        jobs = [replace(j, preset=args.preset) if j.preset == "paper" else j for j in jobs]
+    if args.max_frames:
+        jobs = [cap_frames(j, args.max_frames, cache) for j in jobs]
+    return jobs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -333,11 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         after_tree = ROOT if after_commit is None else export_ref(after_commit, tmp / "after")
         out = args.out.resolve() if args.out else tmp / "records"
 
-        jobs = render_synthetic(before_tree, before_commit, cache) + real_jobs(args.data)
-        if args.clips:
-            jobs = [j for j in jobs if any(fnmatch.fnmatch(j.name, pat) for pat in args.clips)]
-        if args.max_frames:
-            jobs = [cap_frames(j, args.max_frames, cache) for j in jobs]
+        jobs = select_jobs(args, before_tree, before_commit, cache)
         if not jobs:
             print("no clips selected", file=sys.stderr)
             return 2

@@ -153,6 +153,10 @@ class ScoreConfig:
     object's masks in those frames. 1 (the paper) scores adjacent frames; a deformation that
     oscillates over many frames changes a few tenths of a pixel per frame, under the flow's
     noise, and grows with the gap while the noise of a rigid object grows far less."""
+    object_scales: str = "all"
+    """The scales AdaDFRC scores objects at: ``all`` (the paper: every scale of ``scales``) or
+    ``top`` (the largest only: an object's headline scores are those of the largest scale, so the
+    others are reported but decide nothing)."""
     object_edge_px: int = 0
     """AdaDFRC leaves out the object pixels within this many pixels (of the image the flow is
     computed on, at every scale) of the mask's edge: a dense flow mixes the motions on both sides
@@ -267,6 +271,8 @@ class ScoreConfig:
                 "max_mask_jump must be >= 0 and mask_jump_window >= 1, "
                 f"got {self.max_mask_jump}, {self.mask_jump_window}"
             )
+        if self.object_scales not in ("all", "top"):
+            raise ValueError(f"object_scales must be 'all' or 'top', got {self.object_scales!r}")
         if self.object_gap < 1 or self.object_edge_px < 0 or self.min_object_pairs < 1:
             raise ValueError(
                 "object_gap and min_object_pairs must be at least 1 and object_edge_px >= 0, got "
@@ -349,7 +355,8 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "the masks did not cover whole) are left out of IR and counted; a camera whose frame stays still "
         "between its first and last frame (dense flow, 15% of the content or more, movers left out) is "
         "gated as still and judged on its still pixels; clips with hard cuts or cross-fades (up to 30 "
-        "frames) are judged shot by shot; "
+        "frames) are judged shot by shot; objects are scored at the largest scale only (their headline "
+        "scores); "
         "a clip the first-last pose gates H whose 16-frame gate window reads t_inf above 0.03 is in the "
         "gray zone (both families fitted); a failing background half of whose matches moved on their "
         "own cannot be judged; "
@@ -367,6 +374,7 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             refine_object_masks=True,
             object_gap=4,
             object_edge_px=8,
+            object_scales="top",
             independent=IndependentConfig(enabled=True),
             still_share=0.15,
             judge_shots=True,
@@ -440,6 +448,10 @@ def _fields_of(cls: type, d: dict[str, Any], where: str) -> dict[str, Any]:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
 
 
+LATER_DEFAULTS: dict[str, Any] = {"object_scales": "all"}
+"""Settings added after configurations were first hashed, with the value that behaves as before
+they existed: at that value a setting is left out of the hash, so earlier records keep theirs."""
+
 UNUSED_BACKENDS: dict[str, tuple[str, str]] = {"sam2": ("masks", "sam2"), "dust3r": ("pose_backend", "dust3r")}
 """Settings of an optional backend (key) that count only when the field names it (field, value)."""
 
@@ -454,5 +466,8 @@ def config_hash(config: ScoreConfig) -> str:
             d.pop(key, None)
     if not config.multiview.enabled:  # off: its settings cannot change a number
         d.pop("multiview", None)
+    for name, default in LATER_DEFAULTS.items():  # at the earlier behaviour: the earlier hash
+        if d.get(name) == default:
+            d.pop(name, None)
     blob = json.dumps(d, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

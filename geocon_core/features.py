@@ -205,8 +205,9 @@ class SiftOctaveMatcher(SiftMatcher):
         if top != 1.0 or any(abs(k - round(k)) > 1e-9 for k in coarse.values()):
             return {s: self.extract(g, m, frame, s) for s, (g, m) in inputs.items()}
         gray, mask = inputs[top]
-        kps, desc = cv2.SIFT_create().detectAndCompute(gray, mask.astype(np.uint8) * 255)  # type: ignore[attr-defined]
-        if desc is None or len(kps) == 0:
+        sift = cv2.SIFT_create()  # type: ignore[attr-defined]  # in cv2, missing from its stubs
+        kps = sift.detect(gray, mask.astype(np.uint8) * 255)
+        if len(kps) == 0:
             return {
                 s: FeatureSet(frame, s, np.zeros((0, 2), np.float32), np.zeros((0, 0), np.float32), None, m)
                 for s, (_, m) in inputs.items()
@@ -216,7 +217,7 @@ class SiftOctaveMatcher(SiftMatcher):
         octave = np.array([k.octave & 255 for k in kps], np.int64)
         octave[octave > 127] -= 256
         order = np.argsort(-response, kind="stable")
-        out = {}
+        chosen = {}
         for s, (_, m) in inputs.items():
             k = 0 if s == top else round(coarse[s])
             sel = order[octave[order] >= k - 1] if k else order
@@ -225,9 +226,19 @@ class SiftOctaveMatcher(SiftMatcher):
                 ok = _inside(m, xs)
                 sel, xs = sel[ok], xs[ok]
             n = max(64, round(self.max_features * s))
-            sel, xs = sel[:n], xs[:n]
-            out[s] = FeatureSet(frame=frame, scale=s, xy=np.ascontiguousarray(xs), desc=desc[sel], image=None, mask=m)
-        return out
+            chosen[s] = (sel[:n], xs[:n], m)
+        # descriptors of the chosen keypoints only (a frame has tens of thousands of keypoints):
+        # SIFT describes a given keypoint exactly as its own detect-and-describe pass would
+        used = np.unique(np.concatenate([sel for sel, _, _ in chosen.values()]))
+        described, desc = sift.compute(gray, [kps[i] for i in used])
+        if desc is None or len(described) != len(used):
+            raise RuntimeError("SIFT did not describe every keypoint it was given")
+        row = np.full(len(kps), -1, np.int64)
+        row[used] = np.arange(len(used))
+        return {
+            s: FeatureSet(frame=frame, scale=s, xy=np.ascontiguousarray(xs), desc=desc[row[sel]], image=None, mask=m)
+            for s, (sel, xs, m) in chosen.items()
+        }
 
 
 class OrbMatcher(_DescriptorMatcher):

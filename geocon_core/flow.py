@@ -50,7 +50,9 @@ Backends
     of 8 and at least 128 px. Forward and backward flow run as one batch of two, and the same
     forward-backward rule as DIS decides reliability (the ``fb_abs``, ``fb_rel`` and ``margin``
     of :class:`~geocon_core.stage_configs.FlowConfig`; its DIS preset does not apply). A GPU is
-    used when torch sees one. ``make_flow_backend("raft", checkpoint=PATH)``.
+    used when torch sees one. :meth:`RaftFlow.compute_both_many` gives the fields of many frame
+    pairs with several pairs per network call (a GPU's throughput; ``benchmarks/bench_gpu.py``).
+    ``make_flow_backend("raft", checkpoint=PATH)``.
 """
 
 from __future__ import annotations
@@ -187,14 +189,27 @@ class _RegionFlow:
         """The forward field ``gray0 -> gray1`` (on ``gray0``'s pixels) and the backward field
         ``gray1 -> gray0`` (on ``gray1``'s pixels) over the same ``box``, each with its own
         forward-backward check; one pair of flow runs serves both."""
+        box, region, a, b = self._region(gray0, gray1, box)
+        return self._fields(box, region, *self._both(a, b))
+
+    def _region(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None) -> tuple[Box, Box, np.ndarray, np.ndarray]:
+        """The checked ``box``, the computed region (the box grown by the margin, clipped to the
+        frame) and the two images cut to that region."""
         _check_images(gray0, gray1)
         h, w = gray0.shape
         x0, y0, x1, y1 = _check_box(box, (h, w))
         m = self.config.margin
-        rx0, ry0, rx1, ry1 = max(0, x0 - m), max(0, y0 - m), min(w, x1 + m), min(h, y1 + m)
+        region = (max(0, x0 - m), max(0, y0 - m), min(w, x1 + m), min(h, y1 + m))
+        rx0, ry0, rx1, ry1 = region
         a = np.ascontiguousarray(gray0[ry0:ry1, rx0:rx1])
         b = np.ascontiguousarray(gray1[ry0:ry1, rx0:rx1])
-        fwd, bwd = self._both(a, b)
+        return (x0, y0, x1, y1), region, a, b
+
+    def _fields(self, box: Box, region: Box, fwd: np.ndarray, bwd: np.ndarray) -> tuple[FlowField, FlowField]:
+        """The forward and backward fields over ``box`` of the flows ``fwd`` and ``bwd`` of
+        ``region``, each with its forward-backward check."""
+        x0, y0, x1, y1 = box
+        rx0, ry0 = region[:2]
         err_f, rel_f = forward_backward(fwd, bwd, self.config.fb_abs, self.config.fb_rel)
         err_b, rel_b = forward_backward(bwd, fwd, self.config.fb_abs, self.config.fb_rel)
         sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
@@ -202,7 +217,7 @@ class _RegionFlow:
         for flow, err, rel in ((fwd, err_f, rel_f), (bwd, err_b, rel_b)):
             out.append(
                 FlowField(
-                    box=(x0, y0, x1, y1),
+                    box=box,
                     flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
                     reliable=np.ascontiguousarray(rel[sl]),
                     fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
@@ -278,21 +293,47 @@ class RaftFlow(_RegionFlow):
         return f"RaftFlow(device={self.device!r}, fb_abs={self.config.fb_abs}, fb_rel={self.config.fb_rel})"
 
     def _both(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self._run([(a, b)])[0]
+
+    def _run(self, regions: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Forward and backward flow of every pair of same-size regions, all in one network call
+        (a batch of ``2 * len(regions)``: each pair's forward, then its backward)."""
         import torch
 
         from .raft import MIN_SIDE
 
-        h, w = a.shape
+        h, w = regions[0][0].shape
         ph = max(MIN_SIDE, -(-h // 8) * 8) - h
         pw = max(MIN_SIDE, -(-w // 8) * 8) - w
-        pads = [cv2.copyMakeBorder(g, 0, ph, 0, pw, cv2.BORDER_REPLICATE) for g in (a, b)]
-        rgb = [torch.from_numpy(np.repeat(g[None], 3, axis=0)).float() for g in pads]
+        first, second = [], []
+        for a, b in regions:
+            pads = [cv2.copyMakeBorder(g, 0, ph, 0, pw, cv2.BORDER_REPLICATE) for g in (a, b)]
+            rgb = [torch.from_numpy(np.repeat(g[None], 3, axis=0)).float() for g in pads]
+            first += [rgb[0], rgb[1]]
+            second += [rgb[1], rgb[0]]
         with self._lock, torch.no_grad():
-            flow = self.model(
-                torch.stack([rgb[0], rgb[1]]).to(self.device), torch.stack([rgb[1], rgb[0]]).to(self.device)
-            )
+            flow = self.model(torch.stack(first).to(self.device), torch.stack(second).to(self.device))
         out = flow.permute(0, 2, 3, 1).cpu().numpy()[:, :h, :w]
-        return np.ascontiguousarray(out[0]), np.ascontiguousarray(out[1])
+        return [(np.ascontiguousarray(out[2 * i]), np.ascontiguousarray(out[2 * i + 1])) for i in range(len(regions))]
+
+    def compute_both_many(
+        self, pairs: Sequence[tuple[np.ndarray, np.ndarray]], box: Box | None = None, *, batch: int = 8
+    ) -> list[tuple[FlowField, FlowField]]:
+        """:meth:`compute_both` of every ``(gray0, gray1)`` in ``pairs`` (frames of one size, the
+        same ``box``), ``batch`` pairs per network call (``2 * batch`` images on the device, each
+        pair's correlation volume among them); the same fields as one call per pair, up to the
+        float rounding of batched convolutions."""
+        if batch < 1:
+            raise ValueError(f"batch must be at least 1, got {batch}")
+        cut = [self._region(g0, g1, box) for g0, g1 in pairs]
+        if len({c[1] for c in cut}) > 1:
+            raise ValueError("compute_both_many needs frames of one size")
+        out: list[tuple[FlowField, FlowField]] = []
+        for start in range(0, len(cut), batch):
+            chunk = cut[start : start + batch]
+            flows = self._run([(a, b) for _, _, a, b in chunk])
+            out += [self._fields(c[0], c[1], fwd, bwd) for c, (fwd, bwd) in zip(chunk, flows, strict=True)]
+        return out
 
 
 class FlowChain:

@@ -46,6 +46,7 @@ Decisions, made exact:
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from typing import Collection, Sequence
 
@@ -204,8 +205,26 @@ def w2_cost(predicted: np.ndarray, observed: np.ndarray, weights: np.ndarray) ->
     return min(max(value, 0.0), identity)
 
 
+POT_BACKENDS_OFF = (
+    "POT_BACKEND_DISABLE_PYTORCH",
+    "POT_BACKEND_DISABLE_JAX",
+    "POT_BACKEND_DISABLE_CUPY",
+    "POT_BACKEND_DISABLE_TENSORFLOW",
+)
+"""POT's switches for its optional array backends. AdaDFRC hands POT NumPy arrays; with its
+backends on, importing POT imports every array library it finds (PyTorch: about 180 MiB of
+memory and two seconds), so the scorer switches them off unless the environment says otherwise."""
+
+
+def quiet_pot_backends() -> None:
+    """Set :data:`POT_BACKENDS_OFF` in the environment, where not already set, before POT is imported."""
+    for key in POT_BACKENDS_OFF:
+        os.environ.setdefault(key, "1")
+
+
 def _transport(cost: np.ndarray, marginal: np.ndarray) -> float:
     """Optimal transport value with equal row and column marginals (summing to 1)."""
+    quiet_pot_backends()
     import ot  # POT: imported where used (about 1 s on first import)
 
     value, log = ot.emd2(marginal, marginal, np.ascontiguousarray(cost), numItermax=_EMD_MAX_ITER, log=True)

@@ -48,7 +48,7 @@ from .pose.chain import chain_hops, chain_lengths, compose_chain, select_hops
 from .pose.still import still_pose, still_share
 from .reader import ClipInfo, Frame, iter_frames, probe_clip
 from .record import ClipRecord, PointCloud, PointMaps
-from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, refine_object_mask
+from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, quiet_pot_backends, refine_object_mask
 from .schedule import StreamSchedule, gate_windows
 
 __all__ = ["score_clip", "software_versions"]
@@ -71,6 +71,69 @@ class _Timer:
             with self.lock:
                 self.sink[stage] = self.sink.get(stage, 0.0) + now - start
         return now
+
+
+class _SharedMatches:
+    """Matches of the frame pairs two stages need alike (a chain hop that is also a gap-1 pair:
+    the pose and the pair fit match the same top-scale features): made once by whichever stage
+    asks first, handed to the second, then dropped. Matching is deterministic, so the numbers are
+    those of matching twice."""
+
+    def __init__(self, keys: set[tuple[int, int, float]]) -> None:
+        self._uses = dict.fromkeys(keys, 2)
+        self._made: dict[tuple[int, int, float], Future] = {}
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple[int, int, float], make: Callable[[], tuple[np.ndarray, np.ndarray]]):
+        """The matches of ``key`` (t0, t1, scale): ``make()`` unless another stage made them."""
+        with self._lock:
+            if key not in self._uses:
+                fut = None
+            else:
+                fut = self._made.get(key)
+                first = fut is None
+                if first:
+                    fut = self._made[key] = Future()
+                self._uses[key] -= 1
+                if not self._uses[key]:
+                    del self._uses[key], self._made[key]
+        if fut is None:
+            return make()
+        if first:
+            try:
+                fut.set_result(make())
+            except BaseException as error:  # the second asker sees the same error
+                fut.set_exception(error)
+                raise
+        return fut.result()
+
+
+class _DeferredPose:
+    """A chain hop's pose, estimated only when asked for (:meth:`result`): the hops of a clip or a
+    shot stand in for its first-last pose only when that pose fails, so most clips never need
+    them. The matches are kept (float32, as the features hold them; converted back exactly) with
+    the pair's seed, so the estimate is the one made at once."""
+
+    def __init__(self, backend: PoseBackend, x0: np.ndarray, x1: np.ndarray, K: np.ndarray, seed: int) -> None:
+        self.backend, self.K, self.seed = backend, K, seed
+        self.x0, self.x1 = x0.astype(np.float32), x1.astype(np.float32)
+
+    def result(self) -> PoseEstimate:
+        return self.backend.estimate(self.x0.astype(np.float64), self.x1.astype(np.float64), self.K, seed=self.seed)
+
+
+def _resolve(
+    by_window: dict[tuple[int, int], Any], keys: Sequence[tuple[int, int]], workers: int, timer: _Timer
+) -> None:
+    """Estimate the deferred poses among ``keys`` of ``by_window`` (in place), ``workers`` at a time."""
+    todo = [k for k in keys if isinstance(by_window.get(k), _DeferredPose)]
+    if not todo:
+        return
+    start = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for k, est in zip(todo, pool.map(lambda k: by_window[k].result(), todo), strict=True):
+            by_window[k] = est
+    timer.add("pose", start)
 
 
 class _Pipeline:
@@ -117,6 +180,12 @@ class _Pipeline:
             LongTracks(config.multiview, info.num_frames, info.working_size) if config.multiview.enabled else None
         )
         """The multi-view check's long tracks (:mod:`geocon_core.multiview`), when it is on."""
+        self.shared = _SharedMatches(set())
+        """Matches two stages need alike (set by :func:`score_clip` once the pose windows are known)."""
+        self.object_scales = (self.s_max,) if config.object_scales == "top" else tuple(config.scales)
+        """The scales objects are scored at (``ScoreConfig.object_scales``)."""
+        self.deferred: frozenset[tuple[int, int]] = frozenset()
+        """Pose windows whose estimate waits until asked for (chain hops: :class:`_DeferredPose`)."""
 
     # --- masks (the mask lane) -----------------------------------------------------------------
     def push(self, frame: Frame) -> None:
@@ -209,7 +278,7 @@ class _Pipeline:
                 results.extend(self.skip_pair(t0, t1, gap, "scale_too_small", scales=(s,)))
                 continue
             start = time.perf_counter()
-            x1, x2 = self.matcher.match(a[s], b[s])
+            x1, x2 = self.shared.get((t0, t1, s), partial(self.matcher.match, a[s], b[s]))
             n_gross = 0
             if cfg.gross_match_share > 0:
                 h, w = a[s].mask.shape
@@ -245,8 +314,8 @@ class _Pipeline:
     ) -> tuple[list[ObjectPairScore], list[ObjectFlow]]:
         """AdaDFRC of every object of ``frames[0]`` (frame t0) on the pair (t0, t1) of the first and
         last of ``frames`` (consecutive frames, ``object_gap + 1`` of them, with their labels), at
-        every scale, and the flow slices at scale 1 (kept only when diagnostics are streamed). Over
-        more than one hop the flow is composed over the consecutive frames
+        each scale of :attr:`object_scales`, and the flow slices at scale 1 (kept only when
+        diagnostics are streamed). Over more than one hop the flow is composed over the consecutive frames
         (:func:`~geocon_core.flow.chained_flow`) on the box of the object's masks in all of them."""
         start = time.perf_counter()
         out: list[ObjectPairScore] = []
@@ -254,10 +323,10 @@ class _Pipeline:
         f0, f1 = frames[0], frames[-1]
         ids = [int(i) for i in np.unique(labels[0]) if i]
         if skip is not None or not ids:
-            out = [ObjectPairScore(oid, f0.index, f1.index, s, None, skip) for s in self.config.scales for oid in ids]
+            out = [ObjectPairScore(oid, f0.index, f1.index, s, None, skip) for s in self.object_scales for oid in ids]
             self.timer.add("objects", start)
             return out, flows
-        for s in self.config.scales:
+        for s in self.object_scales:
             grays = [_scaled(f.gray, s, cv2.INTER_AREA) for f in frames]
             labs = [_scaled(lab, s, cv2.INTER_NEAREST) for lab in labels]
             lab = labs[0]
@@ -294,13 +363,17 @@ class _Pipeline:
         """The relative pose (t0 -> t1); with ``first`` (frame t0), also the two-view point cloud."""
         a, b = fa.result()[self.s_max], fb.result()[self.s_max]
         start = time.perf_counter()
-        x0, x1 = self.matcher.match(a, b)
+        x0, x1 = self.shared.get((t0, t1, self.s_max), partial(self.matcher.match, a, b))
+        seed = _pair_seed(self.config.seed, t0, t1, 99)
+        if first is None and (t0, t1) in self.deferred:
+            self.timer.add("pose", start)
+            return _DeferredPose(self.backend, x0, x1, self.K_pose, seed)
         if first is not None and self.anchor_rgb is not None:
             frames_backend: Any = self.backend
             rgb1, box = self.anchor_rgb[t1], self.info.content_box
             est, self.pointmaps = frames_backend.estimate_frames(first.rgb, rgb1, box, self.K_pose, (t0, t1))
         else:
-            est = self.backend.estimate(x0, x1, self.K_pose, seed=_pair_seed(self.config.seed, t0, t1, 99))
+            est = self.backend.estimate(x0, x1, self.K_pose, seed=seed)
         self.timer.add("pose", start)
         if first is None:
             return est
@@ -591,6 +664,7 @@ def score_clip(
         cfg = cfg.with_(masks="external")
     timer = _Timer(timings)
     if cfg.masks != "none":
+        quiet_pot_backends()
         _import_aside("ot")  # AdaDFRC's transport solver
     # a pose log, external masks and flow weights are checked before the clip is decoded
     backend = load_pose_log(pose_log) if pose_log is not None else _pose_backend(cfg, dust3r_checkpoint, dust3r_path)
@@ -628,6 +702,15 @@ def score_clip(
         pose_windows += [w for w in (shot, *shot_hops[shot]) if w[1] > w[0] and w != (0, n - 1)]
     pose_windows += [h for h in hops if h not in pose_windows]
     pose_windows = list(dict.fromkeys(pose_windows))
+    # a chain hop is estimated only if the first-last pose of its clip or shot fails
+    stages.deferred = frozenset(set(hops).union(*shot_hops.values()) - {*windows, *shots, (0, n - 1)})
+    stages.shared = _SharedMatches(
+        {
+            (t0, t1, stages.s_max)
+            for t0, t1 in [*pose_windows, (0, n - 1)]
+            if t1 - t0 in cfg.gaps and info.pair_skip_reason(t0, t1) is None
+        }
+    )
     emit = None if on_frame is None else partial(stages.emit, on_frame)
     workers = workers or min(2, os.cpu_count() or 1)
     object_gap = min(cfg.object_gap, max(1, n - 1))  # a clip shorter than the gap: its first and last frame
@@ -639,10 +722,14 @@ def score_clip(
     pose, cloud = out.first_last
     by_window = dict(out.windows)
     if not pose.pose_present and hops:
+        _resolve(by_window, hops, workers, timer)
         pose = _chain_pose((0, n - 1), by_window, hops, pose, cfg) or pose
     if stages.still_frames and not shots:  # with cuts, each shot is tested on its own
         pose = stages.still_test((0, n - 1), pose, K)
     timeline = [(w, by_window[w]) for w in windows if w in by_window]
+    for shot in shots:
+        if shot[1] > shot[0] and not by_window[shot].pose_present:
+            _resolve(by_window, shot_hops[shot], workers, timer)
     shot_poses = [(shot, _shot_pose(shot, by_window, shot_hops[shot], K, cfg)) for shot in shots]
     if stages.still_frames:
         shot_poses = [(shot, stages.still_test(shot, est, K)) for shot, est in shot_poses]
@@ -657,7 +744,8 @@ def score_clip(
         )
     if builder is not None:
         start = time.perf_counter()
-        record = replace(record, dense=builder.clouds(K, {**by_window, (0, n - 1): pose}))
+        resolved = {w: est for w, est in by_window.items() if not isinstance(est, _DeferredPose)}
+        record = replace(record, dense=builder.clouds(K, {**resolved, (0, n - 1): pose}))
         timer.add("dense", start)
     if stages.tracks is not None:
         start = time.perf_counter()
@@ -666,7 +754,7 @@ def score_clip(
     return add_objects(
         replace(record, cloud=cloud, pointmaps=stages.pointmaps),
         objects,
-        scales=cfg.scales,
+        scales=stages.object_scales,
         masked_share=stages.masked_share,
         object_share=stages.object_share,
         mask_source=mask_source,

@@ -43,6 +43,7 @@ _STRINGS = {
     "masks": "none",
     "aggregation": "worst",
     "flow_params.preset": "fast",
+    "object_scales": "top",
 }
 
 
@@ -98,7 +99,7 @@ def _first_valid(name: str, value: Any, build: Callable[[Any], ScoreConfig]) -> 
 
 
 VARIANTS = _variants()
-AUDIT_HASH = "57d09f1072a2f778"
+AUDIT_HASH = "4e0e1d790869465e"
 """The hash of ``audit`` (renewed whenever a setting of it changes)."""
 
 
@@ -135,7 +136,8 @@ def test_adding_an_optional_backend_keeps_the_hashes_of_the_presets() -> None:
     # the hashes the presets had when SAM-2 and DUSt3R were added (an optional backend's settings
     # leave them alone), as renewed on 2026-11-26 by the scoring settings added then (independent
     # motion, the still-camera test, shots, chain lengths, gate windows, the untrusted share, fades)
-    # and on 2026-11-27 by the multi-view check in audit (paper, without it, kept its hash)
+    # and on 2026-11-27 by the multi-view check in audit (paper, without it, kept its hash), then by
+    # audit's objects at the largest scale only (a later setting at its old value leaves the hash alone)
     assert config_hash(preset("audit")) == AUDIT_HASH
     assert config_hash(preset("paper")) == "9406eeccc05e551f"
 

@@ -123,3 +123,36 @@ def test_cli_raft_options_are_checked_before_decoding(reference, tmp_path):
     assert res.exit_code == 2 and "--raft-checkpoint is used with --flow raft" in res.stderr
     res = runner.invoke(app, ["score", str(clip), "--flow", "farneback"])
     assert res.exit_code == 2 and "unknown flow backend 'farneback'; valid: dis, raft" in res.stderr
+
+
+def test_batched_pairs_give_the_per_pair_fields(reference, tmp_path):
+    """``RaftFlow.compute_both_many`` (several pairs per network call, a last batch that is not
+    full) equals ``compute_both`` pair by pair: flow to 1e-4 px, the same reliability where the
+    forward-backward error is not within 1e-3 px of its threshold."""
+    from geocon_core.flow import RaftFlow
+
+    ckpt = _random_checkpoint(reference, tmp_path / "raft-small.pth")
+    backend = RaftFlow(checkpoint=ckpt, device="cpu")
+    rng = np.random.default_rng(3)
+    base = rng.integers(0, 256, (128, 136), dtype=np.uint8)
+    frames = [np.roll(base, (k, 2 * k), axis=(0, 1)) for k in range(4)]
+    pairs = list(zip(frames[:-1], frames[1:], strict=True))
+    box = (4, 2, 134, 122)  # grown by the margin to the whole frame
+    many = backend.compute_both_many(pairs, box, batch=2)
+    assert len(many) == len(pairs)
+    for (g0, g1), got in zip(pairs, many, strict=True):
+        for one, batched in zip(backend.compute_both(g0, g1, box), got, strict=True):
+            assert batched.box == one.box == box and batched.flow.shape == (120, 130, 2)
+            assert np.abs(one.flow).max() > 1  # not two near-zero fields
+            assert np.abs(batched.flow - one.flow).max() <= 1e-4
+            finite = np.isfinite(one.fb_error)
+            assert np.array_equal(finite, np.isfinite(batched.fb_error))
+            assert np.abs(batched.fb_error[finite] - one.fb_error[finite]).max() <= 1e-3
+            mag = np.linalg.norm(one.flow, axis=-1)
+            margin = np.abs(one.fb_error - (backend.config.fb_abs + backend.config.fb_rel * mag))
+            clear = ~finite | (margin > 1e-3)
+            assert np.array_equal(batched.reliable[clear], one.reliable[clear])
+    with pytest.raises(ValueError, match="one size"):
+        backend.compute_both_many([pairs[0], (frames[0][:120], frames[1][:120])])
+    with pytest.raises(ValueError, match="batch must be at least 1"):
+        backend.compute_both_many(pairs, batch=0)
