@@ -4,7 +4,9 @@ results folder laid out as :mod:`geocon_core.layout` describes.
 A clip is finished when its ``status.json`` exists; a restarted run skips finished clips, so a
 killed run loses at most the clips that were in flight and never scores a clip twice. A clip that
 fails (unreadable, a crash in scoring, a worker process that dies) is recorded as failed with its
-reason and counted, never dropped; ``retry_failed`` scores failed clips again.
+reason and counted, never dropped; ``retry_failed`` scores failed clips again. A finished clip
+whose metadata changed since (a category set, a prompt fixed in its sidecar) takes the new
+metadata without being scored again, as long as its clip file and masks are the same.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from .bench_clip import (
     score_to_folder,
 )
 from .config import ScoreConfig, config_hash
-from .dataset import ClipEntry, load_dataset
+from .dataset import ClipEntry, scan_dataset
 from .layout import (
     BENCH_FORMAT,
     CLIPS_DIR,
@@ -40,6 +42,7 @@ from .layout import (
     read_manifest,
     read_status,
     write_manifest,
+    write_status,
 )
 from .lockfile import FolderLock, LockHeld
 from .paths import OutPathError, check_out_dir
@@ -124,7 +127,8 @@ def run_bench(
     ray: "RayOptions | None" = None,
     on_note: Callable[[str], None] | None = None,
 ) -> BenchSummary:
-    """Score every clip of ``dataset`` into ``results`` with ``workers`` processes
+    """Score every clip of ``dataset`` (a folder or a manifest file, read by
+    :func:`~geocon_core.dataset.scan_dataset`) into ``results`` with ``workers`` processes
     (``executor="pool"``), or as Ray tasks (``executor="ray"``, :mod:`geocon_core.bench_ray`;
     ``ray`` says where, and a local instance gets ``workers`` CPUs). Both leave the same results
     folder, so a run started with one can be resumed with the other.
@@ -137,7 +141,8 @@ def run_bench(
     held with a lock file (:func:`geocon_core.layout.lock_path`) for the whole run, so a second run
     into the same folder is refused naming the first one's PID (a lock of a dead run is taken over).
     The worker processes exit when this process dies (:func:`geocon_core.procs.die_with_parent`).
-    ``on_note(sentence)`` hears what the executor has to say (where it runs, a clip scored again)."""
+    ``on_note(sentence)`` hears the defaults the dataset took (a plain folder, a manifest) and what
+    the executor has to say (where it runs, a clip scored again)."""
     cfg = config or ScoreConfig()
     if workers < 1:
         raise BenchError(f"--workers must be at least 1, got {workers}")
@@ -149,7 +154,10 @@ def run_bench(
         check_out_dir(out)
     except OutPathError as exc:
         raise BenchError(str(exc)) from None
-    entries = load_dataset(data)
+    dataset_read = scan_dataset(data)
+    entries = list(dataset_read.entries)
+    for sentence in dataset_read.notes:
+        note(sentence)
     if executor == "ray":
         from .bench_ray import RayOptions, preflight
 
@@ -167,7 +175,7 @@ def run_bench(
     try:
         _prepare_results(out, data, cfg)
         start = time.perf_counter()
-        todo, failed_before = _unfinished(entries, out, retry_failed)
+        todo, failed_before = _unfinished(entries, out, retry_failed, note)
         skipped = len(entries) - len(todo)
         if on_start is not None:
             on_start(len(todo), skipped)
@@ -211,16 +219,37 @@ def _busy(out: Path, held: LockHeld) -> str:
     return f"--out {out} is in use by another `geocon bench` run ({who}); wait for it to finish or choose another --out"
 
 
-def _unfinished(entries: list[ClipEntry], out: Path, retry_failed: bool) -> tuple[list[ClipEntry], int]:
+def _unfinished(
+    entries: list[ClipEntry], out: Path, retry_failed: bool, note: Callable[[str], None]
+) -> tuple[list[ClipEntry], int]:
     """The clips still to score (unfinished, or failed when ``retry_failed``) and how many failed
-    clips are kept as they are."""
+    clips are kept as they are. A finished clip whose metadata changed takes the dataset's (its
+    ``status.json`` rewritten) when its clip file and ``masks_path`` are those it was scored from;
+    otherwise it keeps its earlier metadata and scores, and ``note`` says so."""
     todo, failed_before = [], 0
+    refreshed, stale = 0, []
     for entry in entries:
-        status = read_status(clip_dir(out, entry.clip_id))
+        folder = clip_dir(out, entry.clip_id)
+        status = read_status(folder)
         if status is None or (retry_failed and status["status"] == "failed"):
             todo.append(entry)
-        elif status["status"] == "failed":
-            failed_before += 1
+            continue
+        failed_before += status["status"] == "failed"
+        meta = status.get("meta") or {}
+        if meta == entry.meta:
+            continue
+        if status.get("video") == str(entry.video) and meta.get("masks_path") == entry.meta.get("masks_path"):
+            write_status(folder, {**status, "meta": entry.meta})
+            refreshed += 1
+        else:
+            stale.append(entry.clip_id)
+    if refreshed:
+        note(f"{refreshed} finished clip(s) took the dataset's new metadata (their scores are unchanged)")
+    if stale:
+        note(
+            f"{len(stale)} finished clip(s) now name another clip file or masks and keep their earlier scores (e.g. "
+            f"{stale[0]}); remove their folders from {out / CLIPS_DIR} to score them again"
+        )
     return todo, failed_before
 
 

@@ -126,7 +126,7 @@ def score_one(
     """Worker: score one clip into its folder and write its status (ok or failed)."""
     import cv2
 
-    from .dataset import EXPECTED_MODEL
+    from .dataset import expected_model
 
     cv2.setNumThreads(threads)
     cfg = ScoreConfig.from_dict(cfg_dict)
@@ -138,7 +138,7 @@ def score_one(
     try:
         record = score_to_folder(entry.video, cfg, out, masks=entry.masks)
         status["warnings"] = list(record.warnings)
-        if renderer is not None and _flagged(record, EXPECTED_MODEL.get(entry.category)):
+        if renderer is not None and _flagged(record, expected_model(entry.category)):
             renderer(out, out / RRD_NAME)
             status["rrd"] = RRD_NAME
     except Exception as exc:  # every failure is recorded with its reason, never dropped

@@ -442,8 +442,8 @@ def fig_summary_margins(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str]
 
 def fig_summary_failures(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str]) -> None:
     """Which categories fail: per platform (rows in ``order``) and category, the share of clips
-    failing the report gate and the share whose translation gate contradicts the category (fail->F),
-    each cell labelled with its count."""
+    failing the report gate and the share whose translation gate contradicts the category (fail->F,
+    over the clips whose category was given), each cell labelled with its count."""
     cats = sorted(ok["category"].dropna().unique())
     if not cats:
         return b.skip("Failures per category", "no scored clip has a category")
@@ -452,12 +452,18 @@ def fig_summary_failures(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str
     rates = stats.gate_rates(ok).set_index(["model", "category"])
     panels = []
     for title, count in (
-        ("fails the report gate", lambda k: int(cover.loc[k, "inconsistent"]) if k in cover.index else None),
+        (
+            "fails the report gate",
+            lambda k: (int(cover.loc[k, "inconsistent"]), int(cover.loc[k, "n_clips"])) if k in cover.index else None,
+        ),
         (
             "gate anomaly (fail\u2192F)",
             lambda k: (
-                int(round(float(rates.loc[k, "anomaly_rate_fail_f"]) * int(rates.loc[k, "n_clips"])))
-                if k in rates.index
+                (
+                    int(round(float(rates.loc[k, "anomaly_rate_fail_f"]) * int(rates.loc[k, "n_expected"]))),
+                    int(rates.loc[k, "n_expected"]),
+                )
+                if k in rates.index and int(rates.loc[k, "n_expected"])
                 else None
             ),
         ),
@@ -468,8 +474,7 @@ def fig_summary_failures(b: FigureBuilder, ok: pd.DataFrame, order: Sequence[str
             for j, c in enumerate(cats):
                 got = count((p, c))
                 if got is not None:
-                    k[i, j] = got
-                    n[i, j] = int(cover.loc[(p, c), "n_clips"])
+                    k[i, j], n[i, j] = got
         panels.append((title, k, n))
     fig, ax = b.figure(2, 1, SUMMARY_SIZE, sharey=True)
     for j, (title, k, n) in enumerate(panels):
@@ -500,12 +505,13 @@ def fig_tinf(b: FigureBuilder, ok: pd.DataFrame) -> None:
     fin = np.isfinite(t)
     if not fin.any():
         return b.skip("t_inf distributions", "no clip has a pose")
-    is_f = (ok["expected_model"] == "F").to_numpy()
+    expected = ok["expected_model"].to_numpy(object)  # None where no category was given
     fig, ax = b.figure(2, 1, (10, 4))
     edges = np.linspace(0, max(0.1, float(np.nanmax(t)) * 1.05), 31)
     for label, sel, col in (
-        ("expected H (C1/C2/C4)", ~is_f & fin, _color(0)),
-        ("expected F (C3/C5/C6)", is_f & fin, _color(1)),
+        ("expected H (C1/C2/C4)", (expected == "H") & fin, _color(0)),
+        ("expected F (C3/C5/C6)", (expected == "F") & fin, _color(1)),
+        ("category not given", ok["expected_model"].isna().to_numpy() & fin, "#999999"),
     ):
         if sel.any():
             ax[0, 0].hist(t[sel], edges, alpha=0.55, color=col, label=f"{label}, n={int(sel.sum())}")
@@ -546,6 +552,7 @@ def fig_margins(b: FigureBuilder, ok: pd.DataFrame) -> None:
 
 
 def fig_calibration(b: FigureBuilder, ok: pd.DataFrame, seed: int) -> dict[str, Any] | None:
+    ok = ok[ok["expected_model"].notna()]  # the clips whose category was given
     t = ok["t_inf"].to_numpy(float)
     is_f = (ok["expected_model"] == "F").to_numpy()
     fin = np.isfinite(t)

@@ -11,9 +11,12 @@ Definitions (what the report prints):
   the share whose gate disagrees with the expected rule (C1/C2/C4 -> H, C3/C5/C6 -> F).
   *Present-only* counts clips with a pose and a decided (non-U) gate label; *fail->F* counts every
   scored clip, a clip without a pose as F (the paper's default protocol) and a gray-zone (U)
-  clip by the family it kept. Wilson 95% intervals.
+  clip by the family it kept. Anomaly rates count only clips whose category was given (a
+  non-null ``expected_model``; where none was given, the table's category is the scorer's own,
+  which follows the gate); ``n_expected`` says how many. Wilson 95% intervals.
 - **Consensus** per (scene, category): whether every platform with a decided gate (pose present,
-  not U) agrees; the rate is over tuples where at least two platforms decided.
+  not U) agrees; the rate is over tuples where at least two platforms decided. Clips without a
+  given category count per scene alone.
 - **Calibration**: P(F | t_inf) in K equal-count bins with Wilson intervals; net benefit
   ``(TP - c * FP) / N`` of "predict F iff t_inf >= tau"; bootstrap balanced accuracy over a tau grid.
 - **Percentile alignment**: per platform, the y value (GE) of the clips at matched percentiles of
@@ -170,19 +173,22 @@ def gate_rates(clips: pd.DataFrame, *, by: Sequence[str] = ("model", "category")
         present = g[pose & (g["gate_label"] != "U")]
         fam_fail_f = np.where(pose, g["gate_model"], "F")
         expected = g["expected_model"].to_numpy()
+        known = g["expected_model"].notna().to_numpy()
+        judged = present[present["expected_model"].notna()]
         rows.append(
             {
                 **dict(zip(by, key, strict=True)),
                 "n_clips": len(g),
                 "n_present": len(present),
+                "n_expected": int(known.sum()),
                 **_rate_cols("f_rate_present", int((present["gate_label"] == "F").sum()), len(present)),
                 **_rate_cols(
                     "anomaly_rate_present",
-                    int((present["gate_label"] != present["expected_model"]).sum()),
-                    len(present),
+                    int((judged["gate_label"] != judged["expected_model"]).sum()),
+                    len(judged),
                 ),
                 **_rate_cols("f_rate_fail_f", int((fam_fail_f == "F").sum()), len(g)),
-                **_rate_cols("anomaly_rate_fail_f", int((fam_fail_f != expected).sum()), len(g)),
+                **_rate_cols("anomaly_rate_fail_f", int(((fam_fail_f != expected) & known).sum()), int(known.sum())),
             }
         )
     return pd.DataFrame(rows)
@@ -219,15 +225,19 @@ def consensus(clips: pd.DataFrame) -> pd.DataFrame:
     """Per (scene, category): platforms, decided platforms (pose present, not U), and whether
     the decided ones are unanimous (NA with fewer than two). ``attrs`` hold the overall
     ``consensus_rate`` (unanimous / tuples with at least two decided), ``n_tuples`` and
-    ``n_unanimous``."""
+    ``n_unanimous``. A clip whose category was not given (no ``expected_model``) is grouped by its
+    scene alone (category None): the scorer's category follows the gate, and grouping by it would
+    split a scene wherever its platforms disagree."""
     rows = []
-    for (scene, cat), g in _ok(clips).groupby(["scene_id", "category"], sort=True):
+    data = _ok(clips)
+    given = data["category"].where(data["expected_model"].notna(), "") if "expected_model" in data else data["category"]
+    for (scene, cat), g in data.assign(category=given).groupby(["scene_id", "category"], sort=True):
         decided = g[g["pose_present"].fillna(False).astype(bool) & g["gate_label"].isin(["H", "F"])]
         labels = set(decided["gate_label"])
         rows.append(
             {
                 "scene_id": scene,
-                "category": cat,
+                "category": cat or None,
                 "platforms": int(g["model"].nunique()),
                 "n_decided": len(decided),
                 "labels": ",".join(sorted(labels)),

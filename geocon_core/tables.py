@@ -27,19 +27,24 @@ def _num(v: float | None) -> float:
     return _NAN if v is None else float(v)
 
 
-def _group(meta: dict[str, Any], clip_id: str) -> dict[str, Any]:
+def _group(meta: dict[str, Any], clip_id: str, record: ClipRecord | None) -> dict[str, Any]:
+    """The columns every table starts with. ``category``: the clip's given category, or where
+    none was given the scorer's (such a row has no ``expected_model``)."""
+    category = meta.get("category")
+    if category is None and record is not None and record.category is not None:
+        category = record.category.label
     return {
         "clip_id": clip_id,
         "model": str(meta.get("model")),
         "scene_id": str(meta.get("scene_id")),
-        "category": meta.get("category"),
+        "category": category,
     }
 
 
 def _clip_row(status: dict[str, Any], record: ClipRecord | None, folder: str) -> dict[str, Any]:
     meta = status.get("meta") or {}
     row: dict[str, Any] = {
-        **_group(meta, status["clip_id"]),
+        **_group(meta, status["clip_id"], record),
         "model_version": None if meta.get("model_version") is None else str(meta["model_version"]),
         "prompt": meta.get("prompt"),
         "seed": None if meta.get("seed") is None else str(meta["seed"]),
@@ -131,7 +136,7 @@ def collect_rows(results: str | Path) -> dict[str, list[dict[str, Any]]]:
         rows["clips"].append(_clip_row(status, record, rel))
         if record is None:
             continue
-        group = _group(status.get("meta") or {}, status["clip_id"])
+        group = _group(status.get("meta") or {}, status["clip_id"], record)
         chosen = record.background.model
         for p in record.pairs:
             rows["pairs"].append(

@@ -8,6 +8,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``demo``            render, describe and score a small synthetic clip (:mod:`.commands_demo`)
 ``score``           score one clip (:mod:`.commands_score`)
 ``synth-bench``     a synthetic benchmark dataset
+``dataset``         what ``bench`` reads from a dataset, and its sidecars (:mod:`.commands_dataset`)
 ``bench``           score a dataset, write tables (:mod:`.commands_bench`)
 ``report``          the paper's tables and figures from benchmark results
 ``presets``         the named scoring presets
@@ -36,6 +37,7 @@ from geocon_core import __version__
 
 from . import (
     commands_bench,
+    commands_dataset,
     commands_demo,
     commands_doctor,
     commands_pose,
@@ -79,6 +81,7 @@ app.command("synth-failures")(commands_synth.synth_failures)
 app.command("demo")(commands_demo.demo)
 app.command("score")(commands_score.score)
 app.command("synth-bench")(commands_synth.synth_bench)
+app.command("dataset")(commands_dataset.dataset)
 app.command("bench")(commands_bench.bench)
 app.command("report")(commands_bench.report)
 app.command("presets")(commands_bench.presets)

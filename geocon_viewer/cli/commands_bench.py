@@ -28,7 +28,12 @@ def render_audit_rrd(record_dir: Path, rrd_path: Path) -> Path | None:
 
 def bench(
     dataset: Annotated[
-        Path, typer.Argument(help="Dataset folder: clips with sidecar <name>.meta.json files (see the README).")
+        Path,
+        typer.Argument(
+            help="Dataset folder (clips with <name>.meta.json sidecars, a manifest.csv / manifest.jsonl, or plain clip "
+            "files in one sub-folder per platform) or the path of a .csv / .jsonl manifest; `geocon dataset` shows "
+            "what is read."
+        ),
     ],
     out_dir: Annotated[Path, typer.Option("--out", help="Results folder (created; rerun the same command to resume).")],
     preset_name: Annotated[
