@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Prepare this checkout for use: Debian packages, a virtual environment in .venv,
 # and an editable install of geocon with the extras given as arguments
-# (e.g. `bash scripts/bootstrap.sh test`). Safe to run repeatedly: each step is
-# skipped when it is already done.
+# (e.g. `bash scripts/bootstrap.sh test`, or any extra pyproject.toml names, such as docs).
+# Every pip install here takes `-c constraints.txt`: the packages listed there get exactly the
+# versions the validation report was measured with; the others pip resolves as usual.
+# Safe to run repeatedly: each step is skipped when it is already done.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -41,11 +43,11 @@ fi
 
 extras="$(IFS=,; echo "$*")"
 spec="."; [ -z "$extras" ] || spec=".[${extras}]"
-stamp=".venv/.geocon-install-$(cat pyproject.toml | sha256sum | cut -c1-16)-${extras:-core}"
+stamp=".venv/.geocon-install-$(cat pyproject.toml constraints.txt | sha256sum | cut -c1-16)-${extras:-core}"
 if [ ! -f "$stamp" ]; then
     echo "geocon: installing ${spec} into .venv" >&2
     log=".venv/pip-install.log"
-    if ! .venv/bin/python -m pip install -e "$spec" >"$log" 2>&1; then
+    if ! .venv/bin/python -m pip install -c constraints.txt -e "$spec" >"$log" 2>&1; then
         tail -n 40 "$log" >&2
         if grep -q "No space left on device" "$log"; then
             echo "geocon: pip install failed: the disk is full ($(df -h --output=avail . | tail -n 1 | tr -d ' ')" \
@@ -69,8 +71,9 @@ if [ "$want_neural" = 1 ]; then
         2>/dev/null; then
         echo "geocon: installing sam2 1.1.0 (SAM-2) into .venv" >&2
         log=".venv/pip-install-sam2.log"
-        if ! { .venv/bin/python -m pip install "setuptools>=70.1" \
-            && SAM2_BUILD_CUDA=0 .venv/bin/python -m pip install --no-build-isolation --no-deps "sam2==1.1.0"; } \
+        if ! { .venv/bin/python -m pip install -c constraints.txt "setuptools>=70.1" \
+            && SAM2_BUILD_CUDA=0 .venv/bin/python -m pip install -c constraints.txt --no-build-isolation \
+                --no-deps "sam2==1.1.0"; } \
             >"$log" 2>&1; then
             tail -n 20 "$log" >&2
             echo "geocon: pip install sam2 failed; full log in $log" >&2
@@ -84,7 +87,7 @@ if [ "$want_neural" = 1 ]; then
         2>/dev/null; then
         echo "geocon: installing mini-dust3r 0.1.2 (DUSt3R) into .venv" >&2
         log=".venv/pip-install-dust3r.log"
-        if ! .venv/bin/python -m pip install --no-deps "mini-dust3r==0.1.2" >"$log" 2>&1; then
+        if ! .venv/bin/python -m pip install -c constraints.txt --no-deps "mini-dust3r==0.1.2" >"$log" 2>&1; then
             tail -n 20 "$log" >&2
             echo "geocon: pip install mini-dust3r failed; full log in $log" >&2
             exit 1

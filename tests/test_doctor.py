@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import importlib.util
+import tomllib
+from pathlib import Path
 
+from packaging.requirements import Requirement
 from typer.testing import CliRunner
 
+import geocon_core
 from geocon_viewer.cli import app, commands_doctor
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _rows(checks) -> dict[tuple[str, str], commands_doctor.Check]:
@@ -58,3 +64,84 @@ def test_the_command_prints_the_table():
     assert res.exit_code == 0
     for name in ("dis", "raft", "motion", "sam2", "classical", "dust3r", "rerun", "viser", "open3d"):
         assert name in res.stdout
+
+
+def test_the_shipped_constraints_are_the_repository_s():
+    shipped = Path(geocon_core.__file__).resolve().parent / "constraints.txt"
+    assert shipped.read_bytes() == (ROOT / "constraints.txt").read_bytes(), (
+        "geocon_core/constraints.txt is out of date: cp constraints.txt geocon_core/constraints.txt"
+    )
+
+
+def test_pyproject_admits_the_constrained_versions_of_every_score_package():
+    pins = commands_doctor.parse_constraints((ROOT / "constraints.txt").read_text())
+    deps = [Requirement(d) for d in tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]]
+    bounded = {commands_doctor._canonical(r.name): r.specifier for r in deps}
+    for package in commands_doctor.SCORE_PACKAGES:
+        name = commands_doctor._canonical(package)
+        assert name in pins, f"constraints.txt does not pin {package}"
+        spec = bounded[name]
+        assert spec.contains(pins[name]), f"pyproject.toml's {package}{spec} excludes constraints.txt's {pins[name]}"
+        assert any(s.operator in ("<", "==") for s in spec), f"{package}{spec} has no upper bound"
+
+
+def test_parse_constraints_reads_pins_by_canonical_name():
+    text = "# a comment\n\nPOT==0.9.7.post1\nopencv_python.headless==5.0.0.93  # trailing\ntorch==2.13.0\n"
+    assert commands_doctor.parse_constraints(text) == {
+        "pot": "0.9.7.post1",
+        "opencv-python-headless": "5.0.0.93",
+        "torch": "2.13.0",
+    }
+
+
+def test_each_differing_score_package_is_named_with_both_versions():
+    pins = {"numpy": "2.4.6", "opencv-python-headless": "5.0.0.93", "av": "18.1.0", "pot": "0.9.7", "scipy": "1.17.1"}
+    installed = {"numpy": "2.4.6+local", "opencv-python-headless": "4.10.0.84", "av": "18.1.0", "scipy": "1.17.1"}
+    drift = commands_doctor.version_drift(pins, installed.get)
+    # numpy's local label matches the bare pin; pycolmap is not pinned here, so not compared
+    assert drift == [
+        commands_doctor.VersionDrift("opencv-python-headless", "4.10.0.84", "5.0.0.93"),
+        commands_doctor.VersionDrift("POT", None, "0.9.7"),
+    ]
+    assert drift[0].sentence() == (
+        "installed opencv-python-headless 4.10.0.84, the validation report was measured with 5.0.0.93: "
+        "scores may differ"
+    )
+    assert drift[1].sentence() == "POT is not installed, the validation report was measured with 0.9.7"
+    assert commands_doctor.version_drift(pins, {**installed, "numpy": "2.4.6", "POT": "0.9.7"}.get) == drift[:1]
+
+
+def test_the_command_says_which_versions_differ(monkeypatch):
+    text = (ROOT / "constraints.txt").read_text().replace(f"numpy=={commands_doctor._version('numpy')}", "numpy==1.1")
+    monkeypatch.setattr(commands_doctor, "constraints_source", lambda: (text, "constraints.txt"))
+    res = CliRunner().invoke(app, ["doctor"])
+    assert res.exit_code == 0
+    expected = (
+        f"installed numpy {commands_doctor._version('numpy')}, the validation report was measured with 1.1: "
+        "scores may differ"
+    )
+    assert expected in res.stdout
+    assert "opencv-python-headless" not in res.stdout.split("differ from the validation report")[1]
+
+
+def test_without_a_repository_the_shipped_copy_is_compared(monkeypatch, tmp_path):
+    site = tmp_path / "site-packages" / "geocon_core"
+    site.mkdir(parents=True)
+    monkeypatch.setattr(geocon_core, "__file__", str(site / "__init__.py"))
+    text, source = commands_doctor.constraints_source()
+    assert source == "constraints.txt shipped in the geocon package"
+    assert text == (ROOT / "constraints.txt").read_text()
+    assert commands_doctor.version_drift(commands_doctor.parse_constraints(text)) == []
+
+
+def test_missing_extras_are_optional_and_a_missing_core_part_fails(monkeypatch):
+    real = commands_doctor._have
+    extras = ("torch", "sam2", "mini_dust3r", "open3d", "pandas", "pyarrow", "matplotlib")
+    monkeypatch.setattr(commands_doctor, "_have", lambda m: m not in extras and real(m))
+    res = CliRunner().invoke(app, ["doctor"])
+    assert res.exit_code == 0 and "no (optional)" in res.stdout
+    assert "geocon[neural]" in res.stdout and "geocon[bench]" in res.stdout  # printed, not taken as markup
+    monkeypatch.setattr(commands_doctor, "_have", lambda m: m != "ot" and real(m))
+    res = CliRunner().invoke(app, ["doctor"])
+    assert res.exit_code == 2
+    assert "the core install is incomplete (transport (AdaDFRC-W2))" in res.output

@@ -1,29 +1,118 @@
 """``geocon doctor``: which backends, viewers and extras are usable on this machine, and for the
-others what is missing and how to get it."""
+others what is missing and how to get it; and which of the packages that can change a score differ
+from the versions the validation report was measured with (constraints.txt)."""
 
 from __future__ import annotations
 
+import importlib.resources
 import importlib.util
 import os
+import re
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
+from rich.markup import escape
 from rich.table import Table
 
-from .console import VIEWER_EXTRA, out
+from .console import VIEWER_EXTRA, fail, out
 
-__all__ = ["doctor", "Check", "checks"]
+__all__ = [
+    "doctor",
+    "Check",
+    "checks",
+    "SCORE_PACKAGES",
+    "VersionDrift",
+    "constraints_source",
+    "parse_constraints",
+    "version_drift",
+]
 
 
 @dataclass(frozen=True)
 class Check:
     """One component: ``group`` (flow, masks, pose, viewer, ...), ``name`` (as the command line
-    spells it), whether it is usable here and a sentence: what it runs on, or what it needs."""
+    spells it), whether it is usable here and a sentence: what it runs on, or what it needs.
+    ``required``: part of the core install, which every command needs (the others come with an
+    extra or a tool that only some commands use)."""
 
     group: str
     name: str
     usable: bool
     detail: str
+    required: bool = False
+
+
+SCORE_PACKAGES = ("numpy", "opencv-python-headless", "av", "POT", "pycolmap", "scipy")
+"""The core dependencies whose versions can change a score (decoding, features, flow, fitting,
+transport, bundle adjustment), compared with constraints.txt."""
+
+
+@dataclass(frozen=True)
+class VersionDrift:
+    """A package of :data:`SCORE_PACKAGES` whose ``installed`` version (None: not installed)
+    differs from the version the validation report was ``measured`` with."""
+
+    package: str
+    installed: str | None
+    measured: str
+
+    def sentence(self) -> str:
+        if self.installed is None:
+            return f"{self.package} is not installed, the validation report was measured with {self.measured}"
+        return (
+            f"installed {self.package} {self.installed}, the validation report was measured with "
+            f"{self.measured}: scores may differ"
+        )
+
+
+def _canonical(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def parse_constraints(text: str) -> dict[str, str]:
+    """The ``name==version`` lines of a pip constraints file, by canonical package name (lower
+    case, runs of ``-_.`` as ``-``); comments and blank lines are skipped."""
+    pins: dict[str, str] = {}
+    for line in text.splitlines():
+        line = line.split("#", 1)[0].strip()
+        if "==" in line:
+            name, _, pinned = line.partition("==")
+            pins[_canonical(name)] = pinned.strip()
+    return pins
+
+
+def constraints_source() -> tuple[str, str]:
+    """The text of constraints.txt and where it was read: the repository's when geocon runs from
+    a checkout, else the copy shipped in the installed package (``geocon_core/constraints.txt``)."""
+    import geocon_core
+
+    root = Path(geocon_core.__file__).resolve().parent.parent
+    if (root / "pyproject.toml").is_file() and (root / "constraints.txt").is_file():
+        return (root / "constraints.txt").read_text(), str(root / "constraints.txt")
+    shipped = importlib.resources.files("geocon_core").joinpath("constraints.txt")
+    return shipped.read_text(), "constraints.txt shipped in the geocon package"
+
+
+def _same_release(installed: str, measured: str) -> bool:
+    """Equal versions; a local label (``2.13.0+cpu``) is ignored unless the pin names one."""
+    return installed == measured or ("+" not in measured and installed.split("+", 1)[0] == measured)
+
+
+def version_drift(pins: Mapping[str, str], installed: Callable[[str], str | None] | None = None) -> list[VersionDrift]:
+    """The packages of :data:`SCORE_PACKAGES` pinned in ``pins`` (:func:`parse_constraints`)
+    whose ``installed`` version (default: the installed distribution's) differs, in that order."""
+    installed = installed or _version
+    drift = []
+    for package in SCORE_PACKAGES:
+        measured = pins.get(_canonical(package))
+        if measured is None:
+            continue
+        have = installed(package)
+        if have is None or not _same_release(have, measured):
+            drift.append(VersionDrift(package, have, measured))
+    return drift
 
 
 def _version(dist: str) -> str | None:
@@ -54,8 +143,8 @@ def checks() -> list[Check]:
     cv = _version("opencv-python-headless") or _version("opencv-python") or "?"
     torch_ok, torch_text = _torch()
     out_checks = [
-        Check("core", "decoding", _have("av") and _have("cv2"), f"PyAV {_version('av')}, OpenCV {cv}"),
-        Check("core", "transport (AdaDFRC-W2)", _have("ot"), f"POT {_version('POT')}"),
+        Check("core", "decoding", _have("av") and _have("cv2"), f"PyAV {_version('av')}, OpenCV {cv}", required=True),
+        Check("core", "transport (AdaDFRC-W2)", _have("ot"), f"POT {_version('POT')}", required=True),
         Check(
             "core",
             "bundle adjustment (multi-view check, audit)",
@@ -63,6 +152,7 @@ def checks() -> list[Check]:
             f"pycolmap {_version('pycolmap')}"
             if _have("pycolmap")
             else "pycolmap is missing: pip install 'pycolmap==4.2.*'",
+            required=True,
         ),
         Check("features", "sift, sift_octaves, orb, klt, klt_tracks", True, f"OpenCV {cv}"),
         Check("flow", "dis", True, f"OpenCV {cv} (default, no weights)"),
@@ -187,12 +277,43 @@ def _open3d() -> Check:
     return Check("viewer", "open3d (point-cloud clean-up)", True, f"open3d {_version('open3d')}")
 
 
+def _print_versions() -> None:
+    """Whether the score-changing packages are the versions the validation report was measured with."""
+    try:
+        text, source = constraints_source()
+    except OSError as exc:
+        out.print(f"[yellow]No constraints.txt to compare versions with ({escape(str(exc))}).[/]", soft_wrap=True)
+        return
+    pins = parse_constraints(text)
+    drift = version_drift(pins)
+    if not drift:
+        same = ", ".join(f"{p} {pins[_canonical(p)]}" for p in SCORE_PACKAGES if _canonical(p) in pins)
+        out.print(f"Versions as in the validation report ({escape(source)}): {same}.", soft_wrap=True)
+        return
+    out.print(f"[yellow]Versions that differ from the validation report's[/] ({escape(source)}):", soft_wrap=True)
+    for d in drift:
+        out.print(f"  [yellow]{escape(d.sentence())}[/]", soft_wrap=True)
+
+
 def doctor() -> None:
     """Which backends, viewers and extras are usable on this machine, and for the others what to
-    install or pass."""
-    table = Table(title="GeoCon on this machine", title_justify="left")
+    install or pass; which packages that can change a score differ from the versions the validation
+    report was measured with. Exits with code 2 when a part of the core install is unusable; a
+    missing extra is reported as optional."""
+    table = Table(
+        title="GeoCon on this machine",
+        title_justify="left",
+        caption="optional: an extra or tool that only some commands need; geocon score and demo run without it",
+        caption_justify="left",
+    )
     for column in ("", "component", "usable", "what it runs on, or what it needs"):
         table.add_column(column)
-    for c in checks():
-        table.add_row(c.group, c.name, "[green]yes[/]" if c.usable else "[yellow]no[/]", c.detail)
+    found = checks()
+    for c in found:
+        usable = "[green]yes[/]" if c.usable else "[red]no[/]" if c.required else "[yellow]no (optional)[/]"
+        table.add_row(c.group, c.name, usable, escape(c.detail))  # "geocon[bench]" is not markup
     out.print(table)
+    _print_versions()
+    broken = [c.name for c in found if c.required and not c.usable]
+    if broken:
+        raise fail(f"the core install is incomplete ({', '.join(broken)}): reinstall geocon")
