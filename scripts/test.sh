@@ -4,10 +4,13 @@
 #   bash scripts/test.sh -m slow              # only the slow end-to-end checks
 #   bash scripts/test.sh -m "slow or not slow"  # everything
 #   bash scripts/test.sh tests/test_geometry.py -x
-# The lint and type checks run first and stop the run on the first finding.
+# The lint and type checks run first and stop the run on the first finding; then the documentation
+# site is built (scripts/docs.sh, mkdocs --strict: a broken link fails it); then the wheel check
+# (scripts/wheel_check.sh: the built wheel alone in a fresh environment runs doctor and demo,
+# about two minutes; GEOCON_WHEEL_CHECK=0 skips it for a quick local run).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-bash scripts/bootstrap.sh viewer bench test neural distributed
+bash scripts/bootstrap.sh viewer bench test neural distributed docs
 
 step() {
     local what="$1" hint="$2"
@@ -24,5 +27,11 @@ step "ruff format --check" "run .venv/bin/ruff format . and commit the result" \
     .venv/bin/ruff format --check --quiet .
 step "mypy" "fix the type errors above (configuration in pyproject.toml)" \
     .venv/bin/mypy --no-error-summary
+step "docs build" "fix the warnings above (pages in docs/, configuration in mkdocs.yml)" \
+    bash scripts/docs.sh --quiet
+if [ "${GEOCON_WHEEL_CHECK:-1}" != 0 ]; then
+    step "wheel check" "the wheel misses a file or a dependency; rerun alone with bash scripts/wheel_check.sh" \
+        bash scripts/wheel_check.sh
+fi
 echo "geocon: pytest" >&2
 exec .venv/bin/python -m pytest "$@"
