@@ -23,7 +23,8 @@ __all__ = ["ResultClip", "clip_from_record_json", "read_bench_clips"]
 class ResultClip:
     """One clip of a results folder as recorded: its sidecar metadata, where its files are, and the
     numbers needed to re-gate it (both families' IR/GE and the gate statistic). A clip that failed
-    to score keeps the defaults: no numbers, no pose, no objects."""
+    to score keeps the defaults: no numbers, no pose, no objects. ``category`` is the dataset's, or
+    the scorer's where the dataset gives none (as in the tables); ``expected_model`` is then None."""
 
     clip_id: str
     platform: str
@@ -94,8 +95,11 @@ def clip_from_record_json(
     rrd = (
         folder / status["rrd"] if status.get("rrd") else (folder / RRD_NAME if (folder / RRD_NAME).is_file() else None)
     )
+    given = _sidecar(clip_id, status, folder)
+    if given["category"] is None and d.get("category"):  # as the tables: the scorer's stands in
+        given["category"] = d["category"].get("label")
     return ResultClip(
-        **_sidecar(clip_id, status, folder),
+        **given,
         status="ok",
         error=None,
         rrd=rrd,
@@ -144,7 +148,8 @@ def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]
         import pyarrow.parquet as pq
     except (ImportError, OSError):
         return {}
-    cols = ["clip_id", "status", "t_inf", "pose_present", "ir_h", "ge_h", "ir_f", "ge_f", "adap90_max", "n_objects"]
+    cols = ["clip_id", "category", "status", "t_inf", "pose_present", "ir_h", "ge_h", "ir_f", "ge_f"]
+    cols += ["adap90_max", "n_objects"]
     schema = pq.read_schema(path)
     if not {"shots", "t_window", "ind_h", "ind_f"} <= set(schema.names):  # tables of an earlier version
         return {}
@@ -183,9 +188,11 @@ def read_bench_clips(root: Path) -> list[ResultClip]:
         if row is None or row["status"] != "ok":
             clips.append(clip_from_record_json(cid, status, folder))
             continue
+        given = _sidecar(cid, status, folder)
+        given["category"] = given["category"] or row["category"]  # the table's: given, or the scorer's
         clips.append(
             ResultClip(
-                **_sidecar(cid, status, folder),
+                **given,
                 status="ok",
                 error=None,
                 rrd=folder / status["rrd"] if status.get("rrd") else None,

@@ -441,6 +441,22 @@ def test_manifest_and_plain_folder_give_the_tables_of_hand_written_sidecars(tabl
     assert not any("category" in n for n in tables["manifest"]["notes"])
 
 
+def test_the_audit_app_lists_the_scorers_category_where_none_was_given(tables):
+    """The audit app's clip list (read from the tables, or from each record when they are stale)
+    shows a clip without a given category under the scorer's, with no expected gate."""
+    from geocon_core.result_clips import clip_from_record_json, read_bench_clips
+    from geocon_core.tables import read_tables
+
+    results = tables["plain"]["results"]
+    scored = read_tables(results)["clips"].set_index("clip_id")["observed_category"].to_dict()
+    clips = read_bench_clips(results)
+    assert len(clips) == 6 and all(c.category == scored[c.clip_id] and c.expected_model is None for c in clips)
+    for c in clips:  # the same from the record itself
+        assert c.folder is not None
+        status = json.loads((c.folder / "status.json").read_text())
+        assert clip_from_record_json(c.clip_id, status, c.folder).category == scored[c.clip_id]
+
+
 def test_categories_set_in_written_sidecars_reach_the_tables_without_scoring_again(layouts, tables):
     """The workflow of a plain folder: bench it, spell it out as sidecars, set the categories, bench
     again into the same results: nothing is scored twice and the tables are the manifest's."""
