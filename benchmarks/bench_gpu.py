@@ -240,7 +240,7 @@ def raft_checkpoint(path: Path, seed: int = 0) -> Path:
     sqrt(fan_in)`` from ``default_rng(seed)``, saved with the ``module.`` prefix."""
     import torch
 
-    from geocon_core.raft import RaftSmall
+    from geocon_core.flow.raft import RaftSmall
 
     rng = np.random.default_rng(seed)
     state = {}
@@ -293,7 +293,7 @@ def _raft_network(
     (each pair's forward and backward flow), the images already on the device."""
     import torch
 
-    from geocon_core.raft import MIN_SIDE
+    from geocon_core.flow.raft import MIN_SIDE
 
     h, w = pairs[0][0].shape
     x = torch.from_numpy(np.repeat(np.stack([g for pair in pairs for g in pair])[:, None], 3, axis=1))
@@ -368,8 +368,8 @@ def bench_sam2(
         print(f"SAM-2: {why}, skipped", flush=True)
         res.add("sam2", "skipped", None, "", f"SAM-2 {why}")
         return
+    from geocon_core.config import Sam2Config
     from geocon_core.masks.sam2 import load_sam2
-    from geocon_core.stage_configs import Sam2Config
 
     config = Sam2Config(model=model, image_size=size)
     with tempfile.TemporaryDirectory() as tmp:
@@ -460,7 +460,7 @@ def bench_dust3r(res: Results, frames: list[np.ndarray], device: str, models: Se
 
 def _dust3r_model(res: Results, frames: list[np.ndarray], device: str, name: str, repeats: int) -> None:
     """The rows of one DUSt3R model (``tiny`` or ``vitl512``) on the first and last frame."""
-    from geocon_core.pose.base import default_intrinsics
+    from geocon_core.pose import default_intrinsics
     from geocon_core.pose.dust3r import Dust3rPose, network_input
 
     h, w = frames[0].shape[:2]
@@ -594,7 +594,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             bench_dis(res, grays, args.repeats)
     if "sam2" in args.only:
         with res.section("sam2"):
-            from geocon_core.stage_configs import Sam2Config
+            from geocon_core.config import Sam2Config
 
             default = Sam2Config()
             size = args.sam2_size or (256 if args.quick else default.image_size)

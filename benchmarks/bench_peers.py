@@ -128,7 +128,7 @@ def colmap_regime(colmap: Colmap, path: Path) -> str:
 def geocon_run(path: Path, preset_name: str) -> tuple[float, str, int]:
     """(frames per second end to end, gate label, frames) of ``score_clip`` with a preset."""
     from geocon_core.config import preset
-    from geocon_core.scorer import score_clip
+    from geocon_core.scoring import score_clip
 
     start = time.perf_counter()
     record = score_clip(path, preset(preset_name), workers=THREADS)
@@ -139,8 +139,8 @@ def geocon_run(path: Path, preset_name: str) -> tuple[float, str, int]:
 def gvgc(clips: list[Path], preset_name: str) -> None:
     """The peer's keep rate and GeoCon's finding on each clip, side by side."""
     from geocon_core.config import preset
-    from geocon_core.scorer import score_clip
-    from geocon_core.validation.peer import PEER_NAME, peer_keep_rate
+    from geocon_core.scoring import score_clip
+    from geocon_core.validation import PEER_NAME, peer_keep_rate
 
     print(f"{'clip':<34} {'keep rate':>9} {'1-keep':>7} {'s':>5}   {'clip score':>10} {'verdict':<13} {'s':>5}")
     for path in clips:

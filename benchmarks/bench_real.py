@@ -51,8 +51,7 @@ REAL_SET: tuple[tuple[str, Path], ...] = (
 
 CHILD = r"""
 import json, resource, sys, time
-from geocon_core.config import preset
-from geocon_core.scorer import score_clip
+from geocon_core import preset, score_clip  # the public API, the same in every version
 path, name = sys.argv[1], sys.argv[2]
 timings = {}
 start = time.perf_counter()

@@ -18,10 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from geocon_core.bench import run_bench
-from geocon_core.bench_ray import RayOptions
+from geocon_core.bench import RayOptions, run_bench
 from geocon_core.config import preset
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
+from geocon_core.synth import plan_benchmark, write_benchmark
 
 
 def main() -> None:
@@ -70,7 +69,7 @@ def _ray_startup() -> float:
     """Seconds to start and stop a private local Ray instance, as `--executor ray` does."""
     import ray
 
-    from geocon_core.bench_ray import _start_local
+    from geocon_core.bench.ray import _start_local
 
     start = time.perf_counter()
     reaper = _start_local(ray, 1)

@@ -49,7 +49,7 @@ def clip(frames: int, size: str, family: str = "C4") -> Path:
 
 def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "-") -> dict:
     from geocon_core.config import preset
-    from geocon_core.scorer import score_clip
+    from geocon_core.scoring import score_clip
 
     timings: dict[str, float] = {}
     sink = None
@@ -69,7 +69,7 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
         cfg = cfg.with_(matcher=matcher)
     dense = None
     if sink is not None:
-        from geocon_core.dense_cloud import DenseCloudConfig
+        from geocon_core.reconstruction import DenseCloudConfig
 
         dense = DenseCloudConfig()
     record = score_clip(path, cfg, timings=timings, on_frame=sink, dense=dense)

@@ -31,10 +31,9 @@ import urllib.request
 from dataclasses import replace
 from pathlib import Path
 
-from geocon_core.bench import run_bench
+from geocon_core.bench import run_bench, write_tables
 from geocon_core.config import ScoreConfig
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
-from geocon_core.tables import write_tables
+from geocon_core.synth import plan_benchmark, write_benchmark
 
 PLATFORMS = ("alpha", "bravo", "charlie", "delta", "echo")
 
@@ -130,7 +129,7 @@ def main() -> None:
             f"geocon serve, without tables: address printed after {ready_nt:.2f} s, page served after {page_nt:.2f} s"
         )
 
-        from geocon_core.results import ResultsIndex
+        from geocon_core.report import ResultsIndex
         from geocon_viewer.audit_app import AuditApp
 
         t = time.perf_counter()

@@ -21,12 +21,10 @@ import math
 import cv2
 import numpy as np
 
-from geocon_core.features import make_matcher
-from geocon_core.geometry import intrinsics_from_fov, relative_pose, rotation_xyz, t_inf_from_pose
+from geocon_core.geometry import intrinsics_from_fov, make_matcher, relative_pose, rotation_xyz, t_inf_from_pose
 from geocon_core.pose import ClassicalPose
-from geocon_core.synth import mean_scene_distance, render_frame
+from geocon_core.synth import Scene, mean_scene_distance, pose_from_center, render_frame
 from geocon_core.synth.families import _panel, _wall  # the families' plane builders, for new layouts
-from geocon_core.synth.scene import Scene, pose_from_center
 
 MOTIONS = ("truck", "arc", "dolly")
 TRUE_T = (0.07, 0.15)

@@ -13,7 +13,7 @@ same input for both sides.
 Each side runs in its own Python subprocess with ``PYTHONPATH`` pointing at that code: a ref is
 exported with ``git archive`` into a temporary folder, ``worktree`` is this checkout as it is on
 disk. Scoring goes through the public API of each version (``geocon_core.score_clip`` where it
-exists, else ``geocon_core.scorer.score_clip``) and the record is written with ``write_record``.
+exists, else ``geocon_core.scorer.score_clip`` of older versions) and the record is written with ``write_record``.
 The comparison reads ``record.json`` generically: background IR, GE and model; gate t_inf, label,
 model and pose presence; category; per-object AdaDFRC and AdaP90 (every object); the per-frame
 masked share. A table per clip says IDENTICAL or DIFFERENT for each field; the exit status is 1 if

@@ -14,11 +14,14 @@ used):
   :class:`PoseEstimate`;
 - errors: :class:`ClipError` (unusable input).
 
-The stage modules stay importable on their own: :mod:`geocon_core.geometry` (two-view geometry),
-:mod:`geocon_core.verdict` (the translation gate, the report gate and flags),
-:mod:`geocon_core.synth` (synthetic scenes),
-:mod:`geocon_core.bench`, :mod:`geocon_core.tables`, :mod:`geocon_core.stats` and
-:mod:`geocon_core.report` (benchmarks of many clips).
+Each package has one public ``__init__`` and follows the data: :mod:`geocon_core.config`
+(settings), :mod:`geocon_core.files` (safe files on disk), :mod:`geocon_core.media` (reading
+clips), :mod:`geocon_core.geometry` (features, two-view formulas, H and F fits),
+:mod:`geocon_core.flow`, :mod:`geocon_core.pose`, :mod:`geocon_core.masks`,
+:mod:`geocon_core.reconstruction` (dense clouds, the multi-view check),
+:mod:`geocon_core.scoring` (the composition and every verdict rule), :mod:`geocon_core.record`
+(the audit record); :mod:`geocon_core.bench` and :mod:`geocon_core.report` (many clips),
+:mod:`geocon_core.synth` (synthetic scenes) and :mod:`geocon_core.validation`.
 """
 
 from __future__ import annotations
@@ -30,8 +33,8 @@ from ._version import __version__
 
 if TYPE_CHECKING:
     from .config import PRESETS, ScoreConfig, config_hash, preset
+    from .media import ClipError, ClipInfo
     from .pose import PoseEstimate
-    from .reader import ClipError, ClipInfo
     from .record import (
         BackgroundSummary,
         Category,
@@ -47,10 +50,10 @@ if TYPE_CHECKING:
         read_record,
         write_record,
     )
-    from .scorer import score_clip
+    from .scoring import score_clip
 
 _LAZY: dict[str, str] = {
-    "score_clip": "scorer",
+    "score_clip": "scoring",
     "ScoreConfig": "config",
     "PRESETS": "config",
     "preset": "config",
@@ -68,8 +71,8 @@ _LAZY: dict[str, str] = {
     "ObjectEntry": "record",
     "Category": "record",
     "PointCloud": "record",
-    "ClipInfo": "reader",
-    "ClipError": "reader",
+    "ClipInfo": "media",
+    "ClipError": "media",
     "PoseEstimate": "pose",
 }
 """Public name -> the module of this package that defines it."""

@@ -2,7 +2,7 @@
 
 One page for triaging a whole benchmark (or one scored clip):
 
-- **control panel** (right): the triage list, most severe first (:func:`geocon_core.results.severity_key`),
+- **control panel** (right): the triage list, most severe first (:func:`geocon_core.report.results.severity_key`),
   filterable by platform, category, gate label and verdict; the clip picker; and the thresholds
   (tau_H, tau_F, the IR/GE report gates, the hysteresis gate) with what differs from the recorded
   configuration;
@@ -16,8 +16,8 @@ One page for triaging a whole benchmark (or one scored clip):
 - **Plots panel** (left, below): per-pair IR and GE of the family in use, AdaDFRC ``D_t`` per
   object, and the gate's per-window ``t_inf`` against its thresholds.
 
-Every number comes from :mod:`geocon_core` (records, :class:`~geocon_core.results.ResultsIndex`,
-:mod:`geocon_core.regate`); this module only draws. The GUI state is shared by every browser
+Every number comes from :mod:`geocon_core` (records, :class:`~geocon_core.report.results.ResultsIndex`,
+:mod:`geocon_core.scoring.regate`); this module only draws. The GUI state is shared by every browser
 tab connected to the server. The server binds to 127.0.0.1 unless told otherwise.
 """
 
@@ -33,13 +33,11 @@ import cv2
 import numpy as np
 import viser
 
-from geocon_core.diagnostics import read_overlays
-from geocon_core.models import FAMILIES
-from geocon_core.reader import DEFAULT_FPS
-from geocon_core.record import ClipRecord, RecordError, read_record
-from geocon_core.regate import pair_inliers
-from geocon_core.results import BROKEN, ResultsError, ResultsIndex, TriageRow
-from geocon_core.verdict import ClipVerdict, Thresholds
+from geocon_core.geometry import FAMILIES
+from geocon_core.media import DEFAULT_FPS
+from geocon_core.record import ClipRecord, RecordError, read_overlays, read_record
+from geocon_core.report import BROKEN, ResultsError, ResultsIndex, TriageRow
+from geocon_core.scoring import ClipVerdict, Thresholds, pair_inliers
 
 from .audit_gui import ANY, FLAGGED, AuditPanels
 from .audit_triage import LIST_ROWS, rrd_text, thresholds_text, triage_summary, triage_table
@@ -332,7 +330,7 @@ class AuditApp(AuditPanels, ServedApp):
         is still the selected clip: a clip switch (or a pair switch, which rebuilds the frustums)
         holds the same lock, so no write can reach a handle it removed. The thread stops as soon as
         another clip is selected or the app stops."""
-        from geocon_core.reader import ClipError, iter_frames, locate_clip
+        from geocon_core.media import ClipError, iter_frames, locate_clip
 
         def current() -> bool:
             return view is self.view and not view.cancel.is_set() and not self._stop.is_set()

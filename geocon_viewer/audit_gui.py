@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import viser
 
-from geocon_core.results import VERDICTS, ResultsIndex
-from geocon_core.verdict import Thresholds
+from geocon_core.report import VERDICTS, ResultsIndex
+from geocon_core.scoring import Thresholds
 
 from .audit_triage import LIST_ROWS, THRESHOLD_LABELS
 from .audit_views import PAIR_FIRST_LAST, empty_plot

@@ -16,13 +16,10 @@ import viser
 import viser.transforms as vtf
 import viser.uplot as uplot
 
-from geocon_core.dense_cloud import KIND_OBJECT, KIND_OUTLIER
-from geocon_core.diagnostics import Overlays
-from geocon_core.finding import clip_finding
-from geocon_core.record import ClipRecord
-from geocon_core.regate import regate_pairs
-from geocon_core.results import ResultClip
-from geocon_core.verdict import ClipVerdict, Thresholds
+from geocon_core.reconstruction import KIND_OBJECT, KIND_OUTLIER
+from geocon_core.record import ClipRecord, Overlays, clip_finding
+from geocon_core.report import ResultClip
+from geocon_core.scoring import ClipVerdict, Thresholds, regate_pairs
 
 from .clouds import dense_points
 from .style import EMPTY, dense_legend, fmt, object_color, track_colors
@@ -163,7 +160,7 @@ PAIR_CLIP = "one camera for the clip"
 
 
 def has_reconstruction(record: ClipRecord) -> bool:
-    """Whether the record holds the clip's one reconstruction (:mod:`geocon_core.multiview`)."""
+    """Whether the record holds the clip's one reconstruction (:mod:`geocon_core.reconstruction.multiview`)."""
     return record.multiview is not None and record.multiview.cam_from_world is not None
 
 

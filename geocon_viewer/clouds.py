@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from geocon_core.dense_cloud import WindowCloud
+from geocon_core.reconstruction import WindowCloud
 
 from .style import dense_colors
 

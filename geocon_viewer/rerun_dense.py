@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 import rerun as rr
 
-from geocon_core.dense_cloud import KIND_OUTLIER, WindowCloud
+from geocon_core.reconstruction import KIND_OUTLIER, WindowCloud
 from geocon_core.record import ClipRecord
 
 from .clouds import dense_points

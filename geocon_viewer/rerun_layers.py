@@ -10,7 +10,7 @@ from typing import Any, Sequence
 import numpy as np
 import rerun as rr
 
-from geocon_core.models import family_spec
+from geocon_core.geometry import family_spec
 from geocon_core.record import ClipRecord, FitSummary
 
 from .clouds import clean_cloud

@@ -48,10 +48,9 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from geocon_core.diagnostics import FlowSlice, FrameDiagnostics, flow_hue
-from geocon_core.paths import clear_stale_parts, part_path
-from geocon_core.reader import DEFAULT_FPS
-from geocon_core.record import ClipRecord
+from geocon_core.files import clear_stale_parts, part_path
+from geocon_core.media import DEFAULT_FPS
+from geocon_core.record import ClipRecord, FlowSlice, FrameDiagnostics, flow_hue
 
 from .rerun_card import RERUN_VERSION, audit_card, worst_frame
 from .rerun_images import object_rgba, png_bytes, residual_map
@@ -337,9 +336,8 @@ def write_rrd(
 ) -> Path | None:
     """Re-render the recording of a saved record (``record.json`` + ``matches.npz`` + ``overlays/``)
     without re-scoring: frames are decoded again from the clip the record names."""
-    from geocon_core.diagnostics import read_overlays
-    from geocon_core.reader import ClipError, ClipInfo, iter_frames, locate_clip, probe_clip
-    from geocon_core.record import read_record
+    from geocon_core.media import ClipError, ClipInfo, iter_frames, locate_clip, probe_clip
+    from geocon_core.record import read_overlays, read_record
 
     record = read_record(record_dir)
     overlays = read_overlays(record_dir)

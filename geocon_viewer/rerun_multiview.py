@@ -1,4 +1,4 @@
-"""The clip's one reconstruction (:mod:`geocon_core.multiview`) in a Rerun recording.
+"""The clip's one reconstruction (:mod:`geocon_core.reconstruction.multiview`) in a Rerun recording.
 
 ``clip3d``: the camera path (a line through the keyframes' centres and, on the timeline, the
 current keyframe's frustum), the reconstruction's points coloured by their track's residual

@@ -4,7 +4,7 @@ Sliders set the camera's rotation and translation, the background's breathing an
 the disc's elasticity and the objects' speed (:mod:`.teach_scene`); menus set the render size,
 the codec and where the object masks come from. Every change re-renders a short clip (320x180,
 16 frames by default) into a temporary folder and scores it with the ``fast`` preset
-(:func:`geocon_core.scorer.score_clip`, given the renderer's exact masks unless motion
+(:func:`geocon_core.scoring.scorer.score_clip`, given the renderer's exact masks unless motion
 segmentation is picked) on a background thread: a change waits briefly for the next one
 (debounce), a newer change supersedes the update in progress (its rendering or scoring stops at
 the next frame), and the GUI never waits. The page then shows, from the new record only
@@ -41,10 +41,8 @@ import viser
 import viser.transforms as vtf
 
 from geocon_core.config import MultiViewConfig, preset
-from geocon_core.diagnostics import FrameDiagnostics
-from geocon_core.record import ClipRecord
-from geocon_core.scorer import score_clip
-from geocon_core.verdict import Thresholds
+from geocon_core.record import ClipRecord, FrameDiagnostics
+from geocon_core.scoring import Thresholds, score_clip
 
 from .audit_views import thumb
 from .processes import check_bind

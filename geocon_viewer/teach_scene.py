@@ -5,7 +5,7 @@ The scene is family C4's layout (a wall, two panels, a spinning disc and a turni
 :mod:`geocon_core.synth.families`) with a camera path of the sliders' choosing (a pan to the left
 and a move to the right, linear in time), the failures of :mod:`geocon_core.synth.failures`
 injected together (background breathing, a sliding panel, an elastic disc) and the objects sped
-up or slowed down. Rendering only: the clip is scored by :func:`geocon_core.scorer.score_clip`.
+up or slowed down. Rendering only: the clip is scored by :func:`geocon_core.scoring.scorer.score_clip`.
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ import cv2
 import numpy as np
 
 from geocon_core.geometry import relative_pose, t_inf_from_pose
+from geocon_core.media import Mp4Writer, PngSequenceWriter
 from geocon_core.synth import Failure, RenderedFrame, Scene, SurfaceView, build_scene, make_failure, render_frame
 from geocon_core.synth import mean_scene_distance as scene_distance
-from geocon_core.video import Mp4Writer, PngSequenceWriter
 
 __all__ = [
     "FAMILY",

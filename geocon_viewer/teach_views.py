@@ -13,8 +13,7 @@ import cv2
 import numpy as np
 
 from geocon_core.record import ClipRecord, FamilySummary
-from geocon_core.regate import pair_inliers
-from geocon_core.verdict import Thresholds
+from geocon_core.scoring import Thresholds, pair_inliers
 
 from .audit_views import INLIER, OUTLIER
 from .style import fmt, object_color

@@ -18,4 +18,6 @@ if ! .venv/bin/mkdocs build --strict --site-dir site "$@"; then
     echo "geocon: the documentation build failed; fix the warnings above (configuration in mkdocs.yml)" >&2
     exit 1
 fi
+# every public name of every package of geocon_core has its entry in the reference
+.venv/bin/python scripts/api_coverage.py site
 echo "geocon: documentation built; open site/index.html" >&2

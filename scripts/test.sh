@@ -34,4 +34,4 @@ if [ "${GEOCON_WHEEL_CHECK:-1}" != 0 ]; then
         bash scripts/wheel_check.sh
 fi
 echo "geocon: pytest" >&2
-exec .venv/bin/python -m pytest "$@"
+exec .venv/bin/python -m pytest --durations=20 "$@"

@@ -53,6 +53,11 @@ for pkg in (geocon_core, geocon_viewer):
     where = Path(pkg.__file__).resolve()
     if where.is_relative_to(root):
         sys.exit(f"geocon: {pkg.__name__} was imported from the checkout ({where}), not the wheel")
+
+from geocon_core.validation import ANNOTATIONS_PATH, read_annotations
+
+if not read_annotations(ANNOTATIONS_PATH):  # `geocon validate` reads it from the wheel
+    sys.exit(f"geocon: the wheel lacks the validation's annotation file ({ANNOTATIONS_PATH})")
 EOF
 echo "geocon: geocon doctor (from the wheel)" >&2
 "$tmp/venv/bin/geocon" doctor

@@ -67,7 +67,7 @@ def _score_clip():
     try:
         from geocon_core import score_clip
     except ImportError:
-        from geocon_core.scorer import score_clip
+        from geocon_core.scoring import score_clip
     return score_clip
 
 
@@ -114,8 +114,8 @@ def scored_clip():
 
 
 def clip_info(**fields: object):
-    """A :class:`~geocon_core.reader.ClipInfo` of a small clip without bars; ``fields`` override."""
-    from geocon_core.reader import ClipInfo
+    """A :class:`~geocon_core.media.reader.ClipInfo` of a small clip without bars; ``fields`` override."""
+    from geocon_core.media import ClipInfo
 
     base: dict[str, object] = dict(
         path="x.mp4",

@@ -19,7 +19,7 @@ import pytest
 
 from geocon_core.config import ScoreConfig
 from geocon_core.record import MAX_RECORD_JSON_BYTES, RecordError, read_record, read_record_json
-from geocon_core.regate import load_residuals
+from geocon_core.scoring import load_residuals
 from geocon_viewer.processes import BindError, check_bind
 
 GEOCON = [sys.executable, "-m", "geocon_viewer.cli"]
@@ -30,7 +30,7 @@ CLEAN, BREATHING, ELASTIC = "clean-c1_static-s0", "breathing-c1_static-s0", "ela
 def results(tmp_path_factory) -> Path:
     """Three short synthetic clips (C1: clean, breathing, elastic), scored by `geocon bench`."""
     from geocon_core.bench import run_bench
-    from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
+    from geocon_core.synth import plan_benchmark, write_benchmark
 
     data = tmp_path_factory.mktemp("bad-serve-data")
     write_benchmark(data, plan_benchmark(families=("C1",), scenes=1), width=320, height=180, num_frames=8)
@@ -179,7 +179,7 @@ def test_broken_records_found_on_selection_without_preload(damaged):
 
 
 def test_preload_and_listing_go_on_past_broken_records(damaged):
-    from geocon_core.results import ResultsIndex
+    from geocon_core.report import ResultsIndex
 
     index = ResultsIndex.open(damaged)
     seen = []

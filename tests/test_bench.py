@@ -16,10 +16,13 @@ import pytest
 pd = pytest.importorskip("pandas")
 pytest.importorskip("pyarrow")
 
-from geocon_core.layout import read_status  # noqa: E402
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
-from geocon_core.tables import COLUMNS, read_tables  # noqa: E402
-from geocon_core.verdict import is_flagged  # noqa: E402
+from geocon_core.bench import (  # noqa: E402
+    COLUMNS,
+    read_status,  # noqa: E402
+    read_tables,
+)
+from geocon_core.scoring import is_flagged  # noqa: E402
+from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 
 from .bad_inputs import broken_bench_clip  # noqa: E402
 from .proc_group import kill_parent_alone  # noqa: E402
@@ -76,7 +79,7 @@ def test_tables_hold_every_clip_and_count_the_failure(results):
 
 
 def test_platform_with_breathing_ranks_worse_on_background_and_elastic_on_objects(results):
-    from geocon_core.stats import scene_balanced_median
+    from geocon_core.report import scene_balanced_median
 
     t = read_tables(results)
     ok = t["clips"][t["clips"]["status"] == "ok"]
@@ -89,7 +92,7 @@ def test_platform_with_breathing_ranks_worse_on_background_and_elastic_on_object
 
 
 def test_calibration_picks_a_threshold_where_the_truth_separates(results, dataset):
-    from geocon_core.stats import bootstrap_tau
+    from geocon_core.report import bootstrap_tau
 
     truth = {}
     for gt in dataset.rglob("*.gt.json"):
@@ -185,8 +188,7 @@ def test_invalid_dataset_exits_2_listing_problems(tmp_path):
 def test_report_is_self_contained_and_names_its_config(results, tmp_path):
     import re
 
-    from geocon_core.report import build_report
-    from geocon_core.stats import scene_balanced_median
+    from geocon_core.report import build_report, scene_balanced_median
 
     out = tmp_path / "report"
     proc = _run("report", str(results), "--out", str(out), "--bootstrap", "500")

@@ -20,10 +20,9 @@ pytest.importorskip("pyarrow")
 
 from typer.testing import CliRunner  # noqa: E402
 
-from geocon_core.lockfile import FolderLock, LockHeld  # noqa: E402
-from geocon_core.paths import OutPathError, check_out_dir, replace_dir  # noqa: E402
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
-from geocon_core.tables import read_tables  # noqa: E402
+from geocon_core.bench import read_tables  # noqa: E402
+from geocon_core.files import FolderLock, LockHeld, OutPathError, check_out_dir, replace_dir  # noqa: E402  # noqa: E402
+from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 from geocon_viewer.cli import app  # noqa: E402
 
 from .proc_group import kill_parent_alone, live_group, running, wait_gone  # noqa: E402
@@ -120,7 +119,7 @@ def test_killed_bench_leaves_no_process_and_resumes_to_the_same_tables(dataset, 
 
 _CHILD = """
 import sys, time
-from geocon_core.procs import die_with_parent
+from geocon_core.files.procs import die_with_parent
 die_with_parent(int(sys.argv[1]), poll_s=float(sys.argv[2]), pdeathsig=sys.argv[3] == "1")
 print("armed", flush=True)
 time.sleep(120)
@@ -241,7 +240,7 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, bytes]]:
 
 
 def test_report_is_replaced_whole_and_a_failed_run_keeps_the_previous_one(two_runs, tmp_path, monkeypatch):
-    import geocon_core.report as report
+    import geocon_core.report.pages as report
 
     results = two_runs[3]
     out = tmp_path / "report"

@@ -21,13 +21,17 @@ pytest.importorskip("ray")
 pd = pytest.importorskip("pandas")
 psutil = pytest.importorskip("psutil")
 
-from geocon_core.bench import run_bench  # noqa: E402
-from geocon_core.bench_ray import LOOPBACK_ENV, score_packed  # noqa: E402
+from geocon_core.bench import (  # noqa: E402  # noqa: E402
+    TABLES,
+    TABLES_DIR,
+    load_dataset,  # noqa: E402
+    read_status,
+    read_tables,
+    run_bench,  # noqa: E402
+)
+from geocon_core.bench.ray import LOOPBACK_ENV, score_packed  # noqa: E402
 from geocon_core.config import preset  # noqa: E402
-from geocon_core.dataset import load_dataset  # noqa: E402
-from geocon_core.layout import TABLES_DIR, read_status  # noqa: E402
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
-from geocon_core.tables import TABLES, read_tables  # noqa: E402
+from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 
 from .bad_inputs import broken_bench_clip  # noqa: E402
 

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.category import categorize
-from geocon_core.config import (
+from geocon_core.config.presets import (
     PRESETS,
     SUB_CONFIGS,
     UNUSED_BACKENDS,
@@ -32,8 +31,9 @@ from geocon_core.config import (
 )
 from geocon_core.flow import DisFlow, make_flow_backend
 from geocon_core.masks import MotionSegmenter, make_mask_source
+from geocon_core.media.reader import _hard_cuts
 from geocon_core.pose import ClassicalPose, make_pose_backend
-from geocon_core.reader import _hard_cuts
+from geocon_core.scoring import categorize
 from geocon_viewer.cli import app
 
 from .conftest import clip_info

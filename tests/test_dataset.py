@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from geocon_core.dataset import REQUIRED_FIELDS, DatasetError, load_dataset
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
+from geocon_core.bench import REQUIRED_FIELDS, DatasetError, load_dataset
+from geocon_core.synth import plan_benchmark, write_benchmark
 
 
 @pytest.fixture(scope="module")

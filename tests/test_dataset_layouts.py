@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.dataset import (
+from geocon_core.bench import (
     DatasetError,
     clip_ids,
     prompt_from_name,
@@ -320,7 +320,7 @@ def test_geocon_dataset_refuses_a_bad_dataset_in_one_sentence(tmp_path):
 
 def test_anomaly_rates_and_consensus_leave_out_clips_without_a_given_category():
     pd = pytest.importorskip("pandas")
-    from geocon_core import stats
+    from geocon_core.report import stats
 
     clips = pd.DataFrame(
         # a clip without a given category carries the scorer's category and no expected model
@@ -353,7 +353,7 @@ PROMPTS = {"C1": "a quiet room seen by a still camera", "C3": "a camera gliding 
 def layouts(tmp_path_factory) -> dict[str, Path]:
     """One tiny benchmark (3 platforms x 2 families, the ``elastic`` platform as GIF) in three
     layouts: a plain folder, the same files with hand-written sidecars, and a CSV manifest."""
-    from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
+    from geocon_core.synth import plan_benchmark, write_benchmark
 
     base = tmp_path_factory.mktemp("layouts")
     render = base / "render"
@@ -404,9 +404,8 @@ def layouts(tmp_path_factory) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def tables(layouts, tmp_path_factory) -> dict[str, dict]:
     pytest.importorskip("pyarrow")
-    from geocon_core.bench import run_bench
+    from geocon_core.bench import read_tables, run_bench
     from geocon_core.config import preset
-    from geocon_core.tables import read_tables
 
     out = tmp_path_factory.mktemp("layout-results")
     got = {}
@@ -444,8 +443,8 @@ def test_manifest_and_plain_folder_give_the_tables_of_hand_written_sidecars(tabl
 def test_the_audit_app_lists_the_scorers_category_where_none_was_given(tables):
     """The audit app's clip list (read from the tables, or from each record when they are stale)
     shows a clip without a given category under the scorer's, with no expected gate."""
-    from geocon_core.result_clips import clip_from_record_json, read_bench_clips
-    from geocon_core.tables import read_tables
+    from geocon_core.bench import read_tables
+    from geocon_core.report import clip_from_record_json, read_bench_clips
 
     results = tables["plain"]["results"]
     scored = read_tables(results)["clips"].set_index("clip_id")["observed_category"].to_dict()
@@ -461,10 +460,8 @@ def test_categories_set_in_written_sidecars_reach_the_tables_without_scoring_aga
     """The workflow of a plain folder: bench it, spell it out as sidecars, set the categories, bench
     again into the same results: nothing is scored twice and the tables are the manifest's."""
     pd = pytest.importorskip("pandas")
-    from geocon_core.bench import run_bench
+    from geocon_core.bench import read_tables, run_bench, write_sidecars
     from geocon_core.config import preset
-    from geocon_core.dataset import write_sidecars
-    from geocon_core.tables import read_tables
 
     manifest_clips = tables["manifest"]["tables"]["clips"]
     given = dict(zip(manifest_clips["clip_id"], manifest_clips["category"], strict=True))

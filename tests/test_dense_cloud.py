@@ -1,4 +1,4 @@
-"""Dense two-view clouds (``geocon_core.dense_cloud``) against rendered truth: on the synthetic
+"""Dense two-view clouds (``geocon_core.reconstruction.dense``) against rendered truth: on the synthetic
 translation families the flow of the first/last pair, triangulated with the true pose, gives tens
 of thousands of points whose depth matches the rendered depth; a breathing background turns far
 more of a window's points into epipolar outliers than a rigid one; a camera that only rotates
@@ -11,14 +11,12 @@ import numpy as np
 import pytest
 
 from geocon_core.config import ScoreConfig
-from geocon_core.dense_cloud import KIND_OBJECT, KIND_OUTLIER, DenseCloudConfig, dense_cloud
 from geocon_core.flow import make_flow_backend
-from geocon_core.reader import iter_frames, probe_clip
+from geocon_core.media import iter_frames, probe_clip
+from geocon_core.reconstruction import KIND_OBJECT, KIND_OUTLIER, DenseCloudConfig, dense_cloud
 from geocon_core.record import read_record, write_record
-from geocon_core.scorer import score_clip
-from geocon_core.synth import ClipPlan, write_clip
-from geocon_core.synth.families import build_scene
-from geocon_core.synth.render import render_frame
+from geocon_core.scoring import score_clip
+from geocon_core.synth import ClipPlan, build_scene, render_frame, write_clip
 
 W, H, N = 640, 360, 12
 

@@ -11,12 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geocon_core.config import ScoreConfig, preset
-from geocon_core.reader import probe_clip
-from geocon_core.scorer import score_clip
-from geocon_core.stage_configs import CutConfig
+from geocon_core.config import CutConfig, ScoreConfig, preset
+from geocon_core.media import Mp4Writer, probe_clip
+from geocon_core.scoring import score_clip
 from geocon_core.synth import FAMILIES, ClipPlan
-from geocon_core.video import Mp4Writer
 
 from .conftest import read_video
 

@@ -26,9 +26,9 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from geocon_core.masks.external import ExternalMasks
+from geocon_core.masks import ExternalMasks
+from geocon_core.media import iter_frames, probe_clip
 from geocon_core.pose import load_pose_log
-from geocon_core.reader import iter_frames, probe_clip
 
 from .bad_inputs import POSITIONS, mutate, pan_frames, write_gif, write_palette_png, write_pngs, write_video
 from .conftest import clip_info
@@ -347,8 +347,7 @@ def test_any_file_name_is_read_or_refused_in_one_sentence(seeds, tmp_path, raw, 
     name of the same bytes reads back."""
     import os
 
-    from geocon_core.decode import imread_any, imwrite_any
-    from geocon_core.reader import clip_fingerprint, locate_clip
+    from geocon_core.media import clip_fingerprint, imread_any, imwrite_any, locate_clip
 
     name = os.fsdecode(raw[: 250 - len(suffix)]) + suffix
     if name in (".", ".."):

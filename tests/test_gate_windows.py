@@ -13,12 +13,10 @@ import numpy as np
 import pytest
 
 from geocon_core.config import preset
+from geocon_core.media import Mp4Writer
 from geocon_core.record import write_record
-from geocon_core.regate import load_residuals, regate_clip
-from geocon_core.scorer import score_clip
+from geocon_core.scoring import Thresholds, gate_decision, load_residuals, regate_clip, score_clip, window_t_inf
 from geocon_core.synth import build_scene, render_frame
-from geocon_core.verdict import Thresholds, gate_decision, window_t_inf
-from geocon_core.video import Mp4Writer
 
 W, H, OUT = 320, 180, 17  # 17 frames out, 16 back: 33 frames, the last one where the first was
 

@@ -22,7 +22,7 @@ from geocon_core.geometry import (
     symmetric_transfer_error,
     t_inf_from_pose,
 )
-from geocon_core.verdict import binary_gate, hysteresis_gate
+from geocon_core.scoring import binary_gate, hysteresis_gate
 
 K = intrinsics_from_fov(640, 360, 60.0)
 angles = st.floats(-20, 20)

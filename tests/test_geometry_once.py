@@ -23,7 +23,7 @@ from geocon_core.geometry import (
     skew,
     triangulate_normalised,
 )
-from geocon_core.pose.base import default_intrinsics
+from geocon_core.pose import default_intrinsics
 
 
 def _scene(seed: int = 0, n: int = 200):

@@ -12,11 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
+from geocon_core.config import MotionConfig
 from geocon_core.masks import ExternalMasks, MotionSegmenter
 from geocon_core.masks.identity import colour_histogram, histogram_distance, merge_parts
 from geocon_core.masks.tracking import Tracker
-from geocon_core.reader import probe_clip
-from geocon_core.stage_configs import MotionConfig
+from geocon_core.media import probe_clip
 from geocon_core.synth import ClipPlan, write_clip
 
 from .conftest import SHARED_DATA

@@ -93,9 +93,10 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def test_the_graph_is_walked():
     graph = _graph()
-    assert "geocon_core.scorer" in graph and "geocon_viewer.cli" in graph
-    assert "geocon_core.layout" in graph["geocon_core.bench"]
-    assert "geocon_core.layout" in graph["geocon_core.tables"]
+    assert "geocon_core.scoring.scorer" in graph and "geocon_viewer.cli" in graph
+    assert "geocon_core.bench.layout" in graph["geocon_core.bench.run"]
+    assert "geocon_core.bench.layout" in graph["geocon_core.bench.tables"]
+    assert "geocon_core.record" in graph["geocon_core.scoring.verdict"]
 
 
 def test_no_import_cycles_among_project_modules():
@@ -132,7 +133,7 @@ def test_no_private_names_cross_packages():
     [
         "import geocon_core",
         "import geocon_core; geocon_core.ScoreConfig; geocon_core.preset('paper')",
-        "import geocon_core.bench, geocon_core.results, geocon_core.tables",
+        "import geocon_core.bench, geocon_core.report",
         "import geocon_viewer.cli",
     ],
 )
@@ -159,3 +160,83 @@ def test_the_public_api_resolves():
         assert getattr(geocon_core, name) is not None, name
     with pytest.raises(AttributeError):
         geocon_core.not_a_name  # noqa: B018
+
+
+# The layout: geocon_core is packages that follow the data (docs/layout.md), each with one public
+# __init__; nothing else sits at its top level.
+
+CORE_TOP_LEVEL = {"__init__", "_version"}
+"""The modules allowed at the top of geocon_core: the lazy public API and the version string
+(loaded by ``import geocon_core`` at once; docs/layout.md says why it is no package)."""
+
+
+def _core_packages() -> list[str]:
+    return sorted(p.parent.name for p in (ROOT / "geocon_core").glob("*/__init__.py"))
+
+
+def _package_of(module: str) -> str:
+    """``geocon_core.record.clip`` -> ``geocon_core.record``; a viewer module stays itself."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] == "geocon_core" else module
+
+
+def test_the_core_top_level_holds_packages_only():
+    modules = {p.stem for p in (ROOT / "geocon_core").glob("*.py")}
+    assert modules == CORE_TOP_LEVEL, f"modules at the top of geocon_core: {sorted(modules - CORE_TOP_LEVEL)}"
+    assert len(_core_packages()) >= 10
+
+
+def test_no_cycles_among_the_core_packages():
+    graph: dict[str, set[str]] = {}
+    for module, deps in _graph().items():
+        if not module.startswith("geocon_core."):
+            continue
+        mine = _package_of(module)
+        targets = {_package_of(d) for d in deps if d.startswith("geocon_core.")}
+        graph.setdefault(mine, set()).update(targets - {mine, "geocon_core"})
+    assert _cycle(graph) is None, "package cycle: " + " -> ".join(_cycle(graph) or [])
+
+
+def test_the_package_cycle_check_sees_a_cycle_through_submodules():
+    graph = {"geocon_core.a": {"geocon_core.b"}, "geocon_core.b": {"geocon_core.a"}}
+    assert _cycle(graph) == ["geocon_core.a", "geocon_core.b", "geocon_core.a"]
+
+
+def test_other_packages_use_a_package_through_its_init():
+    """Inside a package, modules import each other; from outside, only the package's public
+    ``__init__`` is imported (``from ..record import ClipRecord``, never ``..record.clip``)."""
+    modules = _modules()
+    known = set(modules)
+    bad = []
+    for name, deps in _graph().items():
+        for dep in deps:
+            parts = dep.split(".")
+            if parts[0] != "geocon_core" or len(parts) < 3 or not (ROOT / "geocon_core" / parts[1]).is_dir():
+                continue
+            if _package_of(name) != _package_of(dep) and dep in known:
+                bad.append(f"{name} -> {dep}")
+    assert not bad, bad
+
+
+@pytest.mark.parametrize("package", _core_packages())
+def test_each_package_declares_its_public_names(package):
+    import importlib
+
+    module = importlib.import_module(f"geocon_core.{package}")
+    assert module.__doc__ and len(module.__doc__.strip()) > 40, f"geocon_core.{package} has no docstring"
+    names = module.__all__
+    assert len(names) == len(set(names)), "a name twice in __all__"
+    for name in names:
+        value = getattr(module, name)
+        defined_in = getattr(value, "__module__", None)
+        if isinstance(defined_in, str) and defined_in.startswith("geocon_core."):
+            # re-exported from its own package, or an alias of another package's public name
+            owner = _package_of(defined_in)
+            assert owner == f"geocon_core.{package}" or name in importlib.import_module(owner).__all__, name
+
+
+def test_the_layout_page_names_every_package():
+    page = (ROOT / "docs" / "layout.md").read_text()
+    missing = [p for p in _core_packages() if f"`{p}/`" not in page]
+    assert not missing, f"docs/layout.md does not describe {missing}"
+    assert "`_version.py`" in page

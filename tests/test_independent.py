@@ -6,16 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geocon_core.models import (
+from geocon_core.geometry import (
     fit_homography,
     independent_motion,
     inlier_stats,
     segment_inlier_stats,
     with_independent,
 )
-from geocon_core.pose.base import PoseEstimate, failure
-from geocon_core.pose.chain import chain_hops, chain_lengths, compose_chain, select_hops
-from geocon_core.pose.still import still_share
+from geocon_core.pose import PoseEstimate, chain_hops, chain_lengths, compose_chain, failure, select_hops, still_share
 
 W, H = 640, 360
 
@@ -134,7 +132,7 @@ def test_movers_the_masks_miss_leave_a_still_camera_consistent(synth_clips):
     from dataclasses import replace
 
     from geocon_core.config import IndependentConfig, preset
-    from geocon_core.scorer import score_clip
+    from geocon_core.scoring import score_clip
     from geocon_core.synth import ClipPlan
 
     folder = synth_clips([ClipPlan("C4")], seed=2, width=640, height=360, num_frames=24)
@@ -158,10 +156,8 @@ def test_a_failing_background_whose_matches_moved_on_their_own_is_not_judged(syn
 
     from geocon_core.config import preset
     from geocon_core.record import write_record
-    from geocon_core.regate import load_residuals, regate_clip, regate_family
-    from geocon_core.scorer import score_clip
+    from geocon_core.scoring import Thresholds, load_residuals, regate_clip, regate_family, score_clip
     from geocon_core.synth import ClipPlan
-    from geocon_core.verdict import Thresholds
 
     folder = synth_clips([ClipPlan("C4")], seed=2, width=640, height=360, num_frames=24)
     audit = preset("audit").with_(masks="none")  # the movers' matches are left to the independent-motion rule

@@ -24,7 +24,7 @@ from geocon_core.masks import (
     make_mask_source,
     masked_share,
 )
-from geocon_core.reader import ClipInfo, iter_frames, probe_clip
+from geocon_core.media import ClipInfo, iter_frames, probe_clip
 from geocon_core.synth import ClipPlan, write_clip
 
 from .conftest import SHARED_DATA, clip_info

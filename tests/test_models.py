@@ -5,24 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geocon_core import geometry
-from geocon_core.features import gross_mismatches
 from geocon_core.geometry import (
+    fit_fundamental,
+    fit_homography,
     fundamental_from_pose,
+    gross_mismatches,
+    hartley_normalisation,
     homography_from_plane,
+    inlier_stats,
     intrinsics_from_fov,
     make_pose,
     rotation_xyz,
     sampson_distance,
-)
-from geocon_core.models import (
-    fit_fundamental,
-    fit_homography,
-    hartley_normalisation,
-    inlier_stats,
     segment_inlier_stats,
     segment_order,
 )
+from geocon_core.geometry import twoview as geometry
 
 K = intrinsics_from_fov(1024, 576, 60.0)
 

@@ -1,4 +1,4 @@
-"""The multi-view check (:mod:`geocon_core.multiview`) against synthetic scenes with known geometry:
+"""The multi-view check (:mod:`geocon_core.reconstruction.multiview`) against synthetic scenes with known geometry:
 the recovered camera path matches the true one, a layer that slides across its travel is found
 and its tracks are those of the true layer (precision and recall >= 0.8 against the rendered
 surface map), clean scenes have no drifting layer, and the record keeps the result."""
@@ -12,11 +12,15 @@ import pytest
 
 pytest.importorskip("pycolmap")
 
-from geocon_core.config import ScoreConfig, config_hash, preset  # noqa: E402
-from geocon_core.multiview import LongTracks, MultiViewResult, keyframes, reconstruct  # noqa: E402
+from geocon_core.config import (  # noqa: E402
+    MultiViewConfig,  # noqa: E402
+    ScoreConfig,
+    config_hash,
+    preset,
+)
+from geocon_core.media import iter_frames, probe_clip  # noqa: E402
 from geocon_core.pose import default_intrinsics  # noqa: E402
-from geocon_core.reader import iter_frames, probe_clip  # noqa: E402
-from geocon_core.stage_configs import MultiViewConfig  # noqa: E402
+from geocon_core.reconstruction import LongTracks, MultiViewResult, keyframes, reconstruct  # noqa: E402
 from geocon_core.synth import ClipPlan, build_scene, make_failure, render_frame  # noqa: E402
 
 from .conftest import SHARED_DATA  # noqa: E402
@@ -261,9 +265,9 @@ def test_the_audit_app_shows_the_reconstruction_and_the_slider_moves_its_camera(
 
 
 def test_the_report_thumbnail_marks_the_drifting_layer(clips, scored_clip, tmp_path):
+    from geocon_core.bench.tables import _clip_row
     from geocon_core.record import write_record
-    from geocon_core.report_thumbs import clip_thumbs
-    from geocon_core.tables import _clip_row
+    from geocon_core.report import clip_thumbs
 
     rec = scored_clip(clips["C3-across"], preset("audit"))
     write_record(rec, tmp_path / "one")

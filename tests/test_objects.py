@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.category import categorize_record
 from geocon_core.config import ScoreConfig, preset
 from geocon_core.record import read_record, write_record
-from geocon_core.scorer import score_clip
+from geocon_core.scoring import categorize_record, score_clip
 from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
 from geocon_viewer.cli import app
 

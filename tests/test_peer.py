@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.finding import CLIP_SCORE_SLOPE, clip_finding, clip_score
+from geocon_core.record import CLIP_SCORE_SLOPE, clip_finding, clip_score
 from geocon_core.validation.metrics import auc
 from geocon_core.validation.peer import PEER_FILE, PEER_VERSION, peer_keep_rate, raw_frames
 from geocon_core.validation.results import peer_score

@@ -35,9 +35,8 @@ from geocon_core.pose import (
     load_pose_log,
     make_pose_backend,
 )
-from geocon_core.synth import ClipPlan, build_scene, mean_scene_distance, render_frame, write_clip
-from geocon_core.synth.scene import pose_from_center
-from geocon_core.verdict import hysteresis_gate
+from geocon_core.scoring import hysteresis_gate
+from geocon_core.synth import ClipPlan, build_scene, mean_scene_distance, pose_from_center, render_frame, write_clip
 
 from .conftest import SHARED_DATA, read_video, sift_matches
 

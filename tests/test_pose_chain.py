@@ -8,9 +8,8 @@ import pytest
 
 from geocon_core.config import preset
 from geocon_core.geometry import invert_pose, make_pose, rotation_xyz
-from geocon_core.pose import ClassicalPose, PoseEstimate
-from geocon_core.pose.chain import chain_hops, compose_chain
-from geocon_core.scorer import score_clip
+from geocon_core.pose import ClassicalPose, PoseEstimate, chain_hops, compose_chain
+from geocon_core.scoring import score_clip
 
 from .conftest import sift_matches
 from .test_pose import RE10K, gate, read_re10k, real_clip_table

@@ -12,8 +12,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
+from geocon_core.pose import PoseLog
 from geocon_core.pose.convert import from_colmap, from_dust3r, rotation_from_quaternion
-from geocon_core.pose.log import PoseLog
 from geocon_viewer.cli import app
 
 

@@ -1,4 +1,4 @@
-"""RAFT-small (``geocon_core.raft``) against the authors' implementation.
+"""RAFT-small (``geocon_core.flow.raft``) against the authors' implementation.
 
 The fixture ``tests/data/raft_small_reference.npz`` was made once, outside the project, with the
 reference code (github.com/princeton-vl/RAFT at 2888e15, ``core/``; ``RAFT(small=True,
@@ -20,7 +20,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from geocon_core.raft import RaftSmall, load_raft_small  # noqa: E402
+from geocon_core.flow.raft import RaftSmall, load_raft_small  # noqa: E402
 
 FIXTURE = Path(__file__).parent / "data" / "raft_small_reference.npz"
 
@@ -90,7 +90,7 @@ def test_scoring_with_raft_runs_end_to_end(reference, tmp_path):
     that rigid objects score below elastic ones; that needs the released weights."""
     from geocon_core.config import preset
     from geocon_core.record import read_record, write_record
-    from geocon_core.scorer import score_clip
+    from geocon_core.scoring import score_clip
     from geocon_core.synth import ClipPlan, write_clip
 
     gt = write_clip(ClipPlan("C4"), tmp_path, width=192, height=128, num_frames=6)

@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 
 from geocon_core.config import ScoreConfig
-from geocon_core.reader import ClipError, ClipInfo, Frame, iter_frames, probe_clip
+from geocon_core.media import ClipError, ClipInfo, Frame, Mp4Writer, iter_frames, probe_clip
 from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
-from geocon_core.video import Mp4Writer
 
 from .conftest import SHARED_DATA, read_video
 
@@ -430,7 +429,7 @@ def test_frames_of_different_sizes(tmp_path):
 def test_a_record_finds_its_clip_where_it_moved_and_refuses_another(tmp_path):
     from dataclasses import replace
 
-    from geocon_core.reader import OtherClipError, clip_fingerprint, locate_clip
+    from geocon_core.media import OtherClipError, clip_fingerprint, locate_clip
 
     from .bad_inputs import pan_frames, write_video
 

@@ -12,11 +12,18 @@ import pytest
 
 from geocon_core.bench import score_to_folder
 from geocon_core.config import ScoreConfig
-from geocon_core.diagnostics import OverlayFlow, OverlayFrame, read_overlays
+from geocon_core.media import ClipInfo
 from geocon_core.pose import PoseEstimate
-from geocon_core.reader import ClipInfo
-from geocon_core.record import RECORD_FORMAT, read_record, read_record_json, write_record
-from geocon_core.results import ResultsError, ResultsIndex
+from geocon_core.record import (
+    RECORD_FORMAT,
+    OverlayFlow,
+    OverlayFrame,
+    read_overlays,
+    read_record,
+    read_record_json,
+    write_record,
+)
+from geocon_core.report import ResultsError, ResultsIndex
 from geocon_core.synth import ClipPlan, write_clip
 
 CFG = ScoreConfig(scales=(1.0,), gaps=(1,), working_size=(320, 180))

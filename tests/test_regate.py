@@ -7,8 +7,7 @@ import pytest
 
 from geocon_core.config import preset
 from geocon_core.record import read_record, write_record
-from geocon_core.regate import regate_family, sensitivity_scan
-from geocon_core.scorer import score_clip
+from geocon_core.scoring import regate_family, score_clip, sensitivity_scan
 
 
 @pytest.fixture(scope="module", params=["paper", "strict"])
@@ -64,8 +63,7 @@ def test_bad_family_is_rejected(record):
 def test_whole_clip_regating_at_recorded_thresholds_is_the_record(record, tmp_path):
     """:func:`regate_clip` (from the record, and from the slim residuals read off disk) gives the
     recorded gate label, model, IR, GE and verdict exactly."""
-    from geocon_core.regate import load_residuals, regate_clip
-    from geocon_core.verdict import Thresholds
+    from geocon_core.scoring import Thresholds, load_residuals, regate_clip
 
     write_record(record, tmp_path)
     th = Thresholds.of(record.config)
@@ -81,8 +79,7 @@ def test_moving_thresholds_changes_the_verdict_as_the_rules_say(record):
     """C3 (translation): t_inf is above 0.05, so raising the gate's thresholds past it turns the
     clip into an H clip scored by the homography, whose residuals are larger (parallax); the
     report gates flip the verdict exactly at the clip's own IR and GE."""
-    from geocon_core.regate import regate_clip
-    from geocon_core.verdict import Thresholds
+    from geocon_core.scoring import Thresholds, regate_clip
 
     th = Thresholds.of(record.config)
     base = regate_clip(record, th)
@@ -107,7 +104,7 @@ def test_moving_thresholds_changes_the_verdict_as_the_rules_say(record):
 
 
 def test_choose_model_and_report_rules():
-    from geocon_core.verdict import choose_model, report_margin, report_verdict
+    from geocon_core.scoring import choose_model, report_margin, report_verdict
 
     assert choose_model("U", True, 0.9, 0.95) == "F" and choose_model("U", True, 0.95, 0.95) == "H"
     assert choose_model("U", True, None, 0.5) == "F" and choose_model("H", False, 1.0, 0.0) == "F"

@@ -19,12 +19,10 @@ pytest.importorskip("matplotlib")
 
 import cv2  # noqa: E402
 
-from geocon_core import report_figures as rf  # noqa: E402
-from geocon_core.bench import run_bench  # noqa: E402
-from geocon_core.report import build_report  # noqa: E402
-from geocon_core.report_thumbs import THUMB_WIDTH, clip_thumbs, thumbs_html  # noqa: E402
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
-from geocon_core.tables import read_tables  # noqa: E402
+from geocon_core.bench import read_tables, run_bench  # noqa: E402
+from geocon_core.report import THUMB_WIDTH, build_report, clip_thumbs, thumbs_html  # noqa: E402
+from geocon_core.report import figures as rf  # noqa: E402
+from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 
 QUESTIONS = ("summary_platforms", "summary_margins", "summary_failures")
 LONG_NAMES = (

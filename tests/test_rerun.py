@@ -16,10 +16,9 @@ rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
 from geocon_core.config import preset  # noqa: E402
-from geocon_core.dense_cloud import DenseCloud, DenseCloudConfig, WindowCloud  # noqa: E402
-from geocon_core.diagnostics import OverlayWriter, read_overlays  # noqa: E402
-from geocon_core.record import read_record, write_record  # noqa: E402
-from geocon_core.scorer import score_clip  # noqa: E402
+from geocon_core.reconstruction import DenseCloud, DenseCloudConfig, WindowCloud  # noqa: E402
+from geocon_core.record import OverlayWriter, read_overlays, read_record, write_record  # noqa: E402  # noqa: E402
+from geocon_core.scoring import score_clip  # noqa: E402
 from geocon_viewer.rerun_dense import WINDOW_POINTS, WORLD_POINTS  # noqa: E402
 from geocon_viewer.rerun_layers import RecordLayers  # noqa: E402
 from geocon_viewer.rerun_log import RrdSink, audit_card, residual_map, write_rrd  # noqa: E402

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from geocon_core.config import preset
-from geocon_core.scorer import score_clip
+from geocon_core.scoring import score_clip
 from geocon_core.synth import plan_clips, write_clip
 
 SIZES = ((448, 256), (1280, 720))

@@ -1,4 +1,4 @@
-"""AdaDFRC-W2 (geocon_core.rigidity): exactness on affine fields, analytic non-affine scores,
+"""AdaDFRC-W2 (geocon_core.scoring.rigidity): exactness on affine fields, analytic non-affine scores,
 optimal-transport bounds and exactness, invalid inputs, serialisation."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 from scipy.optimize import linear_sum_assignment
 
 from geocon_core.record import ObjectEntry
-from geocon_core.rigidity import (
+from geocon_core.scoring import (
     MASK_JUMP,
     CellVectors,
     RigidityResult,

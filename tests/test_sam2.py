@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from geocon_core.config import preset
+from geocon_core.config import Sam2Config, preset
 from geocon_core.masks import make_mask_source
 from geocon_core.masks.sam2 import Sam2Masks, load_sam2, prompt_box, resolve_sam2_config
-from geocon_core.reader import Frame
-from geocon_core.stage_configs import Sam2Config
+from geocon_core.media import Frame
 from tests.conftest import clip_info
 
 # -- fakes for our own logic: a motion segmentation with planted movers, and a "SAM-2" that
@@ -240,7 +239,7 @@ def test_settings_errors_are_one_sentence(tmp_path) -> None:
     with pytest.raises(ValueError, match="sam2.image_size must be a multiple of 32"):
         Sam2Config(image_size=500)
     with pytest.raises(ValueError, match="a SAM-2 checkpoint was given but the masks are 'motion'"):
-        from geocon_core.scorer import score_clip
+        from geocon_core.scoring import score_clip
 
         score_clip(tmp_path / "clip.mp4", preset("fast"), sam2_checkpoint=tmp_path / "x.pt")
 

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from geocon_core.schedule import StreamSchedule, gate_windows
+from geocon_core.scoring import StreamSchedule, gate_windows
 
 
 class FakeStages:

@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 
 from geocon_core.config import ScoreConfig, preset
-from geocon_core.geometry import apply_homography
-from geocon_core.models import inlier_stats
+from geocon_core.geometry import apply_homography, inlier_stats
 from geocon_core.record import read_record, write_record
-from geocon_core.scorer import score_clip
+from geocon_core.scoring import score_clip
 from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
 
 from .conftest import SHARED_DATA

@@ -20,13 +20,12 @@ pytest.importorskip("viser")
 pd = pytest.importorskip("pandas")
 pytest.importorskip("pyarrow")
 
-from geocon_core.bench import run_bench  # noqa: E402
+from geocon_core.bench import read_tables, run_bench  # noqa: E402
 from geocon_core.config import ScoreConfig  # noqa: E402
 from geocon_core.record import read_record  # noqa: E402
-from geocon_core.regate import pair_inliers, regate_family  # noqa: E402
-from geocon_core.results import VERDICTS, ResultsError, ResultsIndex  # noqa: E402
-from geocon_core.synth.benchmark import plan_benchmark, write_benchmark  # noqa: E402
-from geocon_core.tables import read_tables  # noqa: E402
+from geocon_core.report import VERDICTS, ResultsError, ResultsIndex  # noqa: E402
+from geocon_core.scoring import pair_inliers, regate_family  # noqa: E402
+from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 from geocon_viewer.audit_app import LIST_ROWS, AuditApp  # noqa: E402
 
 from .bad_inputs import broken_bench_clip  # noqa: E402
@@ -411,7 +410,7 @@ def test_headless_chromium_shows_the_list_scene_and_plots(results, tmp_path):
 def dense_record(tmp_path_factory) -> Path:
     """A translating clip scored into a record with dense clouds (first/last and one gate window)."""
     from geocon_core.bench import score_to_folder
-    from geocon_core.dense_cloud import DenseCloudConfig
+    from geocon_core.reconstruction import DenseCloudConfig
     from geocon_core.synth import ClipPlan, write_clip
 
     data = tmp_path_factory.mktemp("dense-clip")

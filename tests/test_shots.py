@@ -8,11 +8,9 @@ from pathlib import Path
 import pytest
 
 from geocon_core.config import ScoreConfig, preset
-from geocon_core.regate import regate_clip
-from geocon_core.scorer import score_clip
+from geocon_core.media import Mp4Writer
+from geocon_core.scoring import Thresholds, gate_shot, regate_clip, score_clip
 from geocon_core.synth import ClipPlan, load_ground_truth
-from geocon_core.verdict import Thresholds, gate_shot
-from geocon_core.video import Mp4Writer
 
 from .conftest import read_video
 
@@ -91,7 +89,7 @@ def test_the_audit_app_regates_a_clip_with_cuts_shot_by_shot(record, tmp_path):
     """The results index (the audit app's triage) gives a clip with cuts the recorded verdict at
     the recorded thresholds, and re-gates it shot by shot at others."""
     from geocon_core.record import write_record
-    from geocon_core.results import ResultsIndex
+    from geocon_core.report import ResultsIndex
 
     write_record(record, tmp_path / "rec")
     index = ResultsIndex.open(tmp_path / "rec")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geocon_core.features import SiftMatcher, make_matcher, scaled_inputs
+from geocon_core.geometry import SiftMatcher, make_matcher, scaled_inputs
 
 from .test_tracks import STEP, _frames
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from geocon_core.staging import staged_record
+from geocon_core.bench import staged_record
 
 
 def _tree(folder: Path) -> dict[str, bytes]:
@@ -73,7 +73,7 @@ def test_a_signal_during_the_commit_waits_for_the_record_and_its_recording(tmp_p
     are there, then delivered: the folder never pairs a new record with an old recording."""
     import signal
 
-    import geocon_core.staging as staging
+    import geocon_core.bench.staging as staging
 
     out, rrd, part = tmp_path / "D", tmp_path / "audit.rrd", tmp_path / ".audit.rrd.part"
     _write_record(out, "old", 2)

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from geocon_core import stats
+from geocon_core.report import stats
 
 
 @pytest.mark.parametrize(

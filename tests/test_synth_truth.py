@@ -10,15 +10,14 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.dataset import REQUIRED_FIELDS
+from geocon_core.bench import REQUIRED_FIELDS
 from geocon_core.geometry import (
     fundamental_from_pose,
     homography_from_rotation,
     sampson_distance,
     symmetric_transfer_error,
 )
-from geocon_core.synth import build_scene, load_ground_truth, make_failure, render_frame
-from geocon_core.synth.writer import ClipPlan
+from geocon_core.synth import ClipPlan, build_scene, load_ground_truth, make_failure, render_frame
 
 from .conftest import read_video, sift_matches
 

@@ -14,12 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.features import make_matcher
-from geocon_core.geometry import intrinsics_from_fov, relative_pose, rotation_xyz, t_inf_from_pose
+from geocon_core.geometry import intrinsics_from_fov, make_matcher, relative_pose, rotation_xyz, t_inf_from_pose
 from geocon_core.pose import ClassicalPose
-from geocon_core.synth import build_scene, mean_scene_distance, render_frame
+from geocon_core.synth import Scene, build_scene, mean_scene_distance, pose_from_center, render_frame
 from geocon_core.synth.families import _panel, _wall
-from geocon_core.synth.scene import Scene, pose_from_center
 
 W, H = 640, 360
 T_TRUE = (0.02, 0.05, 0.12, 0.2)

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.features import KltTrackMatcher, make_matcher
+from geocon_core.geometry import KltTrackMatcher, make_matcher
 
 STEP = np.array([1.3, -0.7])
 """The scene's motion per frame (px): frame k is the texture shifted by k * STEP."""

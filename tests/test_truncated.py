@@ -16,9 +16,8 @@ import pytest
 from PIL import Image
 
 from geocon_core.config import preset
-from geocon_core.decode import FrameCount
-from geocon_core.reader import ClipError, ClipInfo, iter_frames, probe_clip
-from geocon_core.scorer import score_clip
+from geocon_core.media import ClipError, ClipInfo, FrameCount, iter_frames, probe_clip
+from geocon_core.scoring import score_clip
 
 from .conftest import read_video
 
@@ -148,7 +147,7 @@ def test_variable_frame_rate_estimate_is_not_a_truncation(tmp_path):
     # 12 frames at 33 ms then 12 at 80 ms: duration x average rate says 32 frames, 24 decode
     pts = [33 * t if t < 12 else 33 * 12 + 80 * (t - 12) for t in range(T)]
     path = encode(tmp_path / "vfr.mkv", pan(), container="matroska", pts_ms=pts)
-    from geocon_core.decode import container_frame_count
+    from geocon_core.media import container_frame_count
 
     assert container_frame_count(str(path)) == FrameCount(32, exact=False)
     info = probe_clip(path)

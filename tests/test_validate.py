@@ -219,8 +219,7 @@ def test_footage_is_filled_from_a_clone_and_checked(tmp_path):
     import hashlib
     import subprocess
 
-    from geocon_core.validation import Annotation
-    from geocon_core.validation.footage import fill_footage, footage_status
+    from geocon_core.validation import Annotation, fill_footage, footage_status
 
     repo = tmp_path / "sources" / "someone+clips"
     repo.mkdir(parents=True)
@@ -268,7 +267,7 @@ def test_worst_pair_note_names_the_lowest_ir_pair_and_how_far_its_outliers_lie(s
 
 
 def test_report_lists_flagged_clean_and_real_camera_clips_as_exceptions(tmp_path):
-    from geocon_core.validation.report import ValidationReport, write_report
+    from geocon_core.validation import ValidationReport, write_report
 
     rows = (
         _row(case_id="clean-ok"),

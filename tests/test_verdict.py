@@ -12,11 +12,11 @@ from types import SimpleNamespace
 
 import pytest
 
-from geocon_core.bench_clip import _flagged as bench_flagged
+from geocon_core.bench.clip import _flagged as bench_flagged
 from geocon_core.config import ScoreConfig
-from geocon_core.models import FAMILIES, family_spec
-from geocon_core.results import ResultClip, ResultsIndex
-from geocon_core.verdict import (
+from geocon_core.geometry import FAMILIES, family_spec
+from geocon_core.report import ResultClip, ResultsIndex
+from geocon_core.scoring import (
     FitRow,
     Scores,
     Thresholds,
@@ -76,7 +76,7 @@ def _truth(gate: str, pose: bool, agrees: bool) -> bool:
 
 def _report_flagged(index: ResultsIndex) -> set[str]:
     pd = pytest.importorskip("pandas")
-    from geocon_core.report import _flagged
+    from geocon_core.report.pages import _flagged
 
     rows = []
     for c in index.clips:

@@ -9,9 +9,9 @@ from collections import Counter
 import pytest
 
 from geocon_core.config import preset
-from geocon_core.features import SiftMatcher
+from geocon_core.geometry import SiftMatcher
 from geocon_core.pose import ClassicalPose
-from geocon_core.scorer import score_clip
+from geocon_core.scoring import score_clip
 
 from .test_pose import RE10K
 
@@ -99,7 +99,7 @@ def test_pot_leaves_the_array_libraries_alone():
     import sys
 
     code = (
-        "import sys; from geocon_core.rigidity import quiet_pot_backends; quiet_pot_backends(); import ot; "
+        "import sys; from geocon_core.scoring.rigidity import quiet_pot_backends; quiet_pot_backends(); import ot; "
         "print('torch' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

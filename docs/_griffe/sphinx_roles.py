@@ -1,7 +1,7 @@
 """A griffe extension for the API reference: Sphinx roles in docstrings become inline code.
 
 The docstrings name other objects with Sphinx roles (:func:`score_clip`,
-:class:`~geocon_core.reader.ClipError`); Markdown has no roles, so the reference pages would
+:class:`~geocon_core.media.reader.ClipError`); Markdown has no roles, so the reference pages would
 show the role's name beside the code. ``:role:`~a.b.C``` becomes ```C``` (Sphinx shows the last
 part after a tilde), ``:role:`a.b.C``` becomes ```a.b.C```, and ``:role:`title <target>``` becomes
 ```title```. Loaded by mkdocstrings (``mkdocs.yml``); nothing in the packages imports it.

@@ -64,12 +64,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..reader import ClipInfo
-from ..stage_configs import MotionConfig, Sam2Config
+from ..config import MotionConfig, Sam2Config
+from ..media import ClipInfo
 from .base import IMPLAUSIBLE_SHARE, MaskSource, labels_to_canvas, masked_share
-from .external import ExternalMasks
+from .external import ExternalMasks, check_masks_path
 from .motion import MotionSegmenter
-from .sam2 import Sam2Masks, load_sam2
+from .sam2 import SAM2_INSTALL, Sam2Masks, load_sam2, sam2_config_names
 
 __all__ = [
     "MaskSource",
@@ -81,6 +81,10 @@ __all__ = [
     "make_mask_source",
     "masked_share",
     "labels_to_canvas",
+    "check_masks_path",
+    "SAM2_INSTALL",
+    "load_sam2",
+    "sam2_config_names",
 ]
 
 MASK_SOURCES: dict[str, type] = {"external": ExternalMasks, "motion": MotionSegmenter, "sam2": Sam2Masks}
@@ -92,7 +96,7 @@ def make_mask_source(name: str, info: ClipInfo, config: MotionConfig | None = No
     see :class:`ExternalMasks`), ``motion`` (settings ``config``, defaults when None, plus
     ``flow=``, ``seed=`` and single-field overrides of :class:`MotionSegmenter`) or ``sam2``
     (:class:`~geocon_core.masks.sam2.Sam2Masks`: ``model=`` a :func:`~geocon_core.masks.sam2.load_sam2`
-    result or ``checkpoint=PATH``, ``sam2=`` its :class:`~geocon_core.stage_configs.Sam2Config`,
+    result or ``checkpoint=PATH``, ``sam2=`` its :class:`~geocon_core.config.stages.Sam2Config`,
     and the motion segmentation's ``config``, ``flow=`` and ``seed=`` for its prompts). Raises
     ValueError for unknown names, listing the valid ones, and for missing settings."""
     key = str(name).strip().lower()

@@ -8,7 +8,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from ..reader import ClipInfo, Frame, layout_of
+from ..media import ClipInfo, Frame, layout_of
 
 __all__ = ["IMPLAUSIBLE_SHARE", "MAX_ID", "MaskSource", "masked_share", "labels_to_canvas", "Coverage"]
 

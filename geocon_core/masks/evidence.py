@@ -8,16 +8,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import MotionConfig
 from ..flow import FlowBackend, FlowField
 from ..geometry import (
     apply_homography,
     cheirality_pose,
     epipolar_line_distance,
+    fit_fundamental,
+    fit_homography,
     in_front_least_squares,
     intrinsics_from_fov,
 )
-from ..models import fit_fundamental, fit_homography
-from ..stage_configs import MotionConfig
 
 __all__ = ["Side", "Evidence"]
 

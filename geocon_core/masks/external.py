@@ -10,9 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..decode import imread_any, native_path
-from ..npz import NPZ_ERRORS
-from ..reader import ClipInfo, Frame
+from ..files import NPZ_ERRORS
+from ..media import ClipInfo, Frame, imread_any, native_path
 from .base import MAX_ID, Coverage, labels_to_canvas
 
 __all__ = ["ExternalMasks", "check_masks_path"]

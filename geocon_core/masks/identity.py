@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..stage_configs import MotionConfig
+from ..config import MotionConfig
 
 __all__ = ["colour_histogram", "histogram_distance", "merge_parts", "centroid"]
 

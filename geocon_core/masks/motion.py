@@ -10,9 +10,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..config import MotionConfig
 from ..flow import DisFlow, FlowBackend
-from ..reader import ClipInfo, Frame
-from ..stage_configs import MotionConfig
+from ..media import ClipInfo, Frame
 from .base import MAX_ID, Coverage
 from .evidence import Evidence, Side
 from .identity import colour_histogram, merge_parts
@@ -25,7 +25,7 @@ __all__ = ["MotionSegmenter"]
 class MotionSegmenter(Coverage):
     """Built-in motion segmentation (``name = "motion"``, lookahead ``lookahead`` = 7, no weights).
 
-    Settings: ``config`` (:class:`~geocon_core.stage_configs.MotionConfig`, defaults when None;
+    Settings: ``config`` (:class:`~geocon_core.config.stages.MotionConfig`, defaults when None;
     keyword arguments override single fields); ``flow`` is the flow backend, ``seed`` seeds the
     background fits. The defaults quoted below are those of :class:`MotionConfig`.
 
@@ -38,7 +38,7 @@ class MotionSegmenter(Coverage):
        preset) with the forward-backward reliability check.
     2. **Background model**, fitted separately to each direction on a grid of reliable flow
        vectors (every ``fit_step`` = 12 reduced px, about 1000 vectors at 1024x576) with
-       OpenCV USAC (MAGSAC++, seeded, via :func:`geocon_core.models.fit_homography` and
+       OpenCV USAC (MAGSAC++, seeded, via :func:`geocon_core.geometry.models.fit_homography` and
        ``fit_fundamental``), inlier tolerance ``fit_tau_px`` = 1 px. Regimes:
 
        * ``static``: the homography moves 95 % of the grid vectors by at most ``static_px`` =

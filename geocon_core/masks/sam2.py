@@ -7,7 +7,7 @@ When a motion id appears for the first time in a frame, the box of its motion ma
 tracks the object frame by frame, whatever the motion segmentation sees later. A new motion id
 whose mask already lies inside objects SAM-2 tracks (``prompt_cover``) is a mover the motion
 segmentation re-detected and adds no prompt. A hard cut starts a new SAM-2 session (ids of
-objects that reappear after it are prompted again). Settings: :class:`~geocon_core.stage_configs.Sam2Config`.
+objects that reappear after it are prompted again). Settings: :class:`~geocon_core.config.stages.Sam2Config`.
 
 Labels are final once the motion labels of the frame are (the motion segmentation's
 ``lookahead``), so the source streams with the same lookahead: each frame is tracked as soon as
@@ -31,8 +31,8 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-from ..reader import ClipInfo, Frame
-from ..stage_configs import Sam2Config
+from ..config import Sam2Config
+from ..media import ClipInfo, Frame
 from .base import Coverage
 from .motion import MotionSegmenter
 
@@ -271,7 +271,7 @@ def load_sam2(checkpoint: str | Path | None, config: Sam2Config | None = None, d
     path = Path(checkpoint)
     if not path.is_file():
         raise ValueError(f"SAM-2 checkpoint {path} does not exist (pass --sam2-checkpoint with a SAM-2 .pt file)")
-    from ..checkpoint import read_checkpoint_file
+    from ..files import read_checkpoint_file
 
     config_name = resolve_sam2_config(cfg.model)
     try:

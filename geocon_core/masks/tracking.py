@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..stage_configs import MotionConfig
+from ..config import MotionConfig
 from .base import MAX_ID
 from .identity import centroid, histogram_distance
 

@@ -11,7 +11,7 @@ Backends
 --------
 ``classical`` (:class:`ClassicalPose`, default, no weights; :mod:`geocon_core.pose.classical`)
     Rotation-only and essential-matrix models fitted to the matches, with a decision rule
-    between them; settings in :class:`~geocon_core.stage_configs.PoseConfig`.
+    between them; settings in :class:`~geocon_core.config.stages.PoseConfig`.
 ``log`` (:class:`PoseLog`, :mod:`geocon_core.pose.log`)
     A pose computed elsewhere, read from a JSON pose log.
 ``dust3r`` (:class:`~geocon_core.pose.dust3r.Dust3rPose`, :mod:`geocon_core.pose.dust3r`)
@@ -26,10 +26,15 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from ..stage_configs import Dust3rConfig, PoseConfig
-from .base import POSE_METHODS, PoseBackend, PoseEstimate, default_intrinsics
+from ..config import Dust3rConfig, PoseConfig
+from .base import POSE_METHODS, PoseBackend, PoseEstimate, default_intrinsics, failure, focal_of
+from .chain import chain_hops, chain_lengths, compose_chain, select_hops
 from .classical import ClassicalPose
+from .convert import from_colmap, from_dust3r, write_pose_log
+from .dust3r import DUST3R_INSTALL, Dust3rPose, import_model_class
 from .log import POSE_LOG_FORMAT, PoseLog, load_pose_log
+from .pointmaps import PointMaps
+from .still import still_pose, still_share
 
 __all__ = [
     "PoseEstimate",
@@ -42,6 +47,21 @@ __all__ = [
     "default_intrinsics",
     "make_pose_backend",
     "load_pose_log",
+    "failure",
+    "focal_of",
+    "chain_hops",
+    "chain_lengths",
+    "compose_chain",
+    "select_hops",
+    "from_colmap",
+    "from_dust3r",
+    "write_pose_log",
+    "PointMaps",
+    "still_pose",
+    "still_share",
+    "DUST3R_INSTALL",
+    "Dust3rPose",
+    "import_model_class",
 ]
 
 
@@ -54,7 +74,7 @@ def make_pose_backend(name: str, config: PoseConfig | Dust3rConfig | None = None
     """Build a pose backend by name: ``"classical"`` (settings ``config``, defaults when None,
     and single-field overrides as keywords), ``"log"`` (``path=`` the pose log) or ``"dust3r"``
     (``checkpoint=``, optional ``clone=`` and ``config=`` a
-    :class:`~geocon_core.stage_configs.Dust3rConfig`). An unknown name raises ``ValueError``
+    :class:`~geocon_core.config.stages.Dust3rConfig`). An unknown name raises ``ValueError``
     listing the valid ones."""
     key = str(name).strip().lower()
     if key == "dust3r":

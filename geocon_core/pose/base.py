@@ -22,6 +22,7 @@ __all__ = [
 ]
 
 POSE_METHODS = ("essential", "rotation", "chain", "log", "dust3r", "still", "none")
+"""How a :class:`PoseEstimate` was found (its ``method``); ``none`` when no pose was found."""
 
 ZOOM_NOTE_LOG = 0.05
 """A fitted zoom whose log exceeds this (about 5 %) is named in the pose's note."""
@@ -125,6 +126,7 @@ def failure(
     method: str = "none",
     parallax_px: float | None = None,
 ) -> PoseEstimate:
+    """A :class:`PoseEstimate` that found no pose, saying why (``reason``) and what it had to work with."""
     return PoseEstimate(
         pose_present=False,
         t_inf=None,
@@ -154,6 +156,7 @@ def default_intrinsics(content_box: tuple[int, int, int, int], fov_x_deg: float)
 
 
 def focal_of(K: np.ndarray) -> float:
+    """The focal length in pixels of intrinsics ``K``: the geometric mean of fx and fy."""
     return float(math.sqrt(abs(K[0, 0] * K[1, 1])))
 
 

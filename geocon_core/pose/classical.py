@@ -82,6 +82,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..config import PoseConfig
 from ..geometry import (
     cheirality_pose,
     in_front_triangulated,
@@ -91,9 +92,8 @@ from ..geometry import (
     sampson_distance,
     skew,
     triangulate_normalised,
+    usac_params,
 )
-from ..models import usac_params
-from ..stage_configs import PoseConfig
 from .base import ZOOM_NOTE_LOG, PoseEstimate, check_inputs, failure, focal_of
 from .lsq import kabsch_batch, levenberg_marquardt, polish_essential, rotation_transfer
 
@@ -124,7 +124,7 @@ class ClassicalPose:
     """Two-view pose from matches with known or assumed intrinsics; needs no weights.
 
     The method and the decision rule are described in the module docstring. The settings are
-    ``config`` (:class:`~geocon_core.stage_configs.PoseConfig`, defaults when None); keyword
+    ``config`` (:class:`~geocon_core.config.stages.PoseConfig`, defaults when None); keyword
     arguments override single fields (``ClassicalPose(fit_focal=False)`` when K is known
     exactly). Pixels are pixels of the images the matches come from.
     """

@@ -30,8 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..npz import NPZ_ERRORS
-from ..paths import part_path
+from ..files import NPZ_ERRORS, part_path
 from .log import POSE_LOG_FORMAT, PoseLog
 
 __all__ = ["from_colmap", "from_dust3r", "write_pose_log", "rotation_from_quaternion"]

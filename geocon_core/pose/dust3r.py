@@ -51,12 +51,12 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from ..config import Dust3rConfig
 from ..geometry import rotation_angle_deg
-from ..stage_configs import Dust3rConfig
 from .base import PoseEstimate, failure, focal_of
 
 if TYPE_CHECKING:
-    from ..pointmaps import PointMaps
+    from .pointmaps import PointMaps
 
 __all__ = [
     "DUST3R_INSTALL",
@@ -192,7 +192,7 @@ def read_checkpoint(path: str | Path) -> tuple[ModelSpec, dict[str, Any]]:
     unreadable or foreign file."""
     import torch
 
-    from ..checkpoint import read_checkpoint_file
+    from ..files import read_checkpoint_file
 
     where = f"DUSt3R checkpoint {Path(path)}"
     hint = "pass --dust3r-checkpoint with a DUSt3R .pth"
@@ -473,7 +473,7 @@ class Dust3rPose:
         """The first-last pose of the (H, W, 3) uint8 frames ``rgb0`` and ``rgb1`` (working
         resolution, content inside ``content_box``) and their point maps on the gate's scale
         (None when no scale could be found); ``K`` only names the focal length of the estimate."""
-        from ..pointmaps import PointMaps
+        from .pointmaps import PointMaps
 
         cfg = self.config
         img0, box = network_input(rgb0, content_box, self.spec.img_size, self.spec.patch_size)

@@ -43,13 +43,14 @@ from typing import Any
 
 import numpy as np
 
+from ..files import strict_json
 from ..geometry import rotation_angle_deg
-from ..jsonin import strict_json
 from .base import PoseEstimate, check_inputs, failure, focal_of
 
 __all__ = ["POSE_LOG_FORMAT", "MAX_T_UNIT", "MAX_POSE_LOG_BYTES", "PoseLog", "load_pose_log"]
 
 POSE_LOG_FORMAT = "geocon-pose/1"
+"""The ``format`` field of a pose log (``geocon pose`` writes it, ``--pose log`` reads it)."""
 MAX_T_UNIT = 1000.0
 """Largest translation (in mean scene distances) a pose log may give; the gate's band is at
 0.03-0.05, so a larger value can only come from a wrong scale or unit."""

@@ -5,10 +5,11 @@
 >>> gt.t_inf, gt.expected_gate                        # doctest: +SKIP
 """
 
+from .benchmark import plan_benchmark, write_benchmark
 from .failures import FAILURES, Failure, FailureSpec, make_failure
 from .families import FAMILIES, Family, build_scene, family_info
 from .render import RenderedFrame, render_frame
-from .scene import ObjectTrack, Scene, SurfaceView, TexturedPlane
+from .scene import ObjectTrack, Scene, SurfaceView, TexturedPlane, pose_from_center
 from .truth import FailureTruth, GroundTruth, ObjectTruth, load_ground_truth
 from .writer import DEFAULT_FAILURE_VARIANTS, ClipPlan, mean_scene_distance, plan_clips, write_clip
 
@@ -36,4 +37,7 @@ __all__ = [
     "mean_scene_distance",
     "plan_clips",
     "write_clip",
+    "pose_from_center",
+    "plan_benchmark",
+    "write_benchmark",
 ]

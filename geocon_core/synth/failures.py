@@ -362,6 +362,8 @@ class Letterbox(Failure):
 
 @dataclass(frozen=True)
 class FailureSpec:
+    """One failure kind: its name, the unit of its severity, default, range, a description and its class."""
+
     kind: str
     unit: str
     default: float
@@ -419,6 +421,7 @@ FAILURES: dict[str, FailureSpec] = {
         FailureSpec("letterbox", "fraction of height per bar", 0.12, 0.0, 0.4, "black bars burned in", Letterbox),
     )
 }
+"""The failure kinds by name (:class:`FailureSpec`)."""
 
 
 def failure_spec(kind: str) -> FailureSpec:

@@ -247,6 +247,7 @@ FAMILIES: dict[str, Family] = {
         Family("C6", "c6_stress", "stress: thin structures, low texture, occlusions", _c6),
     )
 }
+"""The scene families C1-C6 by code (SPEC section 5)."""
 
 
 def family_info(name: str) -> Family:
@@ -275,7 +276,7 @@ def build_scene(
     """Build the scene of ``family`` (code or slug), deterministic in ``seed``.
 
     ``camera_end_center`` (x, y, z world units, first-camera coordinates) and
-    ``camera_end_angles`` (yaw, pitch, roll degrees, :func:`~geocon_core.geometry.rotation_xyz`)
+    ``camera_end_angles`` (yaw, pitch, roll degrees, :func:`~geocon_core.geometry.twoview.rotation_xyz`)
     replace the family's camera path by a linear one from the identity to that pose (a missing
     one of the two is zero); ``object_speed`` (>= 0) scales how far the objects get along their
     paths by the last frame (0: they stay at their first pose). The layout, textures and objects'

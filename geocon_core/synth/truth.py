@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..verdict import GateLabel
+from ..scoring import GateLabel
 
 __all__ = ["ObjectTruth", "FailureTruth", "GroundTruth", "load_ground_truth", "GT_FORMAT"]
 

@@ -25,9 +25,9 @@ import cv2
 import numpy as np
 
 from .._version import __version__
-from ..decode import imwrite_any
 from ..geometry import relative_pose, rotation_angle_deg, t_inf_from_pose
-from ..verdict import binary_gate, hysteresis_gate
+from ..media import imwrite_any
+from ..scoring import binary_gate, hysteresis_gate
 from .failures import FAILURES, failure_spec, make_failure
 from .families import FAMILIES, build_scene, family_info
 from .render import render_frame
@@ -134,7 +134,7 @@ def write_clip(
         raise ValueError(f"noise must be non-negative, got {noise}")
     if codec not in ("h264", "png"):
         raise ValueError(f"codec must be h264 or png, got {codec!r}")
-    from ..video import Mp4Writer, PngSequenceWriter
+    from ..media import Mp4Writer, PngSequenceWriter
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

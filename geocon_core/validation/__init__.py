@@ -29,7 +29,9 @@ from .cases import (
     real_clips,
     split_of,
 )
+from .footage import DEFAULT_FOOTAGE, fill_footage, footage_status
 from .metrics import MetricRow, compute_metrics, detected
+from .peer import PEER_NAME, peer_keep_rate
 from .report import REPORT_JSON, REPORT_MD, ValidationReport, format_value, metric_cells, run_validation, write_report
 from .results import CaseResult, case_result
 
@@ -60,4 +62,9 @@ __all__ = [
     "write_report",
     "CaseResult",
     "case_result",
+    "DEFAULT_FOOTAGE",
+    "fill_footage",
+    "footage_status",
+    "PEER_NAME",
+    "peer_keep_rate",
 ]

@@ -50,6 +50,7 @@ CODECS: tuple[str, ...] = ("png", "crf18", "crf28")
 CODEC_CRF: dict[str, int] = {"crf18": 18, "crf28": 28}
 CLEAN_FAMILIES: tuple[str, ...] = ("C1", "C2", "C3", "C4", "C5", "C6")
 LEVELS: tuple[str, ...] = ("low", "middle", "high")
+"""The severity levels of a failure case (values per failure in :data:`SEVERITIES`)."""
 SEVERITIES: dict[str, tuple[float, float, float]] = {
     "breathing": (1.0, 2.0, 4.0),
     "slide": (4.0, 8.0, 16.0),
@@ -70,8 +71,10 @@ FAILURE_FAMILY: dict[str, tuple[str, ...]] = {
 }
 """The scene families each failure is injected into (elastic needs moving objects; a layer
 slides along and across its travel under a rotating (C2) and a translating (C3) camera)."""
-ANNOTATIONS_PATH = Path(__file__).resolve().parents[2] / "assets" / "validation" / "annotations.csv"
-"""The annotation file kept in the project (one row per real clip, made by looking at frames)."""
+ANNOTATIONS_PATH = Path(__file__).resolve().parent / "annotations.csv"
+"""The annotation file kept in the project (one row per real clip, made by looking at frames). It
+ships inside the package, so an installed wheel validates with it too; ``assets/validation/annotations.csv``
+in a checkout is a link to it."""
 
 
 @dataclass(frozen=True)

@@ -47,6 +47,7 @@ __all__ = [
 ]
 
 PEER_NAME = "GVGC keep rate"
+"""The published peer measured beside GeoCon."""
 PEER_FILE = "peer.json"
 """The peer's score of a validation case (:class:`PeerScore` as JSON), beside its record."""
 PEER_VERSION = 1
@@ -94,7 +95,7 @@ def read_peer(folder: Path) -> dict | None:
 def raw_frames(path: str | Path, max_frames: int | None = None) -> Iterator[np.ndarray]:
     """The clip's decoded BGR frames as stored (no crop, no working size), at most ``max_frames``:
     what the peer sees. Videos, GIFs and folders of PNG / JPEG frames."""
-    from ..decode import image_frames, open_video, resolve_clip
+    from ..media import image_frames, open_video, resolve_clip
 
     name = str(path)
     kind, files = resolve_clip(Path(path), name)

@@ -45,7 +45,7 @@ def code_digest() -> str:
 
     root = Path(geocon_core.__file__).resolve().parent
     h = hashlib.sha256()
-    for path in sorted([*root.joinpath("synth").glob("*.py"), root / "video.py", root / "_version.py"]):
+    for path in sorted([*root.joinpath("synth").glob("*.py"), root / "media" / "video.py", root / "_version.py"]):
         h.update(path.name.encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:12]
@@ -115,7 +115,7 @@ def _render(case: CaseSpec, plan: ValidationPlan, out: Path) -> dict:
 
 def _encode(folder: Path, codecs: tuple[str, ...], fps: float) -> None:
     """Encode a rendered scene's PNG frames as H.264 at each CRF of ``codecs`` that is missing."""
-    from ..video import Mp4Writer
+    from ..media import Mp4Writer
 
     done = json.loads((folder / _DONE).read_text())
     frames = sorted((folder / done["frames"]).glob("*.png"))

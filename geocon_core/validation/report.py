@@ -27,7 +27,9 @@ __all__ = [
 ]
 
 REPORT_MD = "validation.md"
+"""The validation report's Markdown file in the output folder."""
 REPORT_JSON = "validation.json"
+"""The validation report's JSON file (every metric row) in the output folder."""
 
 
 @dataclass(frozen=True)
@@ -197,6 +199,7 @@ def _md_table(header: tuple[str, ...] | list[str], rows: list[list[str]]) -> lis
 
 
 def metric_cells(row: MetricRow) -> list[str]:
+    """The cells of one metric row in the report's Markdown table."""
     ok = "-" if row.ok is None else ("yes" if row.ok else "NO")
     return [row.metric, row.subset, format_value(row), row.target, ok, row.detail]
 

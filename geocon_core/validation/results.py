@@ -102,11 +102,11 @@ class CaseResult:
     """The cuts the reader found (first frames of new shots)."""
     report_margin: float | None = None
     """Headroom of the background to the report gate (negative when it fails,
-    :func:`~geocon_core.verdict.report_margin`): how confident a flag is."""
+    :func:`~geocon_core.scoring.verdict.report_margin`): how confident a flag is."""
     verdict_note: str | None = None
     """Why the background could not be judged, or what decided the verdict (the record's note)."""
     clip_score: float | None = None
-    """The record's clip score (0 sound .. 1 broken; None: cannot judge), :mod:`geocon_core.finding`."""
+    """The record's clip score (0 sound .. 1 broken; None: cannot judge), :mod:`geocon_core.record.finding`."""
     f_within: tuple[float, ...] | None = None
     """Share of the background matches (largest scale, movers left out) within each of
     :data:`F_PX_STEPS` source pixels of their pair's fundamental matrix (median over pairs): how
@@ -155,7 +155,7 @@ def worst_pair_note(rec: ClipRecord) -> str | None:
     words: frames, gap, matches, and how far its outliers lie from the model (px of the scale).
     A flag from a handful of far-off matches on a pair with few matches reads differently from
     a flag from many matches a pixel or two off."""
-    from ..models import family_spec
+    from ..geometry import family_spec
 
     model = rec.background.model
     if model is None or not rec.pairs:
@@ -277,7 +277,7 @@ def peer_score(folder: Path) -> float | None:
 
 
 def _report_margin(rec: ClipRecord) -> float | None:
-    from ..verdict import report_margin
+    from ..scoring import report_margin
 
     return report_margin(rec.background.ir, rec.background.ge, rec.config.ir_gate, rec.config.ge_gate)
 

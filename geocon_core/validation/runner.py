@@ -56,7 +56,7 @@ def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], fold
     import cv2
 
     from ..record import write_record
-    from ..scorer import score_clip
+    from ..scoring import score_clip
 
     cv2.setNumThreads(threads)
     cfg = ScoreConfig.from_dict(cfg_dict)

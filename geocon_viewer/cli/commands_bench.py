@@ -90,9 +90,8 @@ def bench(
 ) -> None:
     """Score every clip of a dataset (in parallel, resumable) and write per-clip records plus flat
     Parquet tables (clip, pair, object level) into the results folder."""
-    from geocon_core.bench import BenchError, run_bench
+    from geocon_core.bench import BenchError, DatasetError, run_bench
     from geocon_core.config import preset
-    from geocon_core.dataset import DatasetError
 
     try:
         cfg = preset(preset_name)
@@ -167,7 +166,7 @@ def bench(
 
 def _check_bench_out(dataset: Path, out_dir: Path) -> None:
     """The results folder is not the dataset folder itself (its records would sit among the clips)."""
-    from geocon_core.paths import OutPathError
+    from geocon_core.files import OutPathError
 
     if out_dir.exists() and dataset.exists() and os.path.samefile(out_dir, dataset):
         raise OutPathError(
@@ -185,7 +184,7 @@ def _ray_options(executor: str, address: str | None, workers: int, cpus: float, 
         if address is not None:
             raise ValueError("--ray-address needs --executor ray")
         return None
-    from geocon_core.bench_ray import RayOptions
+    from geocon_core.bench import RayOptions
 
     return RayOptions(address=address, local_cpus=workers, cpus_per_clip=cpus, gpus_per_clip=gpus)
 
@@ -193,7 +192,7 @@ def _ray_options(executor: str, address: str | None, workers: int, cpus: float, 
 def _check_report_out(results: Path, out_dir: Path | None) -> None:
     """The report folder is replaced whole: it must not be the results folder, hold it, or lie in
     its records or tables."""
-    from geocon_core.paths import OutPathError, check_apart
+    from geocon_core.files import OutPathError, check_apart
 
     if out_dir is None:
         return

@@ -14,7 +14,7 @@ from rich.table import Table
 from .console import err, fail, out, progress_bar
 
 if TYPE_CHECKING:
-    from geocon_core.dataset import ClipEntry, Dataset
+    from geocon_core.bench import ClipEntry, Dataset
 
 __all__ = ["dataset"]
 
@@ -43,7 +43,7 @@ def dataset(
     """List the clips `geocon bench` finds in a dataset: id, platform, prompt, category (or "from
     scorer" where none is given) and scene, each with where it came from (sidecar, manifest,
     folder, file name, clip file, default); with --write, save them as sidecars to edit by hand."""
-    from geocon_core.dataset import DatasetError, scan_dataset, write_sidecars
+    from geocon_core.bench import DatasetError, scan_dataset, write_sidecars
 
     if force and not write:
         raise fail("--force replaces sidecars that --write would keep; give it with --write")

@@ -221,7 +221,7 @@ def _unmet(torch_ok: bool, torch_text: str, modules: tuple[str, ...], install: s
 
 def _sam2(torch_ok: bool, torch_text: str) -> Check:
     """Whether SAM-2's video predictor imports (it also needs torch), and how to get it."""
-    from geocon_core.masks.sam2 import SAM2_INSTALL, sam2_config_names
+    from geocon_core.masks import SAM2_INSTALL, sam2_config_names
 
     unmet = _unmet(torch_ok, torch_text, ("sam2", "hydra", "iopath"), SAM2_INSTALL)
     if unmet is not None:
@@ -242,14 +242,14 @@ def _sam2(torch_ok: bool, torch_text: str) -> Check:
 def _dust3r(torch_ok: bool, torch_text: str) -> Check:
     """Whether DUSt3R's model imports from the mini-dust3r package (a checkout given with
     --dust3r-path is checked when it is used), and how to get it."""
-    from geocon_core.pose.dust3r import DUST3R_INSTALL
+    from geocon_core.pose import DUST3R_INSTALL
 
     elsewhere = "; or run DUSt3R elsewhere and pass --pose-log"
     unmet = _unmet(torch_ok, torch_text, ("mini_dust3r", "einops", "beartype", "huggingface_hub"), DUST3R_INSTALL)
     if unmet is not None:
         return Check("pose", "dust3r", False, unmet + elsewhere)
     try:
-        from geocon_core.pose.dust3r import import_model_class
+        from geocon_core.pose import import_model_class
 
         _, source = import_model_class()
     except ValueError as exc:

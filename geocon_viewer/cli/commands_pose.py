@@ -32,9 +32,8 @@ def pose_log(
     """Turn a reconstruction made elsewhere (COLMAP, DUSt3R) into the pose log that `geocon score
     --pose-log` reads: the first -> last relative pose on the scale of the first camera's mean
     scene distance."""
-    from geocon_core.paths import check_out_file
-    from geocon_core.pose.convert import from_colmap, from_dust3r, write_pose_log
-    from geocon_core.pose.log import PoseLog
+    from geocon_core.files import check_out_file
+    from geocon_core.pose import PoseLog, from_colmap, from_dust3r, write_pose_log
 
     try:
         check_out_file(out_file, "--out")

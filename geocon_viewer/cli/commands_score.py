@@ -45,7 +45,7 @@ def is_input_error(exc: BaseException) -> bool:
 
 
 def _rrd_sink_factory(rrd: Path) -> Callable[[Path], Any]:
-    """A sink factory for :func:`~geocon_core.bench.score_to_folder` that records the audit into
+    """A sink factory for :func:`~geocon_core.bench.run.score_to_folder` that records the audit into
     ``rrd``; fails before scoring when the viewer extra is missing."""
     if not has_viewer_extra("rerun"):
         raise fail(f"writing a Rerun recording needs the viewer extra: {VIEWER_EXTRA}")
@@ -74,7 +74,7 @@ def score_with_progress(
     the record (with its overlays and, with ``dense``, the dense point clouds) into ``out_dir``
     and, with ``rrd``, a Rerun recording."""
     from geocon_core.bench import score_to_folder
-    from geocon_core.dense_cloud import DenseCloudConfig
+    from geocon_core.reconstruction import DenseCloudConfig
 
     sinks = [] if rrd is None else [_rrd_sink_factory(rrd)]
     with progress_bar("scoring", "frames", disable=quiet) as bar:
@@ -202,8 +202,8 @@ def _config(
     from dataclasses import replace
 
     from geocon_core.config import preset
-    from geocon_core.features import make_matcher
     from geocon_core.flow import FLOW_BACKENDS
+    from geocon_core.geometry import make_matcher
 
     cfg = preset(preset_name)
     settings = (("matcher", matcher), ("fov_x_deg", fov), ("flow", flow))
@@ -273,8 +273,8 @@ def check_inputs(
     """Everything a scoring command names besides the clip, checked before the clip is decoded:
     the output folder, the pose log, the masks' layout and the recording's path, and that no output
     would write over an input or into the record's own files (``ValueError`` with one sentence)."""
-    from geocon_core.masks.external import check_masks_path
-    from geocon_core.paths import check_apart, check_out_dir, check_out_file
+    from geocon_core.files import check_apart, check_out_dir, check_out_file
+    from geocon_core.masks import check_masks_path
     from geocon_core.pose import load_pose_log
 
     inputs = [(what, p) for what, p in (("clip", clip), ("masks", masks), ("pose log", pose_log)) if p is not None]

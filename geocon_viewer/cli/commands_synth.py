@@ -165,7 +165,7 @@ def synth_bench(
 ) -> None:
     """Render a synthetic benchmark dataset for `geocon bench`: the same scenes from three
     "platforms" (clean, breathing background, elastic objects), with sidecar metadata."""
-    from geocon_core.synth.benchmark import plan_benchmark, write_benchmark
+    from geocon_core.synth import plan_benchmark, write_benchmark
 
     width, height = parse_size(size)
     try:

@@ -142,8 +142,7 @@ def validate(
     with injected failures, and the real clips in --data against the project's annotations; prints
     one table and writes validation.md and validation.json into --out."""
     from geocon_core.config import DEFAULT_PRESET, preset
-    from geocon_core.validation import QUICK, ValidationPlan, read_annotations
-    from geocon_core.validation.footage import DEFAULT_FOOTAGE
+    from geocon_core.validation import DEFAULT_FOOTAGE, QUICK, ValidationPlan, read_annotations
 
     try:
         cfg = preset(preset_name or DEFAULT_PRESET)  # the validation measures the default
@@ -201,7 +200,7 @@ def _say_missing(plan: ValidationPlan, notes: dict[str, Annotation]) -> None:
 
 
 def _fill(notes: dict[str, Annotation], cache: Path, sources: Path) -> None:
-    from geocon_core.validation.footage import fill_footage
+    from geocon_core.validation import fill_footage
 
     if not sources.is_dir():
         raise fail(f"{sources}: no such folder of repository clones (--footage-from)")
@@ -234,8 +233,7 @@ def footage(
     `fill --from DIR` copies the missing ones out of local clones of their repositories (git show
     COMMIT:PATH; nothing is downloaded) and prints the `git clone` line for a repository with no
     clone."""
-    from geocon_core.validation import read_annotations
-    from geocon_core.validation.footage import DEFAULT_FOOTAGE, footage_status
+    from geocon_core.validation import DEFAULT_FOOTAGE, footage_status, read_annotations
 
     if action not in ("status", "fill"):
         raise fail(f"unknown action {action!r}; valid: status, fill")

@@ -65,7 +65,7 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
 def _say_where_the_clip_is(record: Any, folder: Path) -> None:
     """Refuse a record whose clip was replaced by another; warn (and show the scores without
     frames) when the clip is gone."""
-    from geocon_core.reader import ClipError, OtherClipError, locate_clip
+    from geocon_core.media import ClipError, OtherClipError, locate_clip
 
     try:
         locate_clip(record.video, folder)
@@ -77,7 +77,7 @@ def _say_where_the_clip_is(record: Any, folder: Path) -> None:
 
 def _check_outputs(record: Any, folder: Path, rrd: Path, screenshot: Path | None) -> None:
     """The recording and the screenshot never replace the clip, the masks or the record's own files."""
-    from geocon_core.paths import check_apart, check_out_file
+    from geocon_core.files import check_apart, check_out_file
 
     inputs = [("clip", Path(record.video.path))]
     outputs = [("--save", rrd)] + ([] if screenshot is None else [("--screenshot", screenshot)])
@@ -220,7 +220,7 @@ def serve(
         raise fail(str(exc)) from None
     if not has_viewer_extra("viser"):
         raise fail(f"geocon serve needs the viewer extra: {VIEWER_EXTRA}")
-    from geocon_core.results import ResultsError
+    from geocon_core.report import ResultsError
 
     from ..audit_app import AuditApp
     from ..rerun_video import quiet_encoder_logs

@@ -1,0 +1,851 @@
+"""Benchmark datasets (SPEC section 6): the clips of ``geocon bench`` and their metadata, read from
+one of three layouts (``docs/datasets.md``).
+
+**Sidecars.** Every ``<name>.meta.json`` below the dataset folder (any depth) describes one clip::
+
+    {"clip_id": "sora-0007", "prompt": "...", "model": "sora", "model_version": "2025-03",
+     "seed": 7, "resolution": [1280, 720], "fps": 24, "duration": 5.0,
+     "masks_path": "sora-0007.masks" | null, "category": "C3" | null, "scene_id": "kitchen-07",
+     "video": "sora-0007.mp4"}
+
+``video`` is optional: without it the clip is ``<name>.<ext>`` (mp4, avi, mov, webm, gif, mkv) or a
+folder ``<name>/`` of PNG/JPEG frames next to the sidecar. ``masks_path`` (external object masks,
+see :mod:`geocon_core.masks`) and ``video`` are relative to the sidecar's folder. ``category`` is the
+expected family C1-C6, or null: not given, the scorer's category stands in and the clip has no
+expected gate; ``prompt`` is null for a clip without one, ``duration`` null when unknown; ``model``
+is the platform; ``scene_id`` is shared by the clips of one seed/scene across platforms. Extra keys
+are kept and ignored.
+
+**Manifest.** ``manifest.csv`` or ``manifest.jsonl`` in the dataset folder, or the path of any
+``.csv`` / ``.jsonl`` file: one row per clip, a ``path`` (or ``video``) column relative to the
+manifest and optional ``clip_id``, ``model`` (or ``platform``; default: the name of the folder
+holding the clip file), ``prompt``, ``category``, ``seed``, ``scene_id``, ``masks_path``,
+``model_version``; other columns are kept as extra keys.
+
+**Plain folder.** No sidecar and no manifest: every video file below the folder is a clip, its
+platform the sub-folder it lies in (:func:`platform_of`), its id ``<platform>-<file stem>``
+(:func:`clip_ids`), its prompt the file name where that reads as one (:func:`prompt_from_name`),
+its scene shared with the other platforms' clips of the same prompt and index (:func:`scene_ids`).
+
+Whatever a manifest or a plain folder does not give is filled by these stated rules or left
+empty, and each entry records where every field came from (:data:`SOURCES`); a category is never
+guessed. When sidecars exist they describe the dataset and a manifest beside them is ignored (with
+a note). :func:`scan_dataset` validates everything up front and raises :class:`DatasetError`
+listing every problem at once, each with its file (and manifest line); :func:`write_sidecars`
+writes the sidecars of a manifest or a plain folder, for people who want to edit them.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import re
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from ..media import ClipError, check_clip
+from .layout import MANIFEST_NAME as RESULTS_MANIFEST  # marks a results folder of `geocon bench`
+
+__all__ = [
+    "CATEGORIES",
+    "EXPECTED_MODEL",
+    "LAYOUTS",
+    "MANIFEST_NAMES",
+    "REQUIRED_FIELDS",
+    "SOURCES",
+    "VIDEO_SUFFIXES",
+    "ClipEntry",
+    "Dataset",
+    "DatasetError",
+    "SidecarsWritten",
+    "clip_ids",
+    "expected_model",
+    "load_dataset",
+    "platform_of",
+    "prompt_from_name",
+    "sanitise_clip_id",
+    "scan_dataset",
+    "scene_ids",
+    "write_sidecars",
+]
+
+CATEGORIES = ("C1", "C2", "C3", "C4", "C5", "C6")
+"""The scene categories of SPEC section 5 a dataset may give."""
+EXPECTED_MODEL = {"C1": "H", "C2": "H", "C4": "H", "C3": "F", "C5": "F", "C6": "F"}
+"""The expected rule (SPEC section 6): the background model each category should gate to."""
+
+
+def expected_model(category: object) -> str | None:
+    """The family a clip of ``category`` should be gated to (:data:`EXPECTED_MODEL`), or None for
+    a missing or unknown category."""
+    return EXPECTED_MODEL.get(category) if isinstance(category, str) else None
+
+
+REQUIRED_FIELDS = (
+    "clip_id",
+    "prompt",
+    "model",
+    "model_version",
+    "seed",
+    "resolution",
+    "fps",
+    "duration",
+    "masks_path",
+    "category",
+    "scene_id",
+)
+"""The fields of a clip's metadata (a sidecar, a manifest row); those not given get stated defaults."""
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv")
+"""File suffixes (lower case) a plain folder is scanned for."""
+_CLIP_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+=-]{0,199}$")
+LAYOUTS = ("sidecars", "manifest", "folder")
+"""How a dataset describes its clips: a sidecar per clip, one manifest, or nothing but the files."""
+MANIFEST_NAMES = ("manifest.csv", "manifest.jsonl")
+"""The manifest a dataset folder without sidecars is read from."""
+SOURCES = ("sidecar", "manifest", "folder", "file name", "clip file", "default")
+"""Where a field's value came from: the clip's sidecar, the manifest, the platform folder, the
+clip's file name, the clip file itself (resolution, frame rate, duration), or a stated default."""
+
+
+class DatasetError(ValueError):
+    """A dataset that cannot be benchmarked; ``problems`` lists every problem, one line each (the
+    message is that line when there is one, else a count followed by the list)."""
+
+    def __init__(self, root: Path, problems: list[str]) -> None:
+        self.problems = problems
+        if len(problems) == 1:
+            super().__init__(f"the dataset cannot be benchmarked: {problems[0]}")
+            return
+        head = f"{root}: {len(problems)} problems in the dataset"
+        super().__init__(head + ":\n" + "\n".join(f"  - {p}" for p in problems))
+
+
+@dataclass(frozen=True)
+class ClipEntry:
+    """One validated clip of a dataset: absolute paths and its metadata in the sidecar's form.
+
+    ``sidecar``: the sidecar it was read from, or where :func:`write_sidecars` writes it.
+    ``sources``: field name -> where its value came from (:data:`SOURCES`)."""
+
+    clip_id: str
+    video: Path
+    masks: Path | None
+    sidecar: Path
+    meta: dict[str, Any]
+    sources: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def model(self) -> str:
+        return str(self.meta["model"])
+
+    @property
+    def category(self) -> str | None:
+        """The expected family C1-C6, or None where none was given (the scorer's stands in)."""
+        cat = self.meta.get("category")
+        return None if cat is None else str(cat)
+
+    @property
+    def scene_id(self) -> str:
+        return str(self.meta["scene_id"])
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """The clips of a dataset (sorted by clip id), how it was laid out (:data:`LAYOUTS`) and the
+    sentences that state the defaults and renamings applied."""
+
+    root: Path
+    layout: str
+    entries: tuple[ClipEntry, ...]
+    notes: tuple[str, ...] = ()
+
+
+# ---- naming rules (plain folders and manifests) ------------------------------------------------
+
+_NOT_ID = re.compile(r"[^A-Za-z0-9._+=-]+")
+_MAX_ID = 190
+"""Generated ids stop here, leaving room for a collision number within the 200 characters allowed."""
+_TRAILING_INDEX = re.compile(r"^(.*?)[-_ ]+(\d+)$")
+_WORD_EDGE = ",.;:!?\"'()[]"
+_LETTERS = re.compile(r"[^\W\d_]+(?:['\u2019-][^\W\d_]+)*")
+"""A word of letters; an apostrophe or a hyphen may join two (``dog's``, ``close-up``)."""
+MIN_PROMPT_WORDS = 3
+"""A file name reads as a prompt with at least this many words of letters (``clip_0007`` does not)."""
+
+
+def sanitise_clip_id(text: str) -> str:
+    """``text`` made a valid clip id: every run of characters other than letters, digits and
+    ``. _ + = -`` becomes one ``-`` (and so does a run of ``-``), leading punctuation and trailing
+    ``-`` are dropped, and at most :data:`_MAX_ID` characters are kept; ``clip`` when nothing is left.
+
+    >>> sanitise_clip_id("modelA-A cat playing piano, at night-0")
+    'modelA-A-cat-playing-piano-at-night-0'
+    """
+    out = re.sub(r"-{2,}", "-", _NOT_ID.sub("-", text))
+    out = re.sub(r"^[^A-Za-z0-9]+", "", out)[:_MAX_ID].rstrip("-")
+    return out or "clip"
+
+
+def prompt_from_name(stem: str) -> tuple[str | None, int | None]:
+    """The prompt a file name (without suffix) spells, and its trailing index: the number after a
+    last ``-``, ``_`` or space, stripped. The rest reads as a prompt when its words (split at
+    spaces, or at ``-`` and ``_`` where it has no space) are letters or numbers, at least
+    :data:`MIN_PROMPT_WORDS` of them letters; otherwise the clip has no prompt (None).
+
+    >>> prompt_from_name("a-cat-playing-piano-0")
+    ('a cat playing piano', 0)
+    >>> prompt_from_name("A close-up of a dog, running-3")
+    ('A close-up of a dog, running', 3)
+    >>> prompt_from_name("clip_0007")
+    (None, 7)
+    >>> prompt_from_name("00012")
+    (None, None)
+    """
+    m = _TRAILING_INDEX.match(stem)
+    body, index = (m[1], int(m[2])) if m else (stem, None)
+    text = body if " " in body else re.sub(r"[-_]+", " ", body)
+    text = " ".join(text.split())
+    words = [w.strip(_WORD_EDGE) for w in text.split(" ")]
+    letters = sum(1 for w in words if _LETTERS.fullmatch(w))
+    numbers = sum(1 for w in words if w.isdigit())
+    if letters < MIN_PROMPT_WORDS or letters + numbers < len([w for w in words if w]):
+        return None, index
+    return text, index
+
+
+def platform_of(rel: Path, default: str) -> tuple[str, str]:
+    """The platform of the clip at ``rel`` (relative to the dataset folder) and its source: the
+    top folder it lies in (``folder``), or ``default`` for a clip directly in the dataset folder."""
+    return (rel.parts[0], "folder") if len(rel.parts) > 1 else (default, "default")
+
+
+def clip_ids(names: list[str], taken: Iterable[str] = ()) -> list[str]:
+    """Valid, unique clip ids for ``names`` (each ``<platform>-<stem>``), in order: sanitised
+    (:func:`sanitise_clip_id`), and an id met before (in ``taken`` or earlier in ``names``, letter
+    case aside: results folders may live on a file system that ignores it) numbered ``_2``, ``_3``..."""
+    seen = {t.casefold() for t in taken}
+    out = []
+    for name in names:
+        base = sanitise_clip_id(name)
+        cid, k = base, 1
+        while cid.casefold() in seen:
+            k += 1
+            cid = f"{base}_{k}"
+        seen.add(cid.casefold())
+        out.append(cid)
+    return out
+
+
+def scene_ids(clips: list[tuple[str, str, str | None, object]]) -> list[str]:
+    """The scene of each clip ``(clip_id, platform, prompt, index)``: clips of several platforms
+    with the same prompt and index are one scene, ``<prompt> #<index>`` (``<prompt>`` without an
+    index); any other clip is a scene of its own, named by its clip id."""
+    platforms: dict[tuple[str, object], set[str]] = defaultdict(set)
+    for _, platform, prompt, index in clips:
+        if prompt is not None:
+            platforms[(prompt, index)].add(platform)
+    out = []
+    for cid, _, prompt, index in clips:
+        if prompt is not None and len(platforms[(prompt, index)]) > 1:
+            out.append(prompt if index is None else f"{prompt} #{index}")
+        else:
+            out.append(cid)
+    return out
+
+
+# ---- sidecars ----------------------------------------------------------------------------------
+
+
+def _find_video(sidecar: Path, meta: dict[str, Any]) -> Path | None:
+    if meta.get("video"):
+        return sidecar.parent / str(meta["video"])
+    stem = sidecar.name[: -len(".meta.json")]
+    for suffix in VIDEO_SUFFIXES:
+        cand = sidecar.parent / f"{stem}{suffix}"
+        if cand.is_file():
+            return cand
+    folder = sidecar.parent / stem
+    return folder if folder.is_dir() else None
+
+
+def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
+    problems = []
+    missing = [k for k in REQUIRED_FIELDS if k not in meta]
+    if missing:
+        problems.append(f"{name}: missing field{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+    cid = meta.get("clip_id")
+    if "clip_id" in meta and (not isinstance(cid, str) or not _CLIP_ID.match(cid)):
+        problems.append(
+            f"{name}: clip_id {cid!r} must be a string of letters, digits and . _ + = - (it names the result folder)"
+        )
+    for key in ("model", "scene_id"):
+        if key in meta and (meta[key] is None or str(meta[key]).strip() == ""):
+            problems.append(f"{name}: {key} is empty")
+    if "prompt" in meta and meta["prompt"] is not None and str(meta["prompt"]).strip() == "":
+        problems.append(f"{name}: prompt is empty (write null for a clip without a prompt)")
+    if meta.get("category") is not None and meta["category"] not in CATEGORIES:
+        problems.append(
+            f"{name}: unknown category {meta['category']!r} (expected one of {', '.join(CATEGORIES)}, or null for "
+            "the scorer's)"
+        )
+    if "fps" in meta and not (
+        isinstance(meta["fps"], (int, float)) and not isinstance(meta["fps"], bool) and meta["fps"] > 0
+    ):
+        problems.append(f"{name}: fps must be a positive number, got {meta['fps']!r}")
+    dur = meta.get("duration")
+    if dur is not None and not (isinstance(dur, (int, float)) and not isinstance(dur, bool) and dur >= 0):
+        problems.append(f"{name}: duration must be a non-negative number (seconds) or null, got {dur!r}")
+    res = meta.get("resolution")
+    if "resolution" in meta and not (
+        isinstance(res, list) and len(res) == 2 and all(isinstance(v, int) and v > 0 for v in res)
+    ):
+        problems.append(f"{name}: resolution must be [width, height] in pixels, got {res!r}")
+    if "seed" in meta and meta["seed"] is not None and not isinstance(meta["seed"], (int, str)):
+        problems.append(f"{name}: seed must be an integer or a string, got {meta['seed']!r}")
+    if "masks_path" in meta and meta["masks_path"] is not None and not isinstance(meta["masks_path"], str):
+        problems.append(f"{name}: masks_path must be a path or null, got {meta['masks_path']!r}")
+    return problems
+
+
+def _read_sidecar(sidecar: Path, name: str) -> tuple[dict[str, Any] | None, str]:
+    """The parsed sidecar, or None and the problem with it."""
+    from ..files import strict_json
+
+    try:
+        meta = strict_json(sidecar.read_text(), name)
+    except (OSError, UnicodeDecodeError) as exc:
+        return None, f"{name}: cannot be read ({exc})"
+    except json.JSONDecodeError as exc:
+        return None, f"{name}: not valid JSON ({exc.msg} at line {exc.lineno})"
+    except ValueError as exc:
+        return None, str(exc)
+    if not isinstance(meta, dict):
+        return None, f"{name}: must hold a JSON object"
+    return meta, ""
+
+
+def _video_problems(name: str, sidecar: Path, meta: dict[str, Any], video: Path | None, check_clips: bool) -> list[str]:
+    """What is wrong with a sidecar's clip file (missing, or with ``check_clips`` unreadable)."""
+    if video is None:
+        return [
+            f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another "
+            "video, or a 'video' field)"
+        ]
+    if not video.exists():
+        return [f"{name}: clip file {meta.get('video')} does not exist"]
+    if check_clips:
+        try:
+            check_clip(video)
+        except ClipError as exc:
+            return [f"{name}: unreadable clip ({exc})"]
+    return []
+
+
+Progress = Callable[[int, int], None]
+"""Called as ``progress(checked, total)`` after each clip is checked."""
+
+
+def _from_sidecars(base: Path, sidecars: list[Path], check_clips: bool, progress: Progress | None) -> Dataset:
+    problems: list[str] = []
+    entries: list[ClipEntry] = []
+    seen: dict[str, Path] = {}
+    videos: dict[tuple[int, int], Path] = {}
+    for i, sidecar in enumerate(sidecars):
+        name = str(sidecar.relative_to(base))
+        meta, problem = _read_sidecar(sidecar, name)
+        if meta is None:
+            problems.append(problem)
+            continue
+        mine = _field_problems(name, meta)
+        cid = meta.get("clip_id")
+        if isinstance(cid, str) and cid in seen:
+            mine.append(f"{name}: clip_id {cid!r} is also used by {seen[cid].relative_to(base)}")
+        video = _find_video(sidecar, meta)
+        mine += _video_problems(name, sidecar, meta, video, check_clips)
+        if progress is not None:
+            progress(i + 1, len(sidecars))
+        if video is not None and video.exists():
+            st = video.stat()
+            first = videos.setdefault((st.st_dev, st.st_ino), sidecar)
+            if first != sidecar:
+                mine.append(
+                    f"{name}: names the same clip file as {first.relative_to(base)} ({video.name}); one clip, one "
+                    "sidecar (a clip scored twice would count twice in every table)"
+                )
+        masks = None
+        if isinstance(meta.get("masks_path"), str):
+            masks = sidecar.parent / meta["masks_path"]
+            if not masks.exists():
+                mine.append(f"{name}: masks_path {meta['masks_path']} does not exist")
+        if mine:
+            problems.extend(mine)
+            continue
+        assert isinstance(cid, str) and video is not None  # checked by _field_problems and above
+        seen[cid] = sidecar
+        entries.append(
+            ClipEntry(
+                clip_id=cid,
+                video=video.resolve(),
+                masks=None if masks is None else masks.resolve(),
+                sidecar=sidecar.resolve(),
+                meta=meta,
+                sources=dict.fromkeys(meta, "sidecar"),
+            )
+        )
+    if problems:
+        raise DatasetError(base, problems)
+    notes = []
+    known = {e.video for e in entries}
+    loose = [p for p in _video_files(base)[0] if p.resolve() not in known]
+    if loose:
+        notes.append(
+            f"{len(loose)} video file(s) below {base} have no sidecar and are not part of the dataset (e.g. "
+            f"{loose[0].relative_to(base)}); give them sidecars to include them"
+        )
+    return Dataset(base, "sidecars", tuple(sorted(entries, key=lambda e: e.clip_id)), tuple(notes))
+
+
+# ---- manifests ---------------------------------------------------------------------------------
+
+_ALIASES = {"path": "video", "video": "video", "platform": "model", "model": "model"}
+"""Manifest columns and the sidecar field they fill (``path`` or ``video``, ``model`` or ``platform``)."""
+_TEXT_FIELDS = ("clip_id", "model", "prompt", "scene_id", "model_version", "category", "masks_path", "video")
+
+
+def _jsonl_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
+    """``(where, object)`` per non-blank line of a JSONL manifest, and the lines that are not one."""
+    from ..files import strict_json
+
+    rows, problems = [], []
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        where = f"{name} line {n}"
+        try:
+            row = strict_json(line, where)
+        except json.JSONDecodeError as exc:
+            problems.append(f"{where}: not valid JSON ({exc.msg})")
+            continue
+        except ValueError as exc:
+            problems.append(str(exc))
+            continue
+        if not isinstance(row, dict):
+            problems.append(f"{where}: must hold a JSON object (one clip per line)")
+            continue
+        rows.append((where, row))
+    return rows, problems
+
+
+def _csv_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
+    """``(where, cells)`` per row of a CSV manifest (column names stripped and lower-cased), and
+    the problems of its form; a manifest without a path column is refused as a whole."""
+    reader = csv.DictReader(io.StringIO(text))
+    columns = [c.strip().lower() for c in reader.fieldnames or []]
+    if not any(columns):
+        return [], [f"{name}: is empty (expected a header row with a 'path' column, then one row per clip)"]
+    if "path" not in columns and "video" not in columns:
+        return [], [
+            f"{name}: no 'path' column naming the clip files (or 'video'); its columns are {', '.join(columns)}"
+        ]
+    dups = sorted({c for c in columns if columns.count(c) > 1})
+    if dups:
+        return [], [f"{name}: column{'s' if len(dups) > 1 else ''} {', '.join(dups)} given twice"]
+    reader.fieldnames = columns
+    rows, problems = [], []
+    try:
+        for row in reader:
+            where = f"{name} line {reader.line_num}"
+            if None in row:
+                problems.append(f"{where}: more cells than the {len(columns)} columns")
+            rows.append((where, {k: v for k, v in row.items() if k is not None}))
+    except csv.Error as exc:
+        problems.append(f"{name} line {reader.line_num}: not valid CSV ({exc})")
+    return rows, problems
+
+
+def _manifest_rows(path: Path, name: str) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
+    """``(where, fields)`` per clip of a manifest, the aliases mapped to sidecar fields
+    (:data:`_ALIASES`) and empty cells None, and the problems of its form."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        return [], [f"{name}: cannot be read ({exc})"]
+    raw, problems = (_jsonl_rows if path.suffix.lower() == ".jsonl" else _csv_rows)(text, name)
+    rows = []
+    for where, row in raw:
+        fields: dict[str, Any] = {}
+        for key, value in row.items():
+            canon = _ALIASES.get(key, key)
+            if canon in fields and key in _ALIASES:
+                problems.append(f"{where}: gives both {'path and video' if canon == 'video' else 'model and platform'}")
+            fields[canon] = value.strip() or None if isinstance(value, str) else value
+        rows.append((where, fields))
+    if not raw and not problems:
+        problems.append(f"{name}: lists no clips")
+    return rows, problems
+
+
+def _manifest_field_problems(where: str, fields: dict[str, Any]) -> list[str]:
+    """What is wrong with the values of one manifest row (files are checked later); numbers given
+    for text fields become text, a seed written as digits an integer."""
+    problems = []
+    if fields.get("video") is None:
+        problems.append(f"{where}: no path (the clip file, relative to the manifest)")
+    for key in _TEXT_FIELDS:
+        value = fields.get(key)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and key not in ("video", "masks_path"):
+            fields[key] = str(value)
+        elif value is not None and not isinstance(value, str):
+            problems.append(f"{where}: {key} must be text, got {value!r}")
+    cid = fields.get("clip_id")
+    if isinstance(cid, str) and not _CLIP_ID.match(cid):
+        problems.append(
+            f"{where}: clip_id {cid!r} must be letters, digits and . _ + = - (it names the result folder), or empty "
+            "for one made from the file name"
+        )
+    cat = fields.get("category")
+    if isinstance(cat, str) and cat not in CATEGORIES:
+        problems.append(
+            f"{where}: unknown category {cat!r} (expected one of {', '.join(CATEGORIES)}, or empty for the scorer's)"
+        )
+    seed = fields.get("seed")
+    if isinstance(seed, str) and seed.isdigit() and str(int(seed)) == seed:
+        fields["seed"] = int(seed)
+    elif seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, str))):
+        problems.append(f"{where}: seed must be an integer or text, got {seed!r}")
+    return problems
+
+
+# ---- plain folders -----------------------------------------------------------------------------
+
+
+def _video_files(base: Path) -> tuple[list[Path], list[str]]:
+    """The video files below ``base`` in path order (hidden files and folders, and ``geocon bench``
+    results folders, left out), and the notes on what was left out."""
+    files: list[Path] = []
+    frame_dirs: list[str] = []
+    results: list[str] = []
+    for folder, dirs, names in os.walk(base):
+        here = Path(folder)
+        if RESULTS_MANIFEST in names and here != base:
+            results.append(here.relative_to(base).as_posix())
+            dirs[:] = []
+            continue
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        visible = [n for n in names if not n.startswith(".")]
+        files += [here / n for n in visible if Path(n).suffix.lower() in VIDEO_SUFFIXES and (here / n).is_file()]
+        if here != base and sum(Path(n).suffix.lower() in (".png", ".jpg", ".jpeg") for n in visible) >= 2:
+            frame_dirs.append(here.relative_to(base).as_posix())
+    notes = []
+    if results:
+        notes.append(f"left out {len(results)} results folder(s) of `geocon bench`: {', '.join(results)}")
+    if frame_dirs:
+        notes.append(
+            f"{len(frame_dirs)} folder(s) of PNG/JPEG images are not read as clips in a plain folder (e.g. "
+            f"{frame_dirs[0]}); list frame folders in a manifest to score them"
+        )
+    return sorted(files, key=lambda p: p.relative_to(base).as_posix()), notes
+
+
+# ---- manifests and plain folders: the rules that fill what is not given ------------------------
+
+
+@dataclass
+class _Row:
+    """One clip of a manifest or a plain folder before the dataset-wide rules run: where problems
+    name it, its clip file, the fields given (a manifest's; none in a plain folder), the platform
+    of its folder and that platform's source, and whether its fields passed their checks."""
+
+    where: str
+    video: Path
+    fields: dict[str, Any]
+    platform: str
+    platform_source: str
+    valid: bool = True
+
+
+def _clip_facts(video: Path) -> tuple[list[int], float, float | None, str]:
+    """``[width, height]``, frame rate and duration in seconds (None when the container states no
+    frame count) of a readable clip, and the frame rate's source: the clip file, or the default
+    rate for a folder of frames."""
+    from ..media import DEFAULT_FPS, container_frame_count, image_frames, open_video, resolve_clip
+
+    name = str(video)
+    _, files = resolve_clip(video, name)
+    if files is not None:
+        h, w = next(image_frames(files[:1], name)).shape[:2]
+        return [int(w), int(h)], DEFAULT_FPS, round(len(files) / DEFAULT_FPS, 3), "default"
+    fps, frames = open_video(name)
+    try:
+        h, w = next(iter(frames)).shape[:2]
+    finally:
+        frames.close()
+    count = container_frame_count(name)
+    return [int(w), int(h)], float(fps), None if count is None else round(count.frames / fps, 3), "clip file"
+
+
+def _assign_ids(rows: list[_Row]) -> tuple[list[str], list[str], list[str]]:
+    """Each row's clip id (given, or ``<platform>-<stem>`` by :func:`clip_ids`), the problems of
+    the given ones (used twice) and the notes on the made ones that were numbered."""
+    problems: list[str] = []
+    given: dict[str, str] = {}
+    for row in rows:
+        cid = row.fields.get("clip_id")
+        if row.valid and isinstance(cid, str):
+            if cid.casefold() in given:
+                problems.append(f"{row.where}: clip_id {cid!r} is also used by {given[cid.casefold()]}")
+            given.setdefault(cid.casefold(), row.where)
+    wanted = [i for i, r in enumerate(rows) if not isinstance(r.fields.get("clip_id"), str)]
+    raw = [f"{rows[i].fields.get('model') or rows[i].platform}-{rows[i].video.stem}" for i in wanted]
+    made = dict(zip(wanted, clip_ids(raw, given), strict=True))
+    notes = [
+        f"{rows[i].where}: clip id {made[i]} (numbered: another clip's name gives the same id)"
+        for i, name in zip(wanted, raw, strict=True)
+        if made[i] != sanitise_clip_id(name)
+    ]
+    return [made[i] if i in made else str(r.fields["clip_id"]) for i, r in enumerate(rows)], problems, notes
+
+
+def _file_problems(row: _Row, masks_base: Path, seen: dict[tuple[int, int], str]) -> tuple[list[str], Path | None]:
+    """What is wrong with a row's clip file and masks (missing, the same file as another row's),
+    and the masks' path."""
+    mine = []
+    if not row.video.exists():
+        mine.append(f"{row.where}: clip file {row.fields.get('video')} does not exist")
+    else:
+        st = row.video.stat()
+        first = seen.setdefault((st.st_dev, st.st_ino), row.where)
+        if first != row.where:
+            mine.append(
+                f"{row.where}: names the same clip file as {first} ({row.video.name}); one clip, one row (a clip "
+                "scored twice would count twice in every table)"
+            )
+    masks = None
+    if isinstance(row.fields.get("masks_path"), str):
+        masks = masks_base / row.fields["masks_path"]
+        if not masks.exists():
+            mine.append(f"{row.where}: masks_path {row.fields['masks_path']} does not exist")
+    return mine, masks
+
+
+def _entry(
+    row: _Row,
+    named: tuple[str, str | None, str | None, str],
+    facts: tuple[list[int] | None, float | None, float | None, str],
+    masks: Path | None,
+    sidecar: Path,
+    source: str,
+) -> ClipEntry:
+    """The entry of a checked row: ``named`` is its clip id, prompt, the prompt its file name
+    spells and its scene; ``facts`` what :func:`_clip_facts` read (Nones when clips are not
+    checked); ``source`` where the given fields came from."""
+    cid, prompt, name_prompt, scene = named
+    resolution, fps, duration, fps_source = facts
+    f = row.fields
+    given = {k for k, v in f.items() if v is not None}
+    meta: dict[str, Any] = {
+        "clip_id": cid,
+        "prompt": prompt,
+        "model": f.get("model") or row.platform,
+        "model_version": f.get("model_version"),
+        "seed": f.get("seed"),
+        "resolution": resolution,
+        "fps": fps,
+        "duration": duration,
+        "masks_path": None if masks is None else Path(os.path.relpath(masks, sidecar.parent)).as_posix(),
+        "category": f.get("category"),
+        "scene_id": f.get("scene_id") or scene,
+        "video": Path(os.path.relpath(os.path.abspath(row.video), sidecar.parent)).as_posix(),
+    }
+    meta.update({k: v for k, v in f.items() if k not in meta})
+    fallback = {
+        "clip_id": "file name",
+        "prompt": "file name" if name_prompt is not None else "default",
+        "model": row.platform_source,
+        "fps": fps_source if fps is not None else "default",
+        "video": source,
+    }
+    sources = {k: source if k in given else fallback.get(k, "default") for k in meta}
+    sources.update({k: "clip file" for k in ("resolution", "duration") if meta[k] is not None})
+    return ClipEntry(
+        clip_id=cid,
+        video=row.video.resolve(),
+        masks=None if masks is None else masks.resolve(),
+        sidecar=sidecar,
+        meta=meta,
+        sources=sources,
+    )
+
+
+def _fill(
+    rows: list[_Row], source: str, masks_base: Path, check_clips: bool, progress: Progress | None
+) -> tuple[list[ClipEntry], list[str], list[str]]:
+    """The entries of ``rows`` (the given fields from ``source``, the rest by the stated rules),
+    the problems found, and the notes on the rules applied."""
+    ids, problems, notes = _assign_ids(rows)
+    named = []
+    for row, cid in zip(rows, ids, strict=True):
+        name_prompt, name_index = prompt_from_name(row.video.stem)
+        prompt = row.fields.get("prompt") or name_prompt
+        index = row.fields["seed"] if row.fields.get("seed") is not None else name_index
+        named.append((cid, row.fields.get("model") or row.platform, prompt, index, name_prompt))
+    scenes = scene_ids([n[:4] for n in named])
+    entries: list[ClipEntry] = []
+    seen: dict[tuple[int, int], str] = {}
+    sidecars: set[Path] = set()
+    for k, (row, (cid, _, prompt, _, name_prompt), scene) in enumerate(zip(rows, named, scenes, strict=True)):
+        mine, masks = _file_problems(row, masks_base, seen)
+        facts: tuple[list[int] | None, float | None, float | None, str] = (None, None, None, "default")
+        if check_clips and not mine:
+            try:
+                check_clip(row.video)
+                facts = _clip_facts(row.video)
+            except ClipError as exc:
+                mine.append(f"{row.where}: unreadable clip ({exc})")
+        if progress is not None:
+            progress(k + 1, len(rows))
+        problems += mine
+        if mine or not row.valid:
+            continue
+        at = Path(os.path.abspath(row.video))
+        sidecar = at.parent / f"{at.stem}.meta.json"
+        if sidecar in sidecars:  # x.mp4 and x.gif side by side
+            sidecar = at.parent / f"{at.name}.meta.json"
+        sidecars.add(sidecar)
+        entries.append(_entry(row, (cid, prompt, name_prompt, scene), facts, masks, sidecar, source))
+    return entries, problems, notes
+
+
+def _defaults_notes(entries: list[ClipEntry]) -> list[str]:
+    """The sentences that state which defaults the entries took."""
+    notes = []
+    no_cat = sum(e.category is None for e in entries)
+    if no_cat:
+        notes.append(
+            f"{no_cat} of {len(entries)} clip(s) have no category: the scorer's category stands in for theirs, and "
+            "they are left out of the expected-gate statistics (anomaly rates, gate calibration)"
+        )
+    from_name = sum(e.sources.get("prompt") == "file name" for e in entries)
+    no_prompt = sum(e.meta.get("prompt") is None for e in entries)
+    if from_name or no_prompt:
+        notes.append(f"prompts: {from_name} read from file names, {no_prompt} clip(s) without one")
+    shared = {e.scene_id for e in entries if e.sources.get("scene_id") == "default" and e.scene_id != e.clip_id}
+    if shared:
+        notes.append(f"{len(shared)} scene(s) shared across platforms by prompt and index")
+    return notes
+
+
+def _from_manifest(path: Path, check_clips: bool, progress: Progress | None) -> Dataset:
+    found, problems = _manifest_rows(path, path.name)
+    rows = []
+    for where, fields in found:
+        mine = _manifest_field_problems(where, fields)
+        problems += mine
+        if not isinstance(fields.get("video"), str):
+            continue
+        video = path.parent / fields["video"]
+        platform = Path(os.path.abspath(video)).parent.name  # without a model column: the clip's folder
+        rows.append(_Row(where, video, fields, platform, "folder", valid=not mine))
+    entries, more, notes = _fill(rows, "manifest", path.parent, check_clips, progress)
+    problems += more
+    if problems:
+        line = re.compile(r" line (\d+): ")
+        raise DatasetError(path, sorted(problems, key=lambda p: int(m[1]) if (m := line.search(p)) else 0))
+    ordered = tuple(sorted(entries, key=lambda e: e.clip_id))
+    return Dataset(path, "manifest", ordered, tuple(notes + _defaults_notes(entries)))
+
+
+def _from_folder(base: Path, check_clips: bool, progress: Progress | None) -> Dataset:
+    files, notes = _video_files(base)
+    if not files:
+        raise DatasetError(
+            base,
+            [
+                f"{base}: no clips found: no clip metadata (*.meta.json), no {' or '.join(MANIFEST_NAMES)}, and no "
+                f"video files ({', '.join(VIDEO_SUFFIXES)}) in it or its sub-folders"
+            ],
+        )
+    default = base.resolve().name or "clips"
+    rows = [_Row(p.relative_to(base).as_posix(), p, {}, *platform_of(p.relative_to(base), default)) for p in files]
+    entries, problems, more = _fill(rows, "folder", base, check_clips, progress)
+    if problems:
+        raise DatasetError(base, problems)
+    head = [
+        f"{base} has no sidecars and no manifest: read as a plain folder of {len(entries)} clip(s), each one's "
+        "platform the sub-folder it lies in (`geocon dataset` lists every value and where it came from)"
+    ]
+    at_root = sum(r.platform_source == "default" for r in rows)
+    if at_root:
+        head.append(f"{at_root} clip(s) lie directly in {base}, in no platform folder: platform {default!r} (its name)")
+    ordered = tuple(sorted(entries, key=lambda e: e.clip_id))
+    return Dataset(base, "folder", ordered, tuple(head + notes + more + _defaults_notes(entries)))
+
+
+# ---- entry points ------------------------------------------------------------------------------
+
+
+def scan_dataset(root: str | Path, *, check_clips: bool = True, progress: Progress | None = None) -> Dataset:
+    """The dataset at ``root``: a folder with sidecars, a folder with a manifest
+    (:data:`MANIFEST_NAMES`), a plain folder of clips, or the path of a ``.csv`` / ``.jsonl``
+    manifest. Everything is validated up front: fields and their types, known categories, unique
+    clip ids, the clip files present (and, with ``check_clips``, their first two frames
+    decodable) and masks paths present. Raises :class:`DatasetError` with every problem found.
+    ``progress(checked, total)`` hears each clip checked."""
+    base = Path(root)
+    if base.is_file():
+        if base.suffix.lower() in (".csv", ".jsonl"):
+            return _from_manifest(base, check_clips, progress)
+        raise DatasetError(base, [f"{base}: not a folder, nor a manifest (.csv or .jsonl)"])
+    if not base.is_dir():
+        raise DatasetError(base, [f"{base}: not a folder"])
+    sidecars = sorted(base.rglob("*.meta.json"))
+    manifests = [base / n for n in MANIFEST_NAMES if (base / n).is_file()]
+    if sidecars:
+        ds = _from_sidecars(base, sidecars, check_clips, progress)
+        if manifests:
+            ignored = (
+                f"{manifests[0].name} is ignored: the sidecars (*.meta.json) describe the dataset (give the "
+                "manifest's path instead of the folder to use it)"
+            )
+            ds = Dataset(ds.root, ds.layout, ds.entries, (ignored, *ds.notes))
+        return ds
+    if len(manifests) > 1:
+        raise DatasetError(
+            base, [f"{base}: holds both {' and '.join(MANIFEST_NAMES)}; keep one (or give the path of the one to use)"]
+        )
+    if manifests:
+        return _from_manifest(manifests[0], check_clips, progress)
+    return _from_folder(base, check_clips, progress)
+
+
+def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntry]:
+    """Every clip of the dataset at ``root``, sorted by clip_id (:func:`scan_dataset`)."""
+    return list(scan_dataset(root, check_clips=check_clips).entries)
+
+
+@dataclass(frozen=True)
+class SidecarsWritten:
+    """What :func:`write_sidecars` did: the sidecars written, and those that existed and were kept."""
+
+    written: tuple[Path, ...]
+    kept: tuple[Path, ...]
+
+
+def write_sidecars(dataset: Dataset, *, force: bool = False) -> SidecarsWritten:
+    """Write each entry's metadata as its sidecar (``<stem>.meta.json`` beside the clip file, each
+    file whole or not at all); an existing sidecar is kept unless ``force``. Reading the dataset
+    again then gives the same entries, now from their sidecars."""
+    written, kept = [], []
+    for e in dataset.entries:
+        if e.sidecar.exists() and not force:
+            kept.append(e.sidecar)
+            continue
+        tmp = e.sidecar.with_name(f".{e.sidecar.name}.part")
+        tmp.write_text(json.dumps(e.meta, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+        tmp.replace(e.sidecar)
+        written.append(e.sidecar)
+    return SidecarsWritten(tuple(written), tuple(kept))

@@ -1,0 +1,309 @@
+"""``geocon bench``: score every clip of a dataset in worker processes, resumably, into a
+results folder laid out as :mod:`geocon_core.bench.layout` describes.
+
+A clip is finished when its ``status.json`` exists; a restarted run skips finished clips, so a
+killed run loses at most the clips that were in flight and never scores a clip twice. A clip that
+fails (unreadable, a crash in scoring, a worker process that dies) is recorded as failed with its
+reason and counted, never dropped; ``retry_failed`` scores failed clips again. A finished clip
+whose metadata changed since (a category set, a prompt fixed in its sidecar) takes the new
+metadata without being scored again, as long as its clip file and masks are the same.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import socket
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+from ..config import ScoreConfig, config_hash
+from ..files import FolderLock, LockHeld, OutPathError, check_out_dir, die_with_parent
+from .clip import (
+    MAX_CRASHES,
+    BenchError,
+    RecordRenderer,
+    crashed_status,
+    install_clip,
+    score_one,
+    score_to_folder,
+)
+from .dataset import ClipEntry, scan_dataset
+from .layout import (
+    BENCH_FORMAT,
+    CLIPS_DIR,
+    clip_dir,
+    lock_path,
+    manifest_path,
+    read_manifest,
+    read_status,
+    write_manifest,
+    write_status,
+)
+from .tables import write_tables
+
+if TYPE_CHECKING:
+    from .ray import RayOptions
+
+__all__ = [
+    "EXECUTORS",
+    "BenchError",
+    "BenchSummary",
+    "RecordRenderer",
+    "run_bench",
+    "score_to_folder",
+]
+
+EXECUTORS = ("pool", "ray")
+"""How ``geocon bench`` runs clips: a local process pool, or Ray tasks (one machine or a cluster)."""
+
+
+@dataclass(frozen=True)
+class BenchSummary:
+    """What a run did: clips in the dataset, scored now, skipped (finished earlier), failed (in
+    total, including earlier runs), and the seconds it took."""
+
+    results: Path
+    total: int
+    scored: int
+    skipped: int
+    failed: int
+    seconds: float
+    tables: tuple[Path, ...] = field(default_factory=tuple)
+
+
+def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
+    from ..scoring import software_versions
+
+    manifest = manifest_path(results)
+    digest = config_hash(cfg)
+    if manifest.is_file():
+        try:
+            old = read_manifest(results)
+        except json.JSONDecodeError:
+            raise BenchError(f"{manifest} is not valid JSON; remove it or choose another --out") from None
+        if old.get("format") != BENCH_FORMAT:
+            raise BenchError(f"{results} holds something other than GeoCon benchmark results; choose another --out")
+        if old.get("config_hash") != digest:
+            raise BenchError(
+                f"{results} was scored with another configuration (hash {old.get('config_hash')}, preset "
+                f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another "
+                "--out"
+            )
+        return
+    results.mkdir(parents=True, exist_ok=True)
+    (results / CLIPS_DIR).mkdir(exist_ok=True)
+    write_manifest(
+        results,
+        {
+            "format": BENCH_FORMAT,
+            "dataset": str(dataset.resolve()),
+            "config": cfg.to_dict(),
+            "config_hash": digest,
+            "versions": software_versions(),
+        },
+    )
+
+
+def run_bench(
+    dataset: str | Path,
+    results: str | Path,
+    config: ScoreConfig | None = None,
+    *,
+    workers: int = 1,
+    rrd_renderer: RecordRenderer | None = None,
+    retry_failed: bool = False,
+    on_clip: Callable[[dict[str, Any], int, int, int], None] | None = None,
+    on_start: Callable[[int, int], None] | None = None,
+    tables: bool = True,
+    executor: str = "pool",
+    ray: "RayOptions | None" = None,
+    on_note: Callable[[str], None] | None = None,
+) -> BenchSummary:
+    """Score every clip of ``dataset`` (a folder or a manifest file, read by
+    :func:`~geocon_core.bench.dataset.scan_dataset`) into ``results`` with ``workers`` processes
+    (``executor="pool"``), or as Ray tasks (``executor="ray"``, :mod:`geocon_core.bench.ray`;
+    ``ray`` says where, and a local instance gets ``workers`` CPUs). Both leave the same results
+    folder, so a run started with one can be resumed with the other.
+
+    ``rrd_renderer`` (a module-level function, called as ``f(record_dir, rrd_path)``) writes a Rerun
+    recording for flagged clips (:func:`geocon_core.scoring.verdict.is_flagged`). ``on_start(to_score, skipped)``
+    is called once; ``on_clip(status, done, total, failed)`` after each clip. Raises
+    :class:`~geocon_core.bench.dataset.DatasetError` or :class:`BenchError` before scoring anything:
+    ``results`` is checked (:func:`geocon_core.files.paths.check_out_dir`) before the dataset is read, and
+    held with a lock file (:func:`geocon_core.bench.layout.lock_path`) for the whole run, so a second run
+    into the same folder is refused naming the first one's PID (a lock of a dead run is taken over).
+    The worker processes exit when this process dies (:func:`geocon_core.files.procs.die_with_parent`).
+    ``on_note(sentence)`` hears the defaults the dataset took (a plain folder, a manifest) and what
+    the executor has to say (where it runs, a clip scored again)."""
+    cfg = config or ScoreConfig()
+    if workers < 1:
+        raise BenchError(f"--workers must be at least 1, got {workers}")
+    if executor not in EXECUTORS:
+        raise BenchError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    note = on_note or (lambda _msg: None)
+    data, out = Path(dataset), Path(results)
+    try:
+        check_out_dir(out)
+    except OutPathError as exc:
+        raise BenchError(str(exc)) from None
+    dataset_read = scan_dataset(data)
+    entries = list(dataset_read.entries)
+    for sentence in dataset_read.notes:
+        note(sentence)
+    if executor == "ray":
+        from .ray import RayOptions, preflight
+
+        ray = ray or RayOptions(local_cpus=workers)
+        preflight(ray)  # Ray installed, the cluster answers: refused before the results folder is made
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BenchError(f"--out {out} cannot be created ({exc.strerror})") from None
+    lock = FolderLock(lock_path(out))
+    try:
+        lock.acquire()
+    except LockHeld as held:
+        raise BenchError(_busy(out, held)) from None
+    try:
+        _prepare_results(out, data, cfg)
+        start = time.perf_counter()
+        todo, failed_before = _unfinished(entries, out, retry_failed, note)
+        skipped = len(entries) - len(todo)
+        if on_start is not None:
+            on_start(len(todo), skipped)
+        done, failed = skipped, failed_before
+
+        def finished(status: dict[str, Any]) -> None:
+            nonlocal done, failed
+            done += 1
+            failed += status["status"] == "failed"
+            if on_clip is not None:
+                on_clip(status, done, len(entries), failed)
+
+        if executor == "ray" and todo:
+            from .ray import score_all_ray
+
+            assert ray is not None
+            score_all_ray(todo, out, cfg, rrd_renderer, finished, ray, note)
+        else:
+            _score_all(todo, out, cfg, workers, rrd_renderer, finished)
+        paths: tuple[Path, ...] = ()
+        if tables:
+            paths = write_tables(out)
+    finally:
+        lock.release()
+    return BenchSummary(
+        results=out,
+        total=len(entries),
+        scored=len(todo),
+        skipped=skipped,
+        failed=failed,
+        seconds=time.perf_counter() - start,
+        tables=paths,
+    )
+
+
+def _busy(out: Path, held: LockHeld) -> str:
+    """The sentence for a results folder that another run holds."""
+    who = "another process" if held.pid is None else f"PID {held.pid}"
+    if held.host is not None and held.host != socket.gethostname():
+        who += f" on {held.host}"
+    return f"--out {out} is in use by another `geocon bench` run ({who}); wait for it to finish or choose another --out"
+
+
+def _unfinished(
+    entries: list[ClipEntry], out: Path, retry_failed: bool, note: Callable[[str], None]
+) -> tuple[list[ClipEntry], int]:
+    """The clips still to score (unfinished, or failed when ``retry_failed``) and how many failed
+    clips are kept as they are. A finished clip whose metadata changed takes the dataset's (its
+    ``status.json`` rewritten) when its clip file and ``masks_path`` are those it was scored from;
+    otherwise it keeps its earlier metadata and scores, and ``note`` says so."""
+    todo, failed_before = [], 0
+    refreshed, stale = 0, []
+    for entry in entries:
+        folder = clip_dir(out, entry.clip_id)
+        status = read_status(folder)
+        if status is None or (retry_failed and status["status"] == "failed"):
+            todo.append(entry)
+            continue
+        failed_before += status["status"] == "failed"
+        meta = status.get("meta") or {}
+        if meta == entry.meta:
+            continue
+        if status.get("video") == str(entry.video) and meta.get("masks_path") == entry.meta.get("masks_path"):
+            write_status(folder, {**status, "meta": entry.meta})
+            refreshed += 1
+        else:
+            stale.append(entry.clip_id)
+    if refreshed:
+        note(f"{refreshed} finished clip(s) took the dataset's new metadata (their scores are unchanged)")
+    if stale:
+        note(
+            f"{len(stale)} finished clip(s) now name another clip file or masks and keep their earlier scores (e.g. "
+            f"{stale[0]}); remove their folders from {out / CLIPS_DIR} to score them again"
+        )
+    return todo, failed_before
+
+
+def _score_all(
+    todo: list[ClipEntry],
+    out: Path,
+    cfg: ScoreConfig,
+    workers: int,
+    rrd_renderer: RecordRenderer | None,
+    finished: Callable[[dict[str, Any]], None],
+) -> None:
+    """Score ``todo`` in worker processes, calling ``finished(status)`` per clip. A clip in flight
+    when a worker dies is retried alone, and recorded as failed after :data:`MAX_CRASHES` deaths."""
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    crashes: dict[str, int] = {}
+    queue = list(todo)
+    ctx = multiprocessing.get_context("spawn")
+    while queue:
+        limit = 1 if crashes else workers  # after a worker died, suspects run alone
+        pool = ProcessPoolExecutor(
+            max_workers=min(limit, len(queue)),
+            mp_context=ctx,
+            initializer=die_with_parent,  # workers exit when this process dies, kill -9 included
+            initargs=(os.getpid(),),
+        )
+        inflight: dict[Future[dict[str, Any]], ClipEntry] = {}
+        broken = False
+        try:
+            while queue or inflight:
+                while queue and len(inflight) < limit and not broken:
+                    entry = queue.pop(0)
+                    fut = pool.submit(
+                        score_one, entry, cfg.to_dict(), str(clip_dir(out, entry.clip_id)), rrd_renderer, threads
+                    )
+                    inflight[fut] = entry
+                if not inflight:
+                    break
+                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    entry = inflight.pop(fut)
+                    try:
+                        status = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        crashes[entry.clip_id] = crashes.get(entry.clip_id, 0) + 1
+                        if crashes[entry.clip_id] < MAX_CRASHES:
+                            queue.insert(0, entry)
+                            continue
+                        status = crashed_status(entry, cfg)
+                        install_clip(clip_dir(out, entry.clip_id), status)
+                    finished(status)
+                if broken and not inflight:
+                    break
+        except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)

@@ -1,0 +1,72 @@
+"""Files on disk, read and written safely.
+
+:mod:`.paths` (output folders checked before work, outputs kept apart from inputs, whole-folder
+replacement, signals held during a commit), :mod:`.lockfile` (one writer per results folder),
+:mod:`.procs` (worker processes that do not outlive their parent), :mod:`.jsonin` (strict JSON for
+sidecars and pose logs), :mod:`.npz` (the errors a damaged archive raises) and
+:mod:`.checkpoint` (the one reader of user-given network weights).
+"""
+
+from __future__ import annotations
+
+from .checkpoint import (
+    read_checkpoint_file,
+)
+from .jsonin import (
+    MAX_NUMBER_CHARS,
+    strict_json,
+)
+from .lockfile import (
+    FolderLock,
+    LockHeld,
+)
+from .npz import (
+    NPZ_ERRORS,
+)
+from .paths import (
+    PROTECTED_PARTS,
+    OutPathError,
+    check_apart,
+    check_out_dir,
+    check_out_file,
+    clear_stale_parts,
+    deferred_signals,
+    part_path,
+    part_prefix,
+    record_parts,
+    remove_path,
+    replace_dir,
+)
+from .procs import (
+    PARENT_POLL_S,
+    die_with_parent,
+    pid_alive,
+    reap_when_gone,
+    start_reaper,
+)
+
+__all__ = [
+    "PARENT_POLL_S",
+    "die_with_parent",
+    "pid_alive",
+    "reap_when_gone",
+    "start_reaper",
+    "OutPathError",
+    "PROTECTED_PARTS",
+    "check_apart",
+    "check_out_dir",
+    "check_out_file",
+    "clear_stale_parts",
+    "deferred_signals",
+    "part_path",
+    "part_prefix",
+    "record_parts",
+    "remove_path",
+    "replace_dir",
+    "FolderLock",
+    "LockHeld",
+    "MAX_NUMBER_CHARS",
+    "strict_json",
+    "NPZ_ERRORS",
+    "read_checkpoint_file",
+]

@@ -1,0 +1,264 @@
+"""Output folders: checked before any work, and replaced whole.
+
+:func:`check_out_dir` says in one sentence why a folder cannot take a command's output before the
+command starts (``geocon bench --out``, ``geocon report --out``, ``geocon score --out``);
+:func:`replace_dir` builds a folder in a temporary sibling and moves it into place only when it is
+complete, so a run that fails or is killed leaves the previous folder exactly as it was.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import secrets
+import shutil
+import signal
+import threading
+from contextlib import contextmanager, suppress
+from pathlib import Path
+from typing import Iterator, Sequence
+
+from .procs import pid_alive
+
+__all__ = [
+    "OutPathError",
+    "PROTECTED_PARTS",
+    "check_apart",
+    "deferred_signals",
+    "record_parts",
+    "check_out_dir",
+    "check_out_file",
+    "clear_stale_parts",
+    "part_path",
+    "part_prefix",
+    "remove_path",
+    "replace_dir",
+]
+
+_PSEUDO_FS = (Path("/proc"), Path("/sys"))
+"""Kernel file systems: a folder there cannot hold a command's output."""
+
+
+class OutPathError(ValueError):
+    """An output folder that cannot be used (one sentence naming the option and the path)."""
+
+
+def check_out_dir(path: Path, option: str = "--out") -> Path:
+    """Check that ``path`` can be (or already is) a writable folder, without creating anything.
+
+    Raises :class:`OutPathError` (a ``ValueError``) with one sentence naming ``option`` and ``path``
+    when ``path`` is under ``/proc`` or ``/sys``, exists and is not a folder, is a broken
+    link, is a folder that is not writable, or cannot be created (an ancestor is a file, or the
+    nearest existing ancestor is not writable). Returns ``path`` unchanged.
+
+    Permission checks use :func:`os.access`, so they say nothing for root (who may write anywhere
+    but on a read-only file system)."""
+    full = Path(os.path.abspath(path))
+    for pseudo in _PSEUDO_FS:
+        if full == pseudo or pseudo in full.parents:
+            raise OutPathError(f"{option} {path} is under {pseudo}, which cannot hold files; choose a folder on disk")
+    if path.is_symlink() and not path.exists():
+        raise OutPathError(f"{option} {path} is a broken link (to {os.readlink(path)}); choose another folder")
+    if path.exists():
+        if not path.is_dir():
+            raise OutPathError(
+                f"{option} {path} exists and is not a folder; choose a folder (it is created if missing)"
+            )
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise OutPathError(f"{option} {path} is a folder without write permission; choose another folder")
+        return path
+    ancestor = full.parent
+    while not ancestor.exists() and not ancestor.is_symlink():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutPathError(f"{option} {path} cannot be created: {ancestor} is not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise OutPathError(f"{option} {path} cannot be created: no write permission in {ancestor}")
+    return path
+
+
+def check_out_file(path: Path, option: str) -> Path:
+    """Check that a file can be written at ``path`` (``geocon score --rrd``): not a folder, and its
+    folder can be (or is) a writable folder (:func:`check_out_dir`). Raises :class:`OutPathError`
+    with one sentence naming ``option``; returns ``path`` unchanged."""
+    if path.is_dir():
+        raise OutPathError(f"{option} {path} is a folder; give a file name (e.g. {path / 'audit.rrd'})")
+    try:
+        check_out_dir(path.parent, option)
+    except OutPathError as exc:
+        raise OutPathError(f"{option} {path} cannot be written: {str(exc).removeprefix(f'{option} ')}") from None
+    return path
+
+
+PROTECTED_PARTS = ("record.json", "matches.npz", "overlays")
+"""The parts of a record folder no output may replace (the record itself; its recording
+``audit.rrd``, also one of :data:`geocon_core.bench.staging.RECORD_PARTS`, is re-rendered in place)."""
+
+
+def _real(path: Path) -> Path:
+    return Path(os.path.realpath(path))
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """The same file or folder, by resolved path or (both existing) by device and inode: a hard
+    link or a bind mount of an input is that input too."""
+    if _real(a) == _real(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _within(path: Path, folder: Path) -> bool:
+    """``path`` is ``folder`` or lies inside it (resolved; a folder reached through a link counts)."""
+    p, f = _real(path), _real(folder)
+    if p == f or f in p.parents:
+        return True
+    return any(_same_file(a, folder) for a in [path, *path.parents][:64] if a.exists())
+
+
+def record_parts(folder: Path) -> list[Path]:
+    """The paths of a record folder no output may replace (:data:`PROTECTED_PARTS`)."""
+    return [folder / name for name in PROTECTED_PARTS]
+
+
+def check_apart(
+    outputs: Sequence[tuple[str, Path]],
+    inputs: Sequence[tuple[str, Path]],
+    records: Sequence[Path] = (),
+) -> None:
+    """Refuse, before any work, an output that would write over an input or into a record.
+
+    ``outputs``: (option, path) of every file or folder a command writes; ``inputs``: (what, path)
+    of everything it reads (the clip, its frame folder, masks, a pose log, the record viewed);
+    ``records``: record folders an output may sit beside but never inside of (their
+    :data:`PROTECTED_PARTS`). Compared by resolved path and by inode, so links and hard links are
+    seen through. Raises :class:`OutPathError` with one sentence naming the option, the path and
+    the input it would destroy."""
+    for option, out in outputs:
+        for what, src in inputs:
+            if _same_file(out, src):
+                raise OutPathError(
+                    f"{option} {out} is the {what}; GeoCon never writes over its inputs, choose another path"
+                )
+            if src.is_dir() and _within(out, src):
+                raise OutPathError(
+                    f"{option} {out} lies inside the {what} {src}; GeoCon never writes into its inputs, "
+                    "choose another path"
+                )
+            if out.is_dir() and _within(src, out) and any(_within(src, part) for part in record_parts(out)):
+                raise OutPathError(
+                    f"{option} {out} would replace the {what} {src} (a record's own file); choose another folder"
+                )
+        for folder in records:
+            for part in record_parts(folder):
+                if _within(out, part) and not _same_file(out, folder):
+                    raise OutPathError(
+                        f"{option} {out} is inside the record {folder} ({part.name}), which it would destroy; "
+                        "choose a path outside the record's own files"
+                    )
+
+
+@contextmanager
+def deferred_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
+    """Hold Ctrl-C and ``kill`` for the length of the block (a commit of several renames must not
+    stop halfway), then deliver the first one that arrived, exactly as if it came after the block.
+    Outside the main thread (where handlers cannot be set) the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = {s: signal.getsignal(s) for s in signals}
+
+    def hold(signum: int, _frame: object) -> None:
+        caught.append(signum)
+
+    for s in signals:
+        signal.signal(s, hold)
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if caught:
+            os.kill(os.getpid(), caught[0])
+
+
+NAME_ROOM = 180
+"""Bytes of a target's name kept in its temporary siblings' names; a longer name is cut and
+marked with a hash of the whole, so ``.NAME.part-<pid>-<token>`` stays within the 255-byte name
+limit of common file systems (a legal 251-byte file name must not make its temporary name illegal)."""
+
+
+def short_name(name: str) -> str:
+    """``name`` when it fits :data:`NAME_ROOM` bytes, else its start and a hash of the whole."""
+    raw = os.fsencode(name)
+    if len(raw) <= NAME_ROOM:
+        return name
+    digest = hashlib.sha256(raw).hexdigest()[:12]
+    return os.fsdecode(raw[: NAME_ROOM - 13]) + "~" + digest
+
+
+def part_prefix(target: Path) -> str:
+    """Name prefix of the temporary siblings in which ``target`` is built (``.NAME.part-``,
+    followed by the writer's pid); a long NAME is shortened (:func:`short_name`)."""
+    return f".{short_name(target.name)}.part-"
+
+
+def part_path(target: Path) -> Path:
+    """This process's temporary sibling of ``target`` (``.NAME.part-<pid>``)."""
+    return target.with_name(f"{part_prefix(target)}{os.getpid()}")
+
+
+def remove_path(path: Path) -> None:
+    """Remove a file, a link or a folder with its contents; nothing if it is absent."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def clear_stale_parts(target: Path) -> None:
+    """Remove the temporary siblings of ``target`` left by runs that were killed (their process
+    is gone); those of running processes stay."""
+    stem = part_prefix(target)
+    with suppress(OSError):
+        for stale in target.parent.glob(f"{stem}*"):
+            pid = stale.name[len(stem) :].split("-", 1)[0]
+            if pid.isdigit() and int(pid) != os.getpid() and not pid_alive(int(pid)):
+                remove_path(stale)
+
+
+@contextmanager
+def replace_dir(target: Path) -> Iterator[Path]:
+    """Yield a new, empty temporary sibling of ``target`` to write into. When the block ends without
+    an error, it replaces ``target`` (a previous ``target`` is removed only then); on an error it is
+    removed and ``target`` is left exactly as it was. Temporary siblings left by killed runs (their
+    process is gone) are removed first.
+
+    The replacement is two renames on one file system: a reader sees the old folder, for an instant
+    no folder, then the new one; never a partial one."""
+    if target.is_symlink():  # replace the folder the link points to, keep the link
+        target = Path(os.path.realpath(target))
+    parent = target.parent
+    parent.mkdir(parents=True, exist_ok=True)
+    clear_stale_parts(target)
+    tmp = parent / f"{part_prefix(target)}{os.getpid()}-{secrets.token_hex(4)}"
+    tmp.mkdir()  # honours the umask, unlike tempfile.mkdtemp (0700)
+    try:
+        yield tmp
+        if target.exists() or target.is_symlink():
+            old = parent / f".{short_name(target.name)}.old-{os.getpid()}-{secrets.token_hex(4)}"
+            target.rename(old)
+            try:
+                tmp.rename(target)
+            except BaseException:
+                old.rename(target)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

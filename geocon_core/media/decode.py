@@ -1,0 +1,630 @@
+"""Decoding the frames of a clip file or image folder, one at a time, as (h, w, 3) uint8 BGR.
+
+Used by :mod:`geocon_core.media.reader`; every failure is a :class:`ClipError` whose message is one
+sentence that names the file. Damage that still leaves frames to score is not an error but is
+reported, so that the reader can warn: :func:`container_frame_count` (what the container promises),
+:attr:`CaptureFrames.error` (a decoder error that ended the stream) and :func:`gif_cut` (a GIF
+that stops before its trailer).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, Union
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "ANIMATED_SUFFIXES",
+    "CaptureFrames",
+    "Frames",
+    "PillowFrames",
+    "PyAVFrames",
+    "ClipError",
+    "ClipKind",
+    "DEFAULT_FPS",
+    "FrameCount",
+    "GifCut",
+    "IMAGE_SUFFIXES",
+    "SHORTFALL_EXACT",
+    "SHORTFALL_ESTIMATED",
+    "container_frame_count",
+    "timing_note",
+    "gif_cut",
+    "image_frames",
+    "imread_any",
+    "imwrite_any",
+    "native_path",
+    "native_safe",
+    "open_video",
+    "resolve_clip",
+]
+
+ClipKind = Literal["video", "gif", "images"]
+"""What a clip is read from: a video container, a GIF, or a folder (or list) of images."""
+
+
+def native_safe(name: str) -> bool:
+    """Whether ``name`` can be handed to a native library as it is: valid UTF-8 text (a name read
+    from a Latin-1 or zip archive holds undecodable bytes, which OpenCV's bindings do not survive)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+@contextmanager
+def native_path(name: str) -> Iterator[str]:
+    """``name`` in a form native libraries accept: itself when it is :func:`native_safe`, else a
+    link with a plain name in a private temporary folder, removed when the block ends (a decoder
+    that opened the file keeps it open)."""
+    if native_safe(name):
+        yield name
+        return
+    folder = tempfile.mkdtemp(prefix="geocon-link-")
+    link = os.path.join(
+        folder, "clip" + "".join(c for c in Path(name).suffix if c.isascii() and c.isalnum() or c == ".")
+    )
+    try:
+        os.symlink(os.path.abspath(name), link)
+        yield link
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def imread_any(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None:
+    """``cv2.imread`` for any file name (the bytes are read by Python, decoded by OpenCV); None
+    when the file cannot be read or decoded."""
+    try:
+        data = np.fromfile(os.fspath(path), dtype=np.uint8)
+        return cv2.imdecode(data, flags) if data.size else None
+    except (cv2.error, OSError, ValueError):
+        return None
+
+
+def imwrite_any(path: str | Path, image: np.ndarray, params: Sequence[int] = ()) -> bool:
+    """``cv2.imwrite`` for any file name: encoded by OpenCV (format from the suffix), written by
+    Python. False when it cannot be encoded; ``OSError`` when it cannot be written (a full disk)."""
+    ok, buf = cv2.imencode(Path(path).suffix or ".png", image, list(params))
+    if not ok:
+        return False
+    with open(path, "wb") as fh:
+        fh.write(buf.tobytes())
+    return True
+
+
+IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg"})
+"""File suffixes (lower case) read as frames of an image folder."""
+ANIMATED_SUFFIXES: frozenset[str] = frozenset({".png", ".apng", ".webp"})
+"""Single files that may hold an animation (read as a clip when they hold 2 frames or more)."""
+
+DEFAULT_FPS = 24.0
+"""Frame rate for image folders and for containers that report none."""
+SHORTFALL_EXACT = 0.05
+"""Share of an exact frame count (:attr:`FrameCount.exact`) that may fail to decode without a
+warning; a shortfall of one frame is never warned about. Warning-only: it changes no score."""
+SHORTFALL_ESTIMATED = 1 / 3
+"""Share of a duration-based estimate (a container without a frame count: webm, mkv) that may fail
+to decode without a warning: the estimate is duration x average frame rate, which a variable
+frame rate overstates (a VFR mkv estimated at 32 frames holds 24). Warning-only."""
+_VIDEO_MAGIC = (b"GIF87a", b"GIF89a", b"RIFF", b"\x1aE\xdf\xa3", b"OggS", b"FLV")
+_MP4_BOXES = (b"ftyp", b"moov", b"mdat", b"free", b"wide", b"skip", b"pnot")
+
+
+class ClipError(ValueError):
+    """Unusable input. ``str(err)`` is one sentence that names the file, e.g.
+    ``"clip.mp4: no such file"`` or ``"one.png: has 1 frame; at least 2 are needed"``."""
+
+
+@dataclass(frozen=True)
+class FrameCount:
+    """How many frames a container says its first video stream holds."""
+
+    frames: int
+    """The promised frame count (>= 1)."""
+    exact: bool
+    """True: counted in the container's index (mp4/mov ``stts``, avi header, a GIF scan), capped by
+    the stream's duration x frame rate (an mp4 edit list hides frames the index still counts).
+    False: estimated as duration x average frame rate (no count stored: webm, mkv)."""
+
+    def falls_short(self, decoded: int) -> bool:
+        """True if ``decoded`` frames are clearly fewer than promised: short by at least 2 frames
+        and by more than :data:`SHORTFALL_EXACT` (exact counts) or :data:`SHORTFALL_ESTIMATED`
+        (estimates) of the promise."""
+        share = SHORTFALL_EXACT if self.exact else SHORTFALL_ESTIMATED
+        return self.frames - decoded >= 2 and decoded < self.frames * (1.0 - share)
+
+
+@dataclass(frozen=True)
+class GifCut:
+    """Where a GIF's block structure stops before its trailer block (``;``)."""
+
+    complete: int
+    """Images stored whole before the cut."""
+    partial: bool
+    """True if the cut falls inside image :attr:`complete` (0-based): a frame is lost for sure;
+    False if it falls between blocks (frames may be missing, or only the trailer)."""
+
+
+def resolve_clip(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
+    """The kind of the clip at ``path`` and, for an image folder, its frame files in natural
+    order (None for a video or GIF). Raises :class:`ClipError` for anything unreadable."""
+    if not path.exists():
+        raise ClipError(f"{name}: no such file")
+    if path.is_dir():
+        files = sorted(
+            (p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()), key=_natural_key
+        )
+        if not files:
+            raise ClipError(f"{name}: folder holds no PNG or JPEG frames")
+        if len(files) == 1:
+            raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
+        return "images", files
+    if not path.is_file():
+        raise ClipError(f"{name}: not a regular file")
+    if path.suffix.lower() in ANIMATED_SUFFIXES and _animated_frames(path) >= 2:
+        return "video", None  # an animated PNG or WebP: decoded by Pillow (open_video)
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        if _imread(path) is None:
+            raise ClipError(f"{name}: cannot be decoded as a video or image sequence")
+        raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(16)
+    except OSError as err:
+        raise ClipError(f"{name}: cannot be read ({err.strerror or err})") from None
+    kind: ClipKind = "gif" if path.suffix.lower() == ".gif" or head.startswith(b"GIF8") else "video"
+    return kind, None
+
+
+def _natural_key(path: Path) -> tuple[list[tuple[int, int | str]], str]:
+    """Sort key putting ``frame_2`` before ``frame_10`` (digit runs compare as numbers); the
+    exact name breaks ties (``f01`` / ``f1``) so that the order never depends on the file system."""
+    parts = re.split(r"(\d+)", path.name.lower())
+    return [(0, int(p)) if p.isdigit() else (1, p) for p in parts if p], path.name
+
+
+def _imread(path: Path) -> np.ndarray | None:
+    """(h, w, 3) uint8 BGR of an image file (grey and alpha converted, 16 bit reduced), or None."""
+    return imread_any(path)
+
+
+def image_frames(files: list[Path], name: str) -> Iterator[np.ndarray]:
+    """(h, w, 3) uint8 BGR frames of an image folder, one file at a time.
+
+    A file that does not decode (corrupt or cut short) raises :class:`ClipError` naming it rather
+    than being skipped: a skipped frame would silently join its neighbours into one pair, scored
+    as one frame apart when two apart, and the folder's frame count would not reveal the loss."""
+    for t, f in enumerate(files):
+        bgr = _imread(f)
+        if bgr is None:
+            raise ClipError(f"{f}: cannot be decoded as an image (frame {t} of {name})")
+        yield bgr
+
+
+def _open_capture(name: str) -> cv2.VideoCapture:
+    """An opened FFmpeg capture of ``name``; :class:`ClipError` if it cannot be opened."""
+    try:
+        with native_path(name) as safe:
+            cap = cv2.VideoCapture(safe, cv2.CAP_FFMPEG)
+            opened = cap.isOpened()
+    except cv2.error as err:
+        raise ClipError(f"{name}: unreadable bytes ({_cv_reason(err)})") from None
+    if not opened:
+        cap.release()
+        if _looks_like_video(Path(name)):
+            raise ClipError(f"{name}: unreadable bytes (a video header but no decodable stream)")
+        raise ClipError(f"{name}: cannot be decoded as a video or image sequence")
+    return cap
+
+
+def _fps(value: float | None) -> float:
+    return value if value is not None and math.isfinite(value) and 0.0 < value < 1000.0 else DEFAULT_FPS
+
+
+def open_video(name: str) -> tuple[float, "Frames"]:
+    """The frame rate of the video, GIF or animated image ``name`` (:data:`DEFAULT_FPS` when the
+    container reports none) and an iterator over its (h, w, 3) uint8 BGR frames until the decoder
+    stops.
+
+    One decoder policy: OpenCV where it reads the stream (fast, the frames every record so far
+    was scored on); PyAV for what OpenCV cannot read (AV1, and any stream OpenCV opens but decodes
+    no frame of) and for interlaced streams, which it deinterlaces (``yadif``: one frame per frame);
+    Pillow for animated PNG and WebP. The iterator's ``decoder`` names the one used."""
+    if Path(name).suffix.lower() in ANIMATED_SUFFIXES and _animated_frames(Path(name)) >= 2:
+        animated = PillowFrames(name)
+        return animated.fps, animated
+    peek = _pyav_peek(name)
+    if peek is not None and peek.interlaced:
+        return _fps(peek.fps), PyAVFrames(name, deinterlace=True)
+    try:
+        cap = _open_capture(name)
+    except ClipError:
+        if peek is None or not peek.decodes:
+            raise
+        return _fps(peek.fps), PyAVFrames(name)
+    try:
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+    except cv2.error:
+        fps = 0.0
+    frames = CaptureFrames(cap, name)
+    try:
+        frames._pending = next(frames)
+    except (StopIteration, ClipError):
+        frames.close()
+        if peek is not None and peek.decodes:
+            return _fps(peek.fps), PyAVFrames(name)
+        if frames.decoded == 0 and peek is None:
+            raise ClipError(f"{name}: unreadable bytes (the container opened but no frame could be decoded)") from None
+    return _fps(fps), frames
+
+
+@dataclass(frozen=True)
+class _Peek:
+    """What PyAV sees of a video's first frame: whether it decodes, is interlaced, the frame rate."""
+
+    decodes: bool
+    interlaced: bool
+    fps: float | None
+
+
+def _pyav_peek(name: str) -> _Peek | None:
+    """PyAV's view of the first video frame of ``name`` (None when PyAV cannot open it); kept for
+    the file as it is (a clip is opened twice per score: probe, then frames)."""
+    try:
+        st = os.stat(name)
+    except OSError:
+        return None
+    return _pyav_peek_file(name, st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _pyav_peek_file(name: str, _size: int, _mtime_ns: int) -> _Peek | None:
+    import av
+
+    try:
+        with native_path(name) as safe, av.open(safe) as container:
+            if not container.streams.video:
+                return None
+            stream = container.streams.video[0]
+            rate = stream.average_rate or stream.guessed_rate
+            fps = float(rate) if rate else None
+            for frame in container.decode(stream):
+                return _Peek(True, bool(getattr(frame, "interlaced_frame", False)), fps)
+            return _Peek(False, False, fps)
+    except (av.FFmpegError, OSError, ValueError, UnicodeError):
+        return None
+
+
+class _LibraryFrames(Iterator[np.ndarray]):
+    """What :class:`PyAVFrames` and :class:`PillowFrames` share: the count of decoded frames, the
+    error that ended the stream after the first one, and closing."""
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+        self.decoded = 0
+        self.error: str | None = None
+
+    def _stopped(self, err: Exception) -> StopIteration:
+        """Close; before the first frame raise :class:`ClipError`, after it keep ``err`` and end."""
+        self.close()
+        if self.decoded == 0:
+            raise ClipError(f"{self._name}: unreadable bytes ({err})") from None
+        self.error = str(err)
+        return StopIteration()
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __del__(self) -> None:
+        self.close()
+
+
+class PyAVFrames(_LibraryFrames):
+    """(h, w, 3) uint8 BGR frames decoded by PyAV (FFmpeg), with ``deinterlace`` through
+    FFmpeg's ``yadif`` (one output frame per input frame). Same interface as
+    :class:`CaptureFrames`."""
+
+    def __init__(self, name: str, *, deinterlace: bool = False) -> None:
+        import av
+
+        super().__init__(name)
+        self._av = av
+        self.decoder = "pyav (deinterlaced: yadif)" if deinterlace else "pyav"
+        with native_path(name) as safe:
+            self._container: Any = av.open(safe)  # the file stays open after the link is gone
+        stream = self._container.streams.video[0]
+        self._decode = self._container.decode(stream)
+        self._graph: Any = None
+        self._queue: list[Any] = []
+        self._flushed = False
+        if deinterlace:
+            graph = av.filter.Graph()
+            src = graph.add_buffer(template=stream)
+            yadif = graph.add("yadif", "mode=send_frame:parity=auto:deint=interlaced")
+            sink = graph.add("buffersink")
+            src.link_to(yadif)
+            yadif.link_to(sink)
+            graph.configure()
+            self._graph = graph
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                self._queue.append(self._graph.pull())
+            except (self._av.BlockingIOError, self._av.EOFError):
+                return
+
+    def _next_frame(self) -> Any:
+        if self._graph is None:
+            return next(self._decode)
+        while not self._queue:
+            if self._flushed:
+                raise StopIteration
+            try:
+                self._graph.push(next(self._decode))
+            except StopIteration:
+                self._graph.push(None)
+                self._flushed = True
+            self._drain()
+        return self._queue.pop(0)
+
+    def __next__(self) -> np.ndarray:
+        if self._container is None:
+            raise StopIteration
+        try:
+            frame = self._next_frame()
+        except StopIteration:
+            self.close()
+            raise
+        except self._av.FFmpegError as err:
+            raise self._stopped(err) from None
+        self.decoded += 1
+        return frame.to_ndarray(format="bgr24")
+
+    def close(self) -> None:
+        if getattr(self, "_container", None) is not None:
+            self._container.close()
+            self._container = None
+
+
+class PillowFrames(_LibraryFrames):
+    """(h, w, 3) uint8 BGR frames of an animated PNG or WebP, decoded by Pillow; ``fps`` from
+    the first frame's duration. Same interface as :class:`CaptureFrames`."""
+
+    decoder = "pillow"
+
+    def __init__(self, name: str) -> None:
+        from PIL import Image
+
+        super().__init__(name)
+        self._image: Any = Image.open(name)
+        self._count = int(getattr(self._image, "n_frames", 1))
+        duration = float(self._image.info.get("duration") or 0.0)  # ms
+        self.fps = _fps(1000.0 / duration if duration > 0 else None)
+
+    def __next__(self) -> np.ndarray:
+        if self._image is None or self.decoded >= self._count:
+            self.close()
+            raise StopIteration
+        try:
+            self._image.seek(self.decoded)
+            rgb = np.asarray(self._image.convert("RGB"))
+        except (OSError, EOFError, ValueError) as err:
+            raise self._stopped(err) from None
+        self.decoded += 1
+        return np.ascontiguousarray(rgb[..., ::-1])
+
+    def close(self) -> None:
+        if getattr(self, "_image", None) is not None:
+            self._image.close()
+            self._image = None
+
+
+Frames = Union["CaptureFrames", PyAVFrames, PillowFrames]
+"""A decoder's frame iterator (``decoded``, ``error``, ``decoder``, ``close()``)."""
+
+
+def _animated_frames(path: Path) -> int:
+    """Frames of an animated PNG or WebP (1 for a still image, 0 when Pillow cannot read it)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return int(getattr(im, "n_frames", 1))
+    except Exception:  # any unreadable image is "not animated"; the caller's own reading says why
+        return 0
+
+
+class CaptureFrames(Iterator[np.ndarray]):
+    """(h, w, 3) uint8 BGR frames of an opened capture until the decoder stops; releases the
+    capture when exhausted or closed. A decoder error before the first frame raises
+    :class:`ClipError`; one after it ends the frames and is kept in :attr:`error`."""
+
+    decoder = "opencv"
+    """Which library decodes the frames (``opencv``; :class:`PyAVFrames` and :class:`PillowFrames`
+    say theirs)."""
+
+    def __init__(self, cap: cv2.VideoCapture, name: str) -> None:
+        self._cap: cv2.VideoCapture | None = cap
+        self._name = name
+        self._pending: np.ndarray | None = None
+        self.decoded = 0
+        """Frames yielded so far."""
+        self.error: str | None = None
+        """The decoder's message if an error ended the stream after :attr:`decoded` frames."""
+
+    def __next__(self) -> np.ndarray:
+        if self._pending is not None:
+            frame, self._pending = self._pending, None
+            return frame
+        if self._cap is None:
+            raise StopIteration
+        try:
+            ok, frame = self._cap.read()
+        except cv2.error as err:
+            self.close()
+            if self.decoded == 0:
+                raise ClipError(f"{self._name}: unreadable bytes ({_cv_reason(err)})") from None
+            self.error = _cv_reason(err)
+            raise StopIteration from None
+        if not ok or frame is None:
+            self.close()
+            raise StopIteration
+        self.decoded += 1
+        return _as_bgr(frame)
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def __del__(self) -> None:
+        self.close()
+
+
+TIMING_PACKETS = 1000
+"""Packets whose timestamps :func:`timing_note` reads (the start of a long clip tells)."""
+TIMING_TOLERANCE = 0.25
+"""Frame intervals that differ from their median by more than this share (or a median that differs
+from the stated frame rate by more) are reported (:func:`timing_note`)."""
+
+
+def timing_note(name: str, fps: float) -> str | None:
+    """One sentence when the container's timestamps disagree with a steady ``fps``: a variable
+    frame rate (intervals that differ from their median by more than :data:`TIMING_TOLERANCE`), or
+    a stated rate the timestamps do not keep. Reads packet timestamps only (no decoding); None when
+    they agree or cannot be read."""
+    import av
+
+    try:
+        with native_path(name) as safe, av.open(safe) as container:
+            if not container.streams.video:
+                return None
+            stream = container.streams.video[0]
+            base = stream.time_base
+            pts = sorted(p.pts for p in itertools.islice(container.demux(stream), TIMING_PACKETS) if p.pts is not None)
+    except (av.FFmpegError, OSError, ValueError, UnicodeError):
+        return None
+    if base is None or len(pts) < 3:
+        return None
+    gaps = np.diff(np.asarray(pts, dtype=np.float64)) * float(base)
+    gaps = gaps[gaps > 0]
+    if len(gaps) < 2:
+        return None
+    median, low, high = float(np.median(gaps)), float(gaps.min()), float(gaps.max())
+    if high > median * (1 + TIMING_TOLERANCE) or low < median * (1 - TIMING_TOLERANCE):
+        return (
+            f"variable frame rate: frames are {1000 * low:.0f} to {1000 * high:.0f} ms apart (the container states "
+            f"{fps:g} frames/s); frame pairs are taken frame by frame, so a gap of g frames is not a fixed time"
+        )
+    if abs(1.0 / median - fps) > TIMING_TOLERANCE * fps:
+        return (
+            f"the container states {fps:g} frames/s but its timestamps are {1000 * median:.0f} ms apart "
+            f"({1.0 / median:.3g} frames/s); durations in the record use the stated rate"
+        )
+    return None
+
+
+def container_frame_count(name: str) -> FrameCount | None:
+    """What the container of the video or GIF ``name`` promises about its first video stream's
+    frame count (see :class:`FrameCount`), read from its header and index without decoding; None
+    when it states neither a count nor a duration and frame rate, or cannot be parsed."""
+    import av  # a core dependency; loaded only when a clip is probed
+
+    try:
+        with native_path(name) as safe, av.open(safe) as container:
+            if not container.streams.video:
+                return None
+            stream = container.streams.video[0]
+            index = int(stream.frames or 0)
+            rate = stream.average_rate
+            duration, time_base = stream.duration, stream.time_base
+            own = duration is not None and time_base is not None  # the stream's own duration
+            if duration is not None and time_base is not None:  # (spelt out: mypy narrows on it)
+                seconds = float(duration * time_base)
+            else:  # the container's (Matroska stores no per-stream duration)
+                seconds = container.duration / 1e6 if container.duration else 0.0
+    except (av.error.FFmpegError, OSError, ValueError, ZeroDivisionError):
+        return None
+    by_duration = round(seconds * float(rate)) if rate and seconds > 0 and math.isfinite(seconds) else 0
+    if index > 0:
+        return FrameCount(min(index, by_duration) if own and by_duration > 0 else index, exact=True)
+    return FrameCount(by_duration, exact=False) if by_duration > 0 else None
+
+
+def gif_cut(path: Path) -> GifCut | None:
+    """None if the GIF at ``path`` runs block by block to its trailer; else where it stops (end
+    of file or an unknown block). Reads the file, without decoding its images."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    if len(data) < 13 or not data.startswith(b"GIF8"):
+        return None  # not a GIF to check; the decoder has had its say
+    pos, images = 13, 0
+    if data[10] & 0x80:  # global colour table
+        pos += 3 * (2 << (data[10] & 7))
+    while pos < len(data):
+        block = data[pos]
+        if block == 0x3B:
+            return None
+        if block == 0x21:  # extension: introducer, label, sub-blocks
+            pos += 2
+        elif block == 0x2C:  # image: descriptor, local colour table, LZW code size, sub-blocks
+            if pos + 10 > len(data):
+                return GifCut(images, partial=True)
+            flags = data[pos + 9]
+            pos += 10 + (3 * (2 << (flags & 7)) if flags & 0x80 else 0) + 1
+        else:
+            return GifCut(images, partial=False)
+        while pos < len(data) and data[pos] != 0:
+            pos += 1 + data[pos]
+        if pos >= len(data):
+            return GifCut(images, partial=block == 0x2C)
+        pos += 1  # the block terminator
+        images += block == 0x2C
+    return GifCut(images, partial=False)
+
+
+def _as_bgr(frame: np.ndarray) -> np.ndarray:
+    """(h, w, 3) uint8 BGR from a decoded grey, BGR or BGRA frame."""
+    if frame.dtype != np.uint8:
+        frame = (
+            cv2.convertScaleAbs(frame, alpha=255.0 / np.iinfo(frame.dtype).max)
+            if frame.dtype.kind == "u"
+            else frame.astype(np.uint8)
+        )
+    if frame.ndim == 2 or frame.shape[2] == 1:
+        return cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+    if frame.shape[2] == 4:
+        return cv2.cvtColor(frame, cv2.COLOR_BGRA2BGR)
+    return frame
+
+
+def _looks_like_video(path: Path) -> bool:
+    """True if the first bytes carry a known video/GIF container signature."""
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(12)
+    except OSError:
+        return False
+    return head.startswith(_VIDEO_MAGIC) or head[4:8] in _MP4_BOXES
+
+
+def _cv_reason(err: cv2.error) -> str:
+    """The short message of an OpenCV error, without its source location."""
+    msg = (getattr(err, "err", "") or str(err)).strip().splitlines()
+    return msg[-1].strip() if msg else "decoder error"

@@ -1,0 +1,553 @@
+"""The audit record of one clip (SPEC section 7): frozen dataclasses, written as
+
+- ``record.json``: everything but the per-match arrays, human-readable and byte-stable;
+- ``matches.npz``: per-match coordinates, residuals and inlier masks of every scored pair and
+  scale for both families (enough to re-gate at other thresholds without re-running), the
+  per-cell AdaDFRC vectors and the first/last point cloud,
+  concatenated with offsets, written with fixed zip timestamps so that the same scores give
+  the same bytes.
+
+Both read back exactly (:func:`read_record`). The viewers read these records and never
+recompute scores.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from ..config import ScoreConfig
+from ..files import NPZ_ERRORS
+from ..media import ClipInfo
+from ..reconstruction import ARRAY_NAMES as MV_ARRAYS
+from ..reconstruction import DenseCloud, MultiViewResult, WindowCloud
+from . import parts as record_parts
+from .finding import ClipFinding, clip_finding, report_margin
+from .parts import (
+    BackgroundSummary,
+    Category,
+    CellArrays,
+    FamilySummary,
+    FitSummary,
+    GapSummary,
+    GateRecord,
+    MatchArrays,
+    ObjectEntry,
+    ObjectScaleSummary,
+    ObjectSummary,
+    PairRecord,
+    PointCloud,
+    PointMaps,
+    ScaleSummary,
+    ShotRecord,
+)
+from .parts import Family as Family  # these two re-exported only
+from .parts import GateWindow as GateWindow
+
+__all__ = [
+    "RECORD_FORMAT",
+    *record_parts.__all__,  # every part of a record, re-exported
+    "ClipRecord",
+    "RecordError",
+    "MAX_RECORD_JSON_BYTES",
+    "write_record",
+    "read_record",
+    "read_record_json",
+    "read_matches",
+]
+
+RECORD_FORMAT = "geocon-record/1"
+"""The ``format`` field of ``record.json``; a record of another format is refused."""
+
+MAX_RECORD_JSON_BYTES = 512 * 1024 * 1024
+"""The largest ``record.json`` :func:`read_record_json` parses: 512 MiB. A record holds about
+350 bytes per scored (pair, scale), so an hour of 30 fps video under the ``strict`` preset (gaps
+1, 4, 8 at three scales) stays below ~350 MB; a larger file is not a record GeoCon wrote, and
+is refused before parsing rather than parsed into several GB of memory."""
+
+
+class RecordError(ValueError):
+    """A saved record that cannot be read (missing, unreadable, corrupt, too large, pickled or of
+    another format): one sentence naming the file."""
+
+
+@dataclass(frozen=True, eq=False)
+class ClipRecord:
+    """Everything GeoCon found about one clip (SPEC section 7); written by :func:`write_record`,
+    read back exactly by :func:`read_record`. Compared by identity (it holds arrays).
+
+    clip: the clip's name (file name, or folder name for an image folder).
+    video: what the probe pass learnt about the clip (frame count, sizes in px, frame rate in
+        frames per second, content box, duplicated frames, hard cuts).
+    config: the settings it was scored with; ``config_hash`` their short hash.
+    versions: software versions by package name.
+    gate: the translation gate (H / F / U), its statistic ``t_inf`` (unit-mean-distance scale),
+        margin and the pose estimate it came from.
+    background: the background verdict: chosen family, IR (share, 0..1), GE (px of the largest
+        scale), the report gate, and both families' per-gap and per-scale summaries.
+    pairs: every scored (pair, scale) with both families' fits; ``pairs[i].index`` addresses the
+        pair's rows in ``matches``.
+    matches: per-match coordinates (px of the pair's scale), residuals (px, or Hartley-normalised
+        units for ``f_res``) and inlier masks, concatenated over pairs.
+    intrinsics: the 3x3 camera matrix K at the working resolution (px) the gate used, before
+        self-calibration (``gate.pose.focal_scale`` scales its focal lengths).
+    category: the post-hoc scene family and the rule that fired (None when not decided).
+    warnings: one sentence each (e.g. cuts or duplicated frames skipped).
+    masks_source: where the object masks came from (``none``, ``builtin`` or an external source).
+    masked_share: per frame, the share (0..1) of the content box covered by object masks.
+    objects: one summary per tracked object: frames, masked share (0..1), AdaDFRC ``S`` and W2
+        (px^2 of the largest scale) and AdaP90 (px^2).
+    object_entries: AdaDFRC per object, frame pair and scale (``d_t`` and ``w2`` in px^2 of the
+        scale); ``object_entries[i].index`` addresses the entry's rows in ``cells``.
+    cells: per-cell AdaDFRC vectors (px) of every object entry, concatenated (None without
+        objects).
+    cloud: the two-view point cloud of the first/last pair (first-camera coordinates, unit mean
+        scene distance), or None.
+    dense: the dense clouds (:mod:`geocon_core.reconstruction.dense`) of the first/last pair, then of each
+        gate window, when they were asked for (``score_clip(dense=...)``); empty otherwise.
+    pointmaps: DUSt3R's point maps of the first/last pair (``--pose dust3r``), or None.
+    shots: a clip with hard cuts: each shot judged on its own (the gate is the first shot's and
+        ``background`` that of the shot that decides); empty for a clip of one shot.
+    dynamic_share: per frame, the share (0..1) of the content the motion segmentation found
+        moving incoherently outside the objects (water, fire, smoke, foliage); empty when the
+        mask source does not measure it.
+    """
+
+    clip: str
+    video: ClipInfo
+    config: ScoreConfig
+    config_hash: str
+    versions: dict[str, str]
+    gate: GateRecord
+    background: BackgroundSummary
+    pairs: tuple[PairRecord, ...]
+    matches: MatchArrays
+    intrinsics: list[list[float]]
+    category: Category | None = None
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+    masks_source: str = "none"
+    masked_share: tuple[float, ...] = ()
+    objects: tuple[ObjectSummary, ...] = ()
+    object_entries: tuple[ObjectEntry, ...] = ()
+    cells: CellArrays | None = None
+    cloud: PointCloud | None = None
+    dense: tuple[WindowCloud, ...] = ()
+    pointmaps: PointMaps | None = None
+    shots: tuple[ShotRecord, ...] = ()
+    dynamic_share: tuple[float, ...] = ()
+    multiview: MultiViewResult | None = None
+
+    def finding(self) -> ClipFinding:
+        """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.record.finding`)."""
+        bg, cfg = self.background, self.config
+        return clip_finding(
+            model=bg.model,
+            ir=bg.ir,
+            ge=bg.ge,
+            consistent=bg.consistent,
+            margin=report_margin(bg.ir, bg.ge, cfg.ir_gate, cfg.ge_gate),
+            ir_gate=cfg.ir_gate,
+            ge_gate=cfg.ge_gate,
+            note=bg.choice_note,
+            shots=len(self.shots),
+            drift=self.drift_finding(),
+        )
+
+    def drift_finding(self) -> str | None:
+        """What the multi-view check found when it fails the background (its largest drifting
+        layer), else None (:mod:`geocon_core.reconstruction.multiview`)."""
+        mv = self.multiview
+        if mv is None or not mv.flagged or not self.config.multiview.enabled:
+            return None
+        return mv.layers[0].describe()
+
+    def summary(self) -> dict[str, Any]:
+        """The clip summary printed by ``geocon score --json``."""
+        bg, gate = self.background, self.gate
+        finding = self.finding()
+        return {
+            "clip": self.clip,
+            "verdict": finding.to_dict(),
+            "clip_score": finding.clip_score,
+            "gate": {
+                "label": gate.label,
+                "model": gate.model,
+                "t_inf": gate.t_inf,
+                "pose_present": gate.pose_present,
+                "margin": gate.margin,
+                "binary_label": gate.binary_label,
+                "backend": gate.backend,
+            },
+            "background": {
+                "model": bg.model,
+                "ir": bg.ir,
+                "ge": bg.ge,
+                "valid_pairs": bg.valid_pairs,
+                "total_pairs": bg.total_pairs,
+                "consistent": bg.consistent,
+                "tau_f_px": bg.tau_f_px,
+                "other_family": {"model": bg.other.family, "ir": bg.other.ir, "ge": bg.other.ge},
+            },
+            "per_gap": {
+                str(g.gap): {
+                    "ir": g.ir,
+                    "ge": g.ge,
+                    "valid_pairs": g.valid_pairs,
+                    "total_pairs": g.total_pairs,
+                    "coverage": g.coverage,
+                    "judged": g.judged,
+                }
+                for g in bg.chosen.per_gap
+            },
+            "coverage": {
+                "frames": self.video.num_frames,
+                "duplicates": len(self.video.duplicates),
+                "cuts": len(self.video.cuts),
+                "invalid_reasons": bg.chosen.invalid_reasons,
+            },
+            "objects": [
+                {
+                    "id": o.object_id,
+                    "frames": o.frames,
+                    "adadfrc": o.adadfrc,
+                    "adadfrc_w2": o.adadfrc_w2,
+                    "adap90": o.adap90,
+                    "masked_share": o.masked_share,
+                }
+                for o in self.objects
+            ],
+            "masks": self.masks_source,
+            **({"dynamic_background": float(np.median(self.dynamic_share))} if self.dynamic_share else {}),
+            **({"multiview": self.multiview.summary()} if self.multiview is not None else {}),
+            "category": None if self.category is None else self.category.label,
+            "preset": self.config.preset,
+            "config_hash": self.config_hash,
+            "versions": self.versions,
+            "warnings": list(self.warnings),
+            **(
+                {
+                    "shots": [
+                        {
+                            "frames": [s.start, s.end],
+                            "gate": s.label,
+                            "t_inf": s.t_inf,
+                            "model": s.model,
+                            "ir": s.ir,
+                            "ge": s.ge,
+                            "consistent": s.consistent,
+                        }
+                        for s in self.shots
+                    ]
+                }
+                if self.shots
+                else {}
+            ),
+        }
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "format": RECORD_FORMAT,
+            "clip": self.clip,
+            "summary": self.summary(),
+            "video": self.video.to_dict(),
+            "config": self.config.to_dict(),
+            "config_hash": self.config_hash,
+            "versions": self.versions,
+            "intrinsics": self.intrinsics,
+            "gate": self.gate.to_json_dict(),
+            "background": asdict(self.background),
+            "pairs": [asdict(p) for p in self.pairs],
+            "category": None if self.category is None else asdict(self.category),
+            "warnings": list(self.warnings),
+            "masks_source": self.masks_source,
+            "masked_share": list(self.masked_share),
+            "objects": [asdict(o) for o in self.objects],
+            "object_entries": [asdict(e) for e in self.object_entries],
+            "cloud": None if self.cloud is None else {"points": int(self.cloud.xyz.shape[0]), "note": self.cloud.note},
+            "pointmaps": None if self.pointmaps is None else self.pointmaps.to_json_dict(),
+            "dense": [_dense_entry(w) for w in self.dense],
+            **({"shots": [asdict(s) for s in self.shots]} if self.shots else {}),
+            **({"dynamic_share": list(self.dynamic_share)} if self.dynamic_share else {}),
+            **({"multiview": self.multiview.to_json_dict()} if self.multiview is not None else {}),
+        }
+
+
+def _fit_from(d: dict | None) -> FitSummary | None:
+    return None if d is None else FitSummary(**d)
+
+
+def _family_from(d: dict) -> FamilySummary:
+    return FamilySummary(
+        family=d["family"],
+        ir=d["ir"],
+        ge=d["ge"],
+        valid_pairs=d["valid_pairs"],
+        total_pairs=d["total_pairs"],
+        per_gap=tuple(GapSummary(**g) for g in d["per_gap"]),
+        per_scale=tuple(ScaleSummary(**s) for s in d["per_scale"]),
+        invalid_reasons=dict(d["invalid_reasons"]),
+        independent_share=float(d.get("independent_share", 0.0)),
+    )
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(obj, indent=1, sort_keys=False, allow_nan=False) + "\n"
+
+
+def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
+    """Write ``record.json`` and ``matches.npz`` into ``out_dir`` (created), each atomically."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    arrays = {name: getattr(record.matches, name) for name in MatchArrays.NAMES}
+    if record.matches.any_independent:
+        arrays.update({name: getattr(record.matches, name) for name in MatchArrays.OPTIONAL})
+    if record.cells is not None:
+        arrays.update({f"cells_{name}": getattr(record.cells, name) for name in CellArrays.NAMES})
+    if record.cloud is not None:
+        arrays.update({"cloud_xyz": record.cloud.xyz, "cloud_rgb": record.cloud.rgb})
+    if record.pointmaps is not None:
+        arrays.update({f"pointmaps_{name}": getattr(record.pointmaps, name) for name in PointMaps.NAMES})
+    if record.dense:
+        arrays.update(_dense_arrays(record.dense))
+    if record.multiview is not None:
+        arrays.update(record.multiview.arrays())
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            arr = io.BytesIO()
+            np.lib.format.write_array(arr, np.ascontiguousarray(value), allow_pickle=False)
+            zf.writestr(info, arr.getvalue())
+    doc = record.to_json_dict()
+    if record.video.abs_path is not None:  # where the clip lies seen from the record: found again when both move
+        doc["video"]["from_record"] = os.path.relpath(record.video.abs_path, os.path.abspath(out.parent))
+    for name, data in (("matches.npz", buf.getvalue()), ("record.json", _dumps(doc).encode())):
+        tmp = out / f".{name}.part"
+        tmp.write_bytes(data)
+        tmp.replace(out / name)
+    return out / "record.json"
+
+
+_CORRUPT = "score the clip again"
+
+DENSE_NAMES = ("xyz", "rgb", "pixel", "residual", "kind")
+"""The arrays of the dense clouds in ``matches.npz`` (``dense_<name>``, all windows concatenated,
+plus ``dense_offsets``: window i holds rows ``offsets[i]:offsets[i + 1]``)."""
+
+
+def _dense_arrays(dense: tuple[WindowCloud, ...]) -> dict[str, np.ndarray]:
+    arrays = {f"dense_{name}": np.concatenate([getattr(w.cloud, name) for w in dense]) for name in DENSE_NAMES}
+    arrays["dense_offsets"] = np.cumsum([0, *(len(w.cloud) for w in dense)]).astype(np.int64)
+    return arrays
+
+
+def _nan(v: Any) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def _dense_entry(w: WindowCloud) -> dict[str, Any]:
+    T = None if w.T_cam0_camT is None else np.asarray(w.T_cam0_camT, float).tolist()
+    tau = None if np.isnan(w.cloud.tau_px) else w.cloud.tau_px
+    return {
+        "start": w.start,
+        "end": w.end,
+        "points": len(w.cloud),
+        "note": w.cloud.note,
+        "tau_px": tau,
+        "T_cam0_camT": T,
+    }
+
+
+def _dense_from(entries: list[dict[str, Any]], z: dict[str, np.ndarray]) -> tuple[WindowCloud, ...]:
+    if not entries:
+        return ()
+    if "dense_offsets" not in z:
+        raise KeyError("dense_offsets")
+    offsets = z["dense_offsets"]
+    if offsets.shape != (len(entries) + 1,) or offsets[0] != 0 or np.any(np.diff(offsets) < 0):
+        raise ValueError(f"dense_offsets of shape {offsets.shape} do not fit {len(entries)} dense clouds")
+    out = []
+    for i, e in enumerate(entries):
+        rows = slice(int(offsets[i]), int(offsets[i + 1]))
+        parts = {name: z[f"dense_{name}"][rows] for name in DENSE_NAMES}
+        T = None if e.get("T_cam0_camT") is None else np.asarray(e["T_cam0_camT"], float).reshape(4, 4)
+        out.append(
+            WindowCloud(
+                int(e["start"]),
+                int(e["end"]),
+                DenseCloud(**parts, note=str(e["note"]), tau_px=_nan(e.get("tau_px"))),
+                T,
+            )
+        )
+    return tuple(out)
+
+
+def read_record_json(path: str | Path) -> tuple[Path, dict[str, Any]]:
+    """The folder of a record (given it or its ``record.json``) and its parsed JSON, checked to be
+    a GeoCon record. Raises :class:`RecordError` for a file that is missing, unreadable, larger
+    than :data:`MAX_RECORD_JSON_BYTES`, not JSON or of another format."""
+    p = Path(path)
+    folder = p if p.is_dir() else p.parent
+    file = folder / "record.json"
+    limit = MAX_RECORD_JSON_BYTES
+    too_large = f"{file} is larger than {limit // 2**20} MiB, far more than a GeoCon record: refusing to parse it"
+    try:
+        if file.stat().st_size > limit:
+            raise RecordError(too_large)
+        if not file.is_file():  # a pipe or a device would block or never end
+            raise RecordError(f"{file} is not a regular file: give a record folder from `geocon score --out`")
+        with file.open("rb") as f:
+            raw = f.read(limit + 1)  # bounded even when the size above was not the real one (a pipe)
+    except FileNotFoundError:
+        raise RecordError(f"{file} does not exist: give a record folder from `geocon score --out`") from None
+    except OSError as exc:
+        raise RecordError(f"{file} could not be read ({exc.strerror or exc})") from None
+    if len(raw) > limit:
+        raise RecordError(too_large)
+    try:
+        d = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise RecordError(f"{file} is not a readable GeoCon record (not UTF-8 text): {_CORRUPT}") from None
+    except json.JSONDecodeError as exc:
+        where = f"line {exc.lineno}, column {exc.colno}"
+        raise RecordError(
+            f"{file} is not a readable GeoCon record (invalid JSON: {exc.msg.removesuffix(' at')} at {where}): "
+            f"{_CORRUPT}"
+        ) from None
+    except RecursionError:
+        raise RecordError(f"{file} is not a readable GeoCon record (JSON nested too deeply): {_CORRUPT}") from None
+    fmt = d.get("format") if isinstance(d, dict) else None
+    if fmt != RECORD_FORMAT:
+        raise RecordError(f"{file}: not a GeoCon record (format {fmt!r}, expected {RECORD_FORMAT!r})")
+    return folder, d
+
+
+def _npz_refusal(path: Path, exc: BaseException, name: str | None = None) -> RecordError:
+    """The sentence for a ``matches.npz`` that numpy could not read without unpickling or at all."""
+    if isinstance(exc, ValueError) and "pickle" in str(exc):
+        if name is not None:
+            return RecordError(f"{path}: {name!r} holds pickled Python objects, which GeoCon never loads")
+        with path.open("rb") as f:
+            is_pickle = f.read(1) == b"\x80"  # the PROTO opcode that starts a pickle (protocol 2+)
+        if not is_pickle:
+            return RecordError(f"{path} is not a readable .npz archive (not a zip file): {_CORRUPT}")
+        return RecordError(f"{path} is a Python pickle, which GeoCon never loads (unpickling can run code)")
+    if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile):
+        return RecordError(f"{path} could not be read ({exc.strerror or exc})")
+    return RecordError(f"{path} is not a readable .npz archive ({exc or type(exc).__name__}): {_CORRUPT}")
+
+
+def read_matches(folder: str | Path, names: Iterable[str], optional: Iterable[str] = ()) -> dict[str, np.ndarray]:
+    """The arrays ``names`` of the record's ``matches.npz`` in ``folder``, and those of
+    ``optional`` that it holds. Nothing is unpickled (``allow_pickle=False``); a missing, corrupt or
+    pickled file, or a missing array, raises :class:`RecordError` naming the file."""
+    path = Path(folder) / "matches.npz"
+    names, optional = tuple(names), tuple(optional)
+    name: str | None = None
+    try:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):
+            raise RecordError(f"{path} is not a readable .npz archive (a single .npy array): {_CORRUPT}")
+        with loaded as z:
+            missing = [n for n in names if n not in z.files]
+            if missing:
+                lacks = ", ".join(missing)
+                raise RecordError(f"{path} is not a readable .npz archive (it lacks {lacks}): {_CORRUPT}")
+            out = {}
+            for name in (*names, *(n for n in optional if n in z.files)):
+                out[name] = z[name]
+            return out
+    except FileNotFoundError:
+        raise RecordError(f"{path} does not exist (the record is incomplete): {_CORRUPT}") from None
+    except RecordError:
+        raise
+    except NPZ_ERRORS as exc:
+        raise _npz_refusal(path, exc, name) from None
+
+
+def pairs_from_json(d: dict[str, Any]) -> tuple[PairRecord, ...]:
+    """The pair records of a parsed ``record.json``."""
+    return tuple(PairRecord(**{**p, "h": _fit_from(p["h"]), "f": _fit_from(p["f"])}) for p in d["pairs"])
+
+
+def read_record(path: str | Path) -> ClipRecord:
+    """Read a record from its folder or its ``record.json``. Raises :class:`RecordError` (one
+    sentence naming the file) for a record that is missing, corrupt, pickled, too large or lacks
+    fields."""
+    folder, d = read_record_json(path)
+    cells_names = tuple(f"cells_{name}" for name in CellArrays.NAMES)
+    dense_names = tuple(f"dense_{name}" for name in (*DENSE_NAMES, "offsets"))
+    pointmaps_names = tuple(f"pointmaps_{name}" for name in PointMaps.NAMES)
+    z = read_matches(
+        folder,
+        MatchArrays.NAMES,
+        (*MatchArrays.OPTIONAL, *cells_names, "cloud_xyz", "cloud_rgb", *dense_names, *pointmaps_names, *MV_ARRAYS),
+    )
+    try:
+        return _record_from(d, z)
+    except RecordError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:  # missing fields, wrong shapes or types
+        raise RecordError(
+            f"{folder / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc}): {_CORRUPT}"
+        ) from None
+
+
+def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
+    """The :class:`ClipRecord` of a parsed ``record.json`` and its ``matches.npz`` arrays."""
+    matches = MatchArrays(**{name: z[name] for name in (*MatchArrays.NAMES, *MatchArrays.OPTIONAL) if name in z})
+    cells = CellArrays(**{name: z[f"cells_{name}"] for name in CellArrays.NAMES}) if "cells_offsets" in z else None
+    cloud = None
+    if d.get("cloud") is not None:
+        cloud = PointCloud(xyz=z["cloud_xyz"], rgb=z["cloud_rgb"], note=d["cloud"]["note"])
+    pointmaps = None
+    if d.get("pointmaps") is not None:  # records before DUSt3R have no such key
+        p = d["pointmaps"]
+        pointmaps = PointMaps(
+            **{name: z[f"pointmaps_{name}"] for name in PointMaps.NAMES},
+            frames=tuple(p["frames"]),
+            box=tuple(p["box"]),
+            input_size=tuple(p["input_size"]),
+            step=p["step"],
+            note=p["note"],
+        )
+    gate = GateRecord.from_json_dict(d["gate"])
+    b = d["background"]
+    background = BackgroundSummary(**{**b, "chosen": _family_from(b["chosen"]), "other": _family_from(b["other"])})
+    pairs = pairs_from_json(d)
+    return ClipRecord(
+        clip=d["clip"],
+        video=ClipInfo.from_dict(d["video"]),
+        config=ScoreConfig.from_dict(d["config"]),
+        config_hash=d["config_hash"],
+        versions=d["versions"],
+        gate=gate,
+        background=background,
+        pairs=pairs,
+        matches=matches,
+        intrinsics=d["intrinsics"],
+        category=None if d["category"] is None else Category(**d["category"]),
+        warnings=tuple(d["warnings"]),
+        masks_source=d["masks_source"],
+        masked_share=tuple(d["masked_share"]),
+        objects=tuple(
+            ObjectSummary(**{**o, "per_scale": tuple(ObjectScaleSummary(**p) for p in o["per_scale"])})
+            for o in d["objects"]
+        ),
+        object_entries=tuple(ObjectEntry(**e) for e in d["object_entries"]),
+        cells=cells,
+        cloud=cloud,
+        dense=_dense_from(d.get("dense", []), z),
+        pointmaps=pointmaps,
+        shots=tuple(ShotRecord(**s) for s in d.get("shots", [])),
+        dynamic_share=tuple(float(v) for v in d.get("dynamic_share", [])),
+        multiview=None if d.get("multiview") is None else MultiViewResult.from_parts(d["multiview"], z),
+    )
