@@ -129,7 +129,7 @@ def main() -> None:
             f"geocon serve, without tables: address printed after {ready_nt:.2f} s, page served after {page_nt:.2f} s"
         )
 
-        from geocon_core.report import ResultsIndex
+        from geocon_core.results import ResultsIndex
         from geocon_viewer.audit_app import AuditApp
 
         t = time.perf_counter()

@@ -2,7 +2,7 @@
 
 One page for triaging a whole benchmark (or one scored clip):
 
-- **control panel** (right): the triage list, most severe first (:func:`geocon_core.report.results.severity_key`),
+- **control panel** (right): the triage list, most severe first (:func:`geocon_core.results.triage.severity_key`),
   filterable by platform, category, gate label and verdict; the clip picker; and the thresholds
   (tau_H, tau_F, the IR/GE report gates, the hysteresis gate) with what differs from the recorded
   configuration;
@@ -16,7 +16,7 @@ One page for triaging a whole benchmark (or one scored clip):
 - **Plots panel** (left, below): per-pair IR and GE of the family in use, AdaDFRC ``D_t`` per
   object, and the gate's per-window ``t_inf`` against its thresholds.
 
-Every number comes from :mod:`geocon_core` (records, :class:`~geocon_core.report.results.ResultsIndex`,
+Every number comes from :mod:`geocon_core` (records, :class:`~geocon_core.results.triage.ResultsIndex`,
 :mod:`geocon_core.scoring.regate`); this module only draws. The GUI state is shared by every browser
 tab connected to the server. The server binds to 127.0.0.1 unless told otherwise.
 """
@@ -36,7 +36,7 @@ import viser
 from geocon_core.geometry import FAMILIES
 from geocon_core.media import DEFAULT_FPS
 from geocon_core.record import ClipRecord, RecordError, read_overlays, read_record
-from geocon_core.report import BROKEN, ResultsError, ResultsIndex, TriageRow
+from geocon_core.results import BROKEN, ResultsError, ResultsIndex, TriageRow
 from geocon_core.scoring import ClipVerdict, Thresholds, pair_inliers
 
 from .audit_gui import ANY, FLAGGED, AuditPanels

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import viser
 
-from geocon_core.report import VERDICTS, ResultsIndex
+from geocon_core.results import VERDICTS, ResultsIndex
 from geocon_core.scoring import Thresholds
 
 from .audit_triage import LIST_ROWS, THRESHOLD_LABELS

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from geocon_core.report import BROKEN, TriageRow
+from geocon_core.results import BROKEN, TriageRow
 from geocon_core.scoring import Thresholds
 
 from .style import EMPTY, fmt

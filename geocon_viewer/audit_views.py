@@ -18,7 +18,7 @@ import viser.uplot as uplot
 
 from geocon_core.reconstruction import KIND_OBJECT, KIND_OUTLIER
 from geocon_core.record import ClipRecord, Overlays, clip_finding
-from geocon_core.report import ResultClip
+from geocon_core.results import ResultClip
 from geocon_core.scoring import ClipVerdict, Thresholds, regate_pairs
 
 from .clouds import dense_points

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from geocon_core.report import LAYER_RGB
+from geocon_core.results import LAYER_RGB
 
 __all__ = ["EMPTY", "fmt", "object_color", "dense_colors", "dense_legend", "OUTLIER_SPAN"]
 

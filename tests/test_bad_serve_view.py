@@ -179,7 +179,7 @@ def test_broken_records_found_on_selection_without_preload(damaged):
 
 
 def test_preload_and_listing_go_on_past_broken_records(damaged):
-    from geocon_core.report import ResultsIndex
+    from geocon_core.results import ResultsIndex
 
     index = ResultsIndex.open(damaged)
     seen = []

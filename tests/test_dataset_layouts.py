@@ -444,7 +444,7 @@ def test_the_audit_app_lists_the_scorers_category_where_none_was_given(tables):
     """The audit app's clip list (read from the tables, or from each record when they are stale)
     shows a clip without a given category under the scorer's, with no expected gate."""
     from geocon_core.bench import read_tables
-    from geocon_core.report import clip_from_record_json, read_bench_clips
+    from geocon_core.results import clip_from_record_json, read_bench_clips
 
     results = tables["plain"]["results"]
     scored = read_tables(results)["clips"].set_index("clip_id")["observed_category"].to_dict()

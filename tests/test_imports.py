@@ -240,3 +240,40 @@ def test_the_layout_page_names_every_package():
     missing = [p for p in _core_packages() if f"`{p}/`" not in page]
     assert not missing, f"docs/layout.md does not describe {missing}"
     assert "`_version.py`" in page
+
+
+EXTRAS_ONLY = {"report": "the bench extra (pandas, matplotlib)"}
+"""Packages of geocon_core that need an extra to import, and which (docs/layout.md says so)."""
+
+OPTIONAL_MODULES = ("pandas", "pyarrow", "matplotlib", "ray", "psutil", "torch", "rerun", "viser", "open3d", "sam2")
+
+
+def test_the_core_install_imports_every_package_and_the_command_line():
+    """With none of the extras (an import of any optional library fails), every package of
+    geocon_core but those in EXTRAS_ONLY imports, and so does ``geocon``'s command line."""
+    wanted = [f"geocon_core.{p}" for p in _core_packages() if p not in EXTRAS_ONLY] + ["geocon_viewer.cli"]
+    probe = f"""
+import importlib, importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in {OPTIONAL_MODULES!r}:
+            raise ImportError(f"No module named {{name!r}} (an extra)")
+sys.meta_path.insert(0, Block())
+failed = []
+for name in {wanted!r}:
+    try:
+        importlib.import_module(name)
+    except ImportError as exc:
+        failed.append(f"{{name}}: {{exc}}")
+print("\\n".join(failed))
+"""
+    res = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "", res.stdout
+
+
+def test_the_extras_only_packages_are_named_in_the_layout_page():
+    entries = (ROOT / "docs" / "layout.md").read_text().split("\n  - ")
+    for package in EXTRAS_ONLY:
+        entry = next(e for e in entries if e.startswith(f"`{package}/`"))
+        assert "extra" in entry, f"docs/layout.md does not say that {package}/ needs an extra"

@@ -267,7 +267,7 @@ def test_the_audit_app_shows_the_reconstruction_and_the_slider_moves_its_camera(
 def test_the_report_thumbnail_marks_the_drifting_layer(clips, scored_clip, tmp_path):
     from geocon_core.bench.tables import _clip_row
     from geocon_core.record import write_record
-    from geocon_core.report import clip_thumbs
+    from geocon_core.results import clip_thumbs
 
     rec = scored_clip(clips["C3-across"], preset("audit"))
     write_record(rec, tmp_path / "one")

@@ -23,7 +23,7 @@ from geocon_core.record import (
     read_record_json,
     write_record,
 )
-from geocon_core.report import ResultsError, ResultsIndex
+from geocon_core.results import ResultsError, ResultsIndex
 from geocon_core.synth import ClipPlan, write_clip
 
 CFG = ScoreConfig(scales=(1.0,), gaps=(1,), working_size=(320, 180))

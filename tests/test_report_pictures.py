@@ -20,8 +20,9 @@ pytest.importorskip("matplotlib")
 import cv2  # noqa: E402
 
 from geocon_core.bench import read_tables, run_bench  # noqa: E402
-from geocon_core.report import THUMB_WIDTH, build_report, clip_thumbs, thumbs_html  # noqa: E402
+from geocon_core.report import build_report  # noqa: E402
 from geocon_core.report import figures as rf  # noqa: E402
+from geocon_core.results import THUMB_WIDTH, clip_thumbs, thumbs_html  # noqa: E402
 from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 
 QUESTIONS = ("summary_platforms", "summary_margins", "summary_failures")

@@ -23,7 +23,7 @@ pytest.importorskip("pyarrow")
 from geocon_core.bench import read_tables, run_bench  # noqa: E402
 from geocon_core.config import ScoreConfig  # noqa: E402
 from geocon_core.record import read_record  # noqa: E402
-from geocon_core.report import VERDICTS, ResultsError, ResultsIndex  # noqa: E402
+from geocon_core.results import VERDICTS, ResultsError, ResultsIndex  # noqa: E402
 from geocon_core.scoring import pair_inliers, regate_family  # noqa: E402
 from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 from geocon_viewer.audit_app import LIST_ROWS, AuditApp  # noqa: E402

@@ -89,7 +89,7 @@ def test_the_audit_app_regates_a_clip_with_cuts_shot_by_shot(record, tmp_path):
     """The results index (the audit app's triage) gives a clip with cuts the recorded verdict at
     the recorded thresholds, and re-gates it shot by shot at others."""
     from geocon_core.record import write_record
-    from geocon_core.report import ResultsIndex
+    from geocon_core.results import ResultsIndex
 
     write_record(record, tmp_path / "rec")
     index = ResultsIndex.open(tmp_path / "rec")

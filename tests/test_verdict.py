@@ -15,7 +15,7 @@ import pytest
 from geocon_core.bench.clip import _flagged as bench_flagged
 from geocon_core.config import ScoreConfig
 from geocon_core.geometry import FAMILIES, family_spec
-from geocon_core.report import ResultClip, ResultsIndex
+from geocon_core.results import ResultClip, ResultsIndex
 from geocon_core.scoring import (
     FitRow,
     Scores,

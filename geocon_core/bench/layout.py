@@ -1,6 +1,6 @@
 """The layout of a ``geocon bench`` results folder: its formats, paths, the per-clip status and the
 manifest. :mod:`geocon_core.bench` writes it; :mod:`geocon_core.bench.tables` and
-:mod:`geocon_core.report.results` read it. See ``docs/bench-tables.md``::
+:mod:`geocon_core.results` read it. See ``docs/bench-tables.md``::
 
     RESULTS/bench.json                 dataset, full config, config hash, versions (the manifest)
     RESULTS/clips/<clip_id>/           record.json, matches.npz, overlays/, audit.rrd (flagged clips),

@@ -10,7 +10,7 @@ writes into ``RESULTS/report/`` (or ``out``):
   screen answers three questions with one figure each, before any table: which platform is most
   consistent, where the gate is thin, which categories fail. Then the failed clips with their
   reasons, the flagged clips (each with its numbers, a strip of thumbnails: first frame, worst
-  pair with its inliers and outliers drawn, last frame; :mod:`geocon_core.report.thumbs`) linked to
+  pair with its inliers and outliers drawn, last frame; :mod:`geocon_core.results.thumbs`) linked to
   their records and Rerun recordings, the tables (sortable by a click on a header, filtered by the
   box above each, with a few lines of inline script) and the other figures.
 
@@ -40,6 +40,7 @@ import pandas as pd
 from ..bench import read_tables
 from ..config import ScoreConfig
 from ..files import check_out_dir, replace_dir
+from ..results import ClipThumbs, many_clip_thumbs, thumbs_html
 from ..scoring import flag_reasons
 from . import stats
 from .figures import (
@@ -55,7 +56,6 @@ from .figures import (
     fig_summary_platforms,
     fig_tinf,
 )
-from .thumbs import ClipThumbs, many_clip_thumbs, thumbs_html
 
 __all__ = ["REPORT_ENTRIES", "ReportError", "ReportResult", "build_report"]
 

@@ -220,7 +220,7 @@ def serve(
         raise fail(str(exc)) from None
     if not has_viewer_extra("viser"):
         raise fail(f"geocon serve needs the viewer extra: {VIEWER_EXTRA}")
-    from geocon_core.report import ResultsError
+    from geocon_core.results import ResultsError
 
     from ..audit_app import AuditApp
     from ..rerun_video import quiet_encoder_logs

@@ -36,7 +36,7 @@ from ..scoring import (
     regate_family,
     with_drift,
 )
-from .result_clips import ResultClip, _failed_clip, clip_from_record_json, read_bench_clips
+from .clips import ResultClip, _failed_clip, clip_from_record_json, read_bench_clips
 
 __all__ = ["ResultClip", "TriageRow", "ResultsIndex", "ResultsError", "VERDICTS", "BROKEN", "severity_key"]
 

@@ -39,6 +39,7 @@ __all__ = [
     "read_frames",
     "thumbs_html",
     "worst_pair",
+    "LAYER_RGB",
 ]
 
 THUMB_WIDTH = 200
