@@ -8,6 +8,8 @@ import json
 import shutil
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -21,7 +23,7 @@ from geocon_core.bench import (
 )
 from geocon_viewer.cli import app
 
-from .bad_inputs import pan_frames, write_gif, write_video
+from .bad_inputs import pan_frames, write_gif, write_pngs, write_video
 from .conftest import read_video
 
 
@@ -477,3 +479,56 @@ def test_categories_set_in_written_sidecars_reach_the_tables_without_scoring_aga
     again = read_tables(results)
     for name, want in tables["manifest"]["tables"].items():
         pd.testing.assert_frame_equal(again[name], want, check_exact=True)
+
+
+def test_plain_folder_reads_folders_of_frames_as_clips(tmp_path):
+    """A sub-folder of PNG/JPEG frames is one clip: its platform the folder above, its id and prompt
+    from the folder's whole name, its rate the default; a folder with videos beside images stays a
+    platform folder; `geocon bench` scores both kinds."""
+    root = tmp_path / "videos"
+    frames = pan_frames(64, 48, 4, 1)
+    shot = write_pngs(root / "sora" / "a dolly shot past stalls-2", frames)
+    _clip(root / "sora" / "a dolly shot past stalls-3.mp4")
+    _clip(root / "kling" / "a dolly shot past stalls-2.mp4")  # the same scene as the frames of sora
+    still = root / "kling" / "take.v2"  # a dot in a folder name is no suffix
+    still.mkdir(parents=True)
+    for i, f in enumerate(frames[:2]):
+        assert cv2.imwrite(str(still / f"{i}.jpg"), f[:, :, ::-1])
+    ds = scan_dataset(root)
+    by_id = {e.clip_id: e for e in ds.entries}
+    assert sorted(by_id) == [
+        "kling-a-dolly-shot-past-stalls-2",
+        "kling-take.v2",
+        "sora-a-dolly-shot-past-stalls-2",
+        "sora-a-dolly-shot-past-stalls-3",
+    ]
+    folder = by_id["sora-a-dolly-shot-past-stalls-2"]
+    assert folder.video == shot and folder.model == "sora"
+    assert folder.meta["prompt"] == "a dolly shot past stalls"
+    assert folder.scene_id == by_id["kling-a-dolly-shot-past-stalls-2"].scene_id == "a dolly shot past stalls #2"
+    assert folder.meta["fps"] == 24.0 and folder.sources["fps"] == "default"
+    assert folder.meta["resolution"] == [64, 48] and folder.meta["duration"] == round(4 / 24, 3)
+    assert any("2 folder(s) of PNG/JPEG frames read as one clip each" in n for n in ds.notes), ds.notes
+
+    out = tmp_path / "results"
+    res = _run("bench", str(root), "--out", str(out), "--preset", "fast", "--workers", "1")
+    assert res.exit_code == 0, res.output
+    status = {p.parent.name: json.loads(p.read_text())["status"] for p in (out / "clips").glob("*/status.json")}
+    assert status == dict.fromkeys(by_id, "ok"), status
+
+
+def test_sidecars_note_loose_clips_but_not_masks_folders(tmp_path):
+    from geocon_core.bench import write_sidecars
+
+    root = tmp_path / "d"
+    _clip(root / "m" / "a cat playing piano-0.mp4")
+    write_sidecars(scan_dataset(root))
+    sidecar = next((root / "m").glob("*.meta.json"))
+    write_pngs(root / "m" / "masks-of-a", [np.zeros((48, 64), np.uint8)] * 4)  # PNG labels, not frames
+    meta = json.loads(sidecar.read_text())
+    sidecar.write_text(json.dumps({**meta, "masks_path": "masks-of-a"}))
+    write_pngs(root / "m" / "extra shot", pan_frames(64, 48, 3, 2))  # frames nobody described
+    ds = scan_dataset(root, check_clips=False)
+    assert ds.layout == "sidecars" and [e.masks.name for e in ds.entries] == ["masks-of-a"]
+    loose = [n for n in ds.notes if "have no sidecar" in n]
+    assert len(loose) == 1 and loose[0].startswith("1 clip(s) below") and "m/extra shot" in loose[0], ds.notes

@@ -399,11 +399,16 @@ def _from_sidecars(base: Path, sidecars: list[Path], check_clips: bool, progress
     if problems:
         raise DatasetError(base, problems)
     notes = []
-    known = {e.video for e in entries}
-    loose = [p for p in _video_files(base)[0] if p.resolve() not in known]
+    known = {e.video.resolve() for e in entries}
+    masks = [e.masks.resolve() for e in entries if e.masks is not None]
+    loose = [
+        p
+        for p in _clip_files(base)[0]
+        if p.resolve() not in known and not any(p.resolve().is_relative_to(m) for m in masks)
+    ]
     if loose:
         notes.append(
-            f"{len(loose)} video file(s) below {base} have no sidecar and are not part of the dataset (e.g. "
+            f"{len(loose)} clip(s) below {base} have no sidecar and are not part of the dataset (e.g. "
             f"{loose[0].relative_to(base)}); give them sidecars to include them"
         )
     return Dataset(base, "sidecars", tuple(sorted(entries, key=lambda e: e.clip_id)), tuple(notes))
@@ -523,9 +528,13 @@ def _manifest_field_problems(where: str, fields: dict[str, Any]) -> list[str]:
 # ---- plain folders -----------------------------------------------------------------------------
 
 
-def _video_files(base: Path) -> tuple[list[Path], list[str]]:
-    """The video files below ``base`` in path order (hidden files and folders, and ``geocon bench``
-    results folders, left out), and the notes on what was left out."""
+def _clip_files(base: Path) -> tuple[list[Path], list[str]]:
+    """The clips below ``base`` in path order: video files, and folders of frames (a sub-folder
+    holding two or more PNG/JPEG images and no video file; read as one clip, not searched further).
+    Hidden files and folders, and ``geocon bench`` results folders, are left out. Also the notes on
+    what was left out or read as frames."""
+    from ..media import IMAGE_SUFFIXES
+
     files: list[Path] = []
     frame_dirs: list[str] = []
     results: list[str] = []
@@ -537,18 +546,29 @@ def _video_files(base: Path) -> tuple[list[Path], list[str]]:
             continue
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         visible = [n for n in names if not n.startswith(".")]
-        files += [here / n for n in visible if Path(n).suffix.lower() in VIDEO_SUFFIXES and (here / n).is_file()]
-        if here != base and sum(Path(n).suffix.lower() in (".png", ".jpg", ".jpeg") for n in visible) >= 2:
+        videos = [here / n for n in visible if Path(n).suffix.lower() in VIDEO_SUFFIXES and (here / n).is_file()]
+        images = sum(Path(n).suffix.lower() in IMAGE_SUFFIXES for n in visible)
+        if here != base and images >= 2 and not videos:
+            files.append(here)
             frame_dirs.append(here.relative_to(base).as_posix())
+            dirs[:] = []
+            continue
+        files += videos
     notes = []
     if results:
         notes.append(f"left out {len(results)} results folder(s) of `geocon bench`: {', '.join(results)}")
     if frame_dirs:
         notes.append(
-            f"{len(frame_dirs)} folder(s) of PNG/JPEG images are not read as clips in a plain folder (e.g. "
-            f"{frame_dirs[0]}); list frame folders in a manifest to score them"
+            f"{len(frame_dirs)} folder(s) of PNG/JPEG frames read as one clip each (e.g. {frame_dirs[0]}), "
+            "its id and prompt from the folder's name"
         )
     return sorted(files, key=lambda p: p.relative_to(base).as_posix()), notes
+
+
+def _clip_stem(path: Path) -> str:
+    """What a clip's id and prompt are read from: a file's name without its suffix, or the whole
+    name of a folder of frames."""
+    return path.name if path.is_dir() else path.stem
 
 
 # ---- manifests and plain folders: the rules that fill what is not given ------------------------
@@ -600,7 +620,7 @@ def _assign_ids(rows: list[_Row]) -> tuple[list[str], list[str], list[str]]:
                 problems.append(f"{row.where}: clip_id {cid!r} is also used by {given[cid.casefold()]}")
             given.setdefault(cid.casefold(), row.where)
     wanted = [i for i, r in enumerate(rows) if not isinstance(r.fields.get("clip_id"), str)]
-    raw = [f"{rows[i].fields.get('model') or rows[i].platform}-{rows[i].video.stem}" for i in wanted]
+    raw = [f"{rows[i].fields.get('model') or rows[i].platform}-{_clip_stem(rows[i].video)}" for i in wanted]
     made = dict(zip(wanted, clip_ids(raw, given), strict=True))
     notes = [
         f"{rows[i].where}: clip id {made[i]} (numbered: another clip's name gives the same id)"
@@ -689,7 +709,7 @@ def _fill(
     ids, problems, notes = _assign_ids(rows)
     named = []
     for row, cid in zip(rows, ids, strict=True):
-        name_prompt, name_index = prompt_from_name(row.video.stem)
+        name_prompt, name_index = prompt_from_name(_clip_stem(row.video))
         prompt = row.fields.get("prompt") or name_prompt
         index = row.fields["seed"] if row.fields.get("seed") is not None else name_index
         named.append((cid, row.fields.get("model") or row.platform, prompt, index, name_prompt))
@@ -760,13 +780,13 @@ def _from_manifest(path: Path, check_clips: bool, progress: Progress | None) -> 
 
 
 def _from_folder(base: Path, check_clips: bool, progress: Progress | None) -> Dataset:
-    files, notes = _video_files(base)
+    files, notes = _clip_files(base)
     if not files:
         raise DatasetError(
             base,
             [
                 f"{base}: no clips found: no clip metadata (*.meta.json), no {' or '.join(MANIFEST_NAMES)}, and no "
-                f"video files ({', '.join(VIDEO_SUFFIXES)}) in it or its sub-folders"
+                f"video files ({', '.join(VIDEO_SUFFIXES)}) or folders of PNG/JPEG frames in it or its sub-folders"
             ],
         )
     default = base.resolve().name or "clips"
