@@ -2,7 +2,8 @@
 # Build the documentation site into site/ (open site/index.html): set up the `docs` extra
 # (MkDocs, Material for MkDocs, mkdocstrings) in .venv, then `mkdocs build --strict`, which
 # fails on any warning (a broken link or anchor, a page missing from the nav, a docstring the
-# API reference cannot read). Extra arguments go to mkdocs build. A live preview:
+# API reference cannot read); then scripts/api_coverage.py checks that every public name of every
+# package of geocon_core has its entry in the reference. Extra arguments go to mkdocs build. A live preview:
 # .venv/bin/mkdocs serve (127.0.0.1:8000).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
