@@ -400,12 +400,12 @@ def _from_sidecars(base: Path, sidecars: list[Path], check_clips: bool, progress
         raise DatasetError(base, problems)
     notes = []
     known = {e.video.resolve() for e in entries}
-    masks = [e.masks.resolve() for e in entries if e.masks is not None]
-    loose = [
-        p
-        for p in _clip_files(base)[0]
-        if p.resolve() not in known and not any(p.resolve().is_relative_to(m) for m in masks)
-    ]
+    masks = {e.masks.resolve() for e in entries if e.masks is not None}
+    loose = []
+    for p in _clip_files(base)[0]:
+        at = p.resolve()
+        if at not in known and masks.isdisjoint((at, *at.parents)):  # a masks folder is no clip
+            loose.append(p)
     if loose:
         notes.append(
             f"{len(loose)} clip(s) below {base} have no sidecar and are not part of the dataset (e.g. "
