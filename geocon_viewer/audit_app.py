@@ -253,7 +253,7 @@ class AuditApp(AuditPanels, ServedApp):
                 self.refresh()
                 return
             try:
-                overlays = read_overlays(clip.folder)
+                overlays = read_overlays(clip.folder, record)
             except (OSError, ValueError):  # unreadable masks: the clip is shown without them
                 overlays = None
             w, _ = record.video.working_size

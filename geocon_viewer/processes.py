@@ -23,6 +23,9 @@ from pathlib import Path
 __all__ = [
     "ScreenshotError",
     "BindError",
+    "ViewerUrlError",
+    "ViewerUnreachable",
+    "check_viewer_url",
     "find_rerun_binary",
     "free_port",
     "check_bind",
@@ -142,6 +145,105 @@ def check_bind(host: str, port: int) -> int:
         if code != errno.EADDRINUSE:
             raise BindError(f"--host {host} --port {candidate} cannot be bound ({os.strerror(code)})")
     raise BindError(f"--port {port} and the {last - port} ports above it are in use on {host}: give another --port")
+
+
+class ViewerUrlError(ValueError):
+    """A ``--connect`` value that is not the URL of a Rerun viewer (one sentence naming it)."""
+
+
+class ViewerUnreachable(RuntimeError):
+    """No Rerun viewer answers at a well-formed ``--connect`` URL (one sentence naming it)."""
+
+
+VIEWER_SCHEMES = ("rerun+http", "rerun+https", "rerun")
+"""The schemes of a Rerun viewer's gRPC URL (``rerun://`` is TLS, like ``rerun+https://``)."""
+VIEWER_DEFAULT_PORT = 9876
+"""The port Rerun connects to when a viewer URL names none (the viewer's default)."""
+CONNECT_TIMEOUT_S = 5.0
+"""How long :func:`check_viewer_url` waits for the viewer's host to resolve and to accept a connection."""
+_EXAMPLE_URL = "rerun+http://127.0.0.1:9876/proxy"
+
+
+def check_viewer_url(url: str, *, timeout_s: float = CONNECT_TIMEOUT_S) -> tuple[str, int]:
+    """(host, port) of the Rerun viewer at ``url`` (``rerun+http://HOST:PORT/proxy``), checked
+    before anything is rendered: :class:`ViewerUrlError` when ``url`` is not such a URL,
+    :class:`ViewerUnreachable` when its host does not resolve or nothing accepts a connection on
+    its port within ``timeout_s`` seconds (the streaming itself would only fail after the whole
+    recording was rendered, with a traceback of Rerun's)."""
+    where = f"--connect {url!r}"
+    parts = urllib.parse.urlsplit(url)
+    if url.partition("://")[0] not in VIEWER_SCHEMES:  # case and spaces matter to Rerun
+        raise ViewerUrlError(
+            f"{where} is not a Rerun viewer URL (it must start with rerun+http://, rerun+https:// or rerun://); "
+            f"give one like {_EXAMPLE_URL}"
+        )
+    try:
+        host, port = parts.hostname, parts.port
+    except ValueError:  # a port that is not a number from 0 to 65535
+        raise ViewerUrlError(
+            f"{where} has no valid port (a number from 1 to 65535); give one like {_EXAMPLE_URL}"
+        ) from None
+    if not host:
+        raise ViewerUrlError(f"{where} names no host; give one like {_EXAMPLE_URL}")
+    if parts.path.rstrip("/") != "/proxy" or parts.query or parts.fragment:
+        raise ViewerUrlError(f"{where} must end in /proxy, as a Rerun viewer's URL does: e.g. {_EXAMPLE_URL}")
+    port = VIEWER_DEFAULT_PORT if port is None else port
+    if port == 0:
+        raise ViewerUrlError(f"{where} has no valid port (a number from 1 to 65535); give one like {_EXAMPLE_URL}")
+    addrs = _resolve_for_connect(host, port, url, timeout_s)
+    last: OSError | None = None
+    for family, sockaddr in addrs:
+        with socket.socket(family, socket.SOCK_STREAM) as sock:
+            sock.settimeout(timeout_s)
+            try:
+                sock.connect(sockaddr)
+                return host, port
+            except OSError as exc:
+                last = exc
+    if isinstance(last, ConnectionRefusedError):
+        raise ViewerUnreachable(
+            f"no Rerun viewer listens at {url} (connection refused on {host} port {port}); start one with `rerun` "
+            f"(it listens on {_EXAMPLE_URL}) or give the URL it prints"
+        )
+    why = f"no answer within {timeout_s:g} s" if isinstance(last, TimeoutError) else _why(last)
+    raise ViewerUnreachable(
+        f"the Rerun viewer at {url} cannot be reached ({why}); check that it runs and that this machine can reach "
+        f"{host} port {port}"
+    )
+
+
+def _why(exc: OSError | None) -> str:
+    return "no address" if exc is None else (exc.strerror or str(exc) or type(exc).__name__).lower()
+
+
+def _resolve_for_connect(host: str, port: int, url: str, timeout_s: float) -> list[tuple[int, tuple]]:
+    """(family, socket address) of every IPv4/IPv6 address of ``host``, within ``timeout_s``."""
+    found: list = []
+
+    def lookup() -> None:
+        try:
+            found.append(socket.getaddrinfo(host, port, type=socket.SOCK_STREAM))
+        except (OSError, UnicodeError) as exc:
+            found.append(exc)
+
+    thread = threading.Thread(target=lookup, name="geocon-resolve", daemon=True)
+    thread.start()
+    thread.join(timeout_s)
+    if not found:
+        raise ViewerUnreachable(
+            f"the host of the Rerun viewer at {url} did not resolve within {timeout_s:g} s; give the viewer's IP "
+            "address (127.0.0.1 for this machine)"
+        )
+    if isinstance(found[0], BaseException):
+        why = getattr(found[0], "strerror", None) or found[0]
+        raise ViewerUnreachable(
+            f"the host {host} of the Rerun viewer at {url} does not resolve ({str(why).lower()}); check the name or "
+            "give the viewer's IP address (127.0.0.1 for this machine)"
+        )
+    addrs = [(fam, sockaddr) for fam, _, _, _, sockaddr in found[0] if fam in (socket.AF_INET, socket.AF_INET6)]
+    if not addrs:
+        raise ViewerUnreachable(f"the host {host} of the Rerun viewer at {url} has no IPv4 or IPv6 address")
+    return list(dict.fromkeys(addrs))
 
 
 def private_env(workdir: Path, **extra: str) -> dict[str, str]:

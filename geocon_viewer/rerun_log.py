@@ -39,6 +39,9 @@ logged at frame t. Entity paths:
 from __future__ import annotations
 
 import contextlib
+import errno
+import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -48,7 +51,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from geocon_core.files import clear_stale_parts, part_path
+from geocon_core.files import clear_stale_parts, part_path, replace_file
 from geocon_core.media import DEFAULT_FPS
 from geocon_core.record import ClipRecord, FlowSlice, FrameDiagnostics, flow_hue
 
@@ -271,29 +274,124 @@ def blueprint() -> rrb.Blueprint:
     )
 
 
+class _PipedFile:
+    """Rerun's file sink writes into a pipe; a thread copies the pipe into ``part`` with Python's
+    own file I/O. A write that fails (a full disk, ``ulimit -f``, an I/O error) is kept as
+    :attr:`error` and raised, naming ``name``, by :meth:`check` and :meth:`close`; the pipe is
+    drained to its end regardless, so Rerun never waits on a writer that stopped (its own file
+    writer, on such an error, leaves the recording's flush waiting for ever). The pipe holds at
+    most a few pages: memory does not grow with the recording."""
+
+    CHUNK = 1 << 20
+    """Bytes read from the pipe at a time."""
+    CLOSE_TIMEOUT_S = 120.0
+    """Seconds Rerun may take, once the recording is disconnected, to write its last bytes."""
+
+    def __init__(self, part: Path, name: Path) -> None:
+        self.part, self.name = part, name
+        self.error: Exception | None = None
+        try:
+            self._file = open(part, "wb")  # closed by close() or discard()
+        except OSError as exc:
+            raise self._named(exc) from None
+        try:
+            self._read, self._write = os.pipe()
+        except OSError:
+            self._file.close()
+            part.unlink(missing_ok=True)
+            raise
+        self.sink_path = f"/dev/fd/{self._write}"
+        """Where Rerun's file sink opens its own descriptor of the pipe (:meth:`attached` then
+        closes this one, so the pipe ends when Rerun closes it)."""
+        self._thread = threading.Thread(target=self._pump, name="geocon-rrd-writer", daemon=True)
+        self._thread.start()
+
+    def _named(self, exc: OSError) -> OSError:
+        """``exc`` naming the recording's path rather than its temporary file."""
+        return OSError(exc.errno, exc.strerror or str(exc), str(self.name))
+
+    def _pump(self) -> None:
+        try:
+            while chunk := os.read(self._read, self.CHUNK):
+                if self.error is None:
+                    try:
+                        self._file.write(chunk)
+                    except Exception as exc:  # kept; raised in the main thread
+                        self.error = exc
+        except OSError as exc:
+            self.error = self.error or exc
+        finally:
+            os.close(self._read)
+
+    def attached(self) -> None:
+        """Rerun holds the pipe now: close this process's copy of its writing end."""
+        if self._write >= 0:
+            os.close(self._write)
+            self._write = -1
+
+    def check(self) -> None:
+        """Raise the first failed write (an ``OSError`` naming the recording's path)."""
+        exc = self.error
+        if exc is None:
+            return
+        if isinstance(exc, OSError):
+            raise self._named(exc) from None
+        raise exc
+
+    def close(self) -> None:
+        """Once Rerun has closed the pipe: copy the rest, close the file, raise a failed write."""
+        self.attached()
+        self._thread.join(self.CLOSE_TIMEOUT_S)
+        if self._thread.is_alive() and self.error is None:
+            self.error = OSError(errno.EIO, "Rerun did not finish writing the recording")
+        try:
+            self._file.close()
+        except OSError as exc:
+            self.error = self.error or exc
+        self.check()
+
+    def discard(self) -> None:
+        """Close everything and remove the partial file."""
+        self.attached()
+        self._thread.join(self.CLOSE_TIMEOUT_S)
+        with contextlib.suppress(OSError):
+            self._file.close()
+        self.part.unlink(missing_ok=True)
+
+
 class RrdSink:
     """Streams a clip into a recording while it is scored: pass it as the scorer's ``on_frame``,
     then call :meth:`finish` with the record. Writes ``path`` (a ``.rrd`` file) and/or streams to
     a running viewer at ``connect`` (a ``rerun+http://.../proxy`` URL). The file is written
     beside ``path`` under a temporary name and moved into place by :meth:`finish`, so a run that
     fails or is killed leaves an earlier recording at ``path`` as it was (:meth:`abort` removes
-    the partial file)."""
+    the partial file). The file's bytes are written by this process (:class:`_PipedFile`): a full
+    disk or a file-size limit raises ``OSError`` naming ``path`` at the next frame or at
+    :meth:`finish`, never a wait."""
 
     def __init__(self, path: str | Path | None, *, connect: str | None = None, frames: str = "video") -> None:
         if path is None and connect is None:
             raise ValueError("RrdSink needs a file path, a viewer URL to connect to, or both")
         self.path = None if path is None else Path(path)
         self.part: Path | None = None
+        self.file: _PipedFile | None = None
         self.rec = rr.RecordingStream("geocon")
         sinks: list = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             clear_stale_parts(self.path)
             self.part = part_path(self.path)
-            sinks.append(rr.FileSink(str(self.part)))
+            self.file = _PipedFile(self.part, self.path)
+            sinks.append(rr.FileSink(self.file.sink_path))
         if connect is not None:
             sinks.append(rr.GrpcSink(connect))
-        self.rec.set_sinks(*sinks, default_blueprint=blueprint())
+        try:
+            self.rec.set_sinks(*sinks, default_blueprint=blueprint())
+        except BaseException:
+            self.abort()
+            raise
+        if self.file is not None:
+            self.file.attached()
         self.frames = frames
         self.audit: RerunAudit | None = None
 
@@ -302,11 +400,17 @@ class RrdSink:
             self.audit = RerunAudit(self.rec, fps=fps, frames=self.frames)
         return self.audit
 
+    def _check(self) -> None:
+        if self.file is not None:
+            self.file.check()
+
     def __call__(self, fd: FrameDiagnostics) -> None:
         self._audit(fd.fps).frame(fd)
+        self._check()
 
     def frame(self, f: AuditFrame, fps: float) -> None:
         self._audit(fps).frame(f)
+        self._check()
 
     def finish(self, record: ClipRecord, *, commit: bool = True) -> Path | None:
         """Log the record and close the recording; with ``commit`` move it into place at once,
@@ -314,20 +418,24 @@ class RrdSink:
         self._audit(record.video.fps).record(record)
         self.rec.flush()
         self.rec.disconnect()
+        if self.file is not None:
+            self.file.close()
         if commit:
             self.commit()
         return self.path
 
     def commit(self) -> None:
-        """Move the finished recording into place (one rename)."""
+        """Move the finished recording into place (one rename; never onto a device or a FIFO)."""
         if self.part is not None and self.path is not None:
-            self.part.replace(self.path)
+            replace_file(self.part, self.path)
 
     def abort(self) -> None:
         """Stop recording and remove the partial file; an earlier recording at ``path`` stays."""
         with contextlib.suppress(Exception):
             self.rec.disconnect()
-        if self.part is not None:
+        if self.file is not None:
+            self.file.discard()
+        elif self.part is not None:
             self.part.unlink(missing_ok=True)
 
 
@@ -340,7 +448,7 @@ def write_rrd(
     from geocon_core.record import read_overlays, read_record
 
     record = read_record(record_dir)
-    overlays = read_overlays(record_dir)
+    overlays = read_overlays(record_dir, record)
     sink = RrdSink(path, connect=connect)
     fps = record.video.fps
     try:
@@ -350,6 +458,12 @@ def write_rrd(
     try:
         if found is not None:
             info = probe_clip(found.path, record.config)
+            if (info.num_frames, info.source_size) != (record.video.num_frames, record.video.source_size):
+                raise ValueError(
+                    f"{found.path} decodes to {info.num_frames} frames of {info.source_size[0]}x{info.source_size[1]} "
+                    f"but {Path(record_dir) / 'record.json'} says {record.video.num_frames} of "
+                    f"{record.video.source_size[0]}x{record.video.source_size[1]}: score the clip again"
+                )
             for frame in iter_frames(info):
                 labels = flows = None
                 if overlays is not None:

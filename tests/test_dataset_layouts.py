@@ -233,6 +233,7 @@ def test_manifest_in_the_folder_or_given_by_path_reads_the_same(tmp_path):
     _clip(tmp_path / "kling" / "a cat playing piano-0.mp4")
     masks = tmp_path / "masks" / "k0"
     masks.mkdir(parents=True)
+    cv2.imwrite(str(masks / "00000.png"), np.zeros((96, 128), np.uint8))  # masks are checked to be masks
     (tmp_path / "manifest.jsonl").write_text(
         '{"path": "sora/a cat playing piano-0.mp4", "category": "C3", "seed": 7, "reviewer": "ann"}\n'
         '{"video": "kling/a cat playing piano-0.mp4", "platform": "kling-2", "prompt": "a cat at a piano", '

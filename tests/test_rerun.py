@@ -17,7 +17,7 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from geocon_core.config import preset  # noqa: E402
 from geocon_core.reconstruction import DenseCloud, DenseCloudConfig, WindowCloud  # noqa: E402
-from geocon_core.record import OverlayWriter, read_overlays, read_record, write_record  # noqa: E402  # noqa: E402
+from geocon_core.record import OverlayWriter, read_overlays, read_record, record_id, write_record  # noqa: E402
 from geocon_core.scoring import score_clip  # noqa: E402
 from geocon_viewer.rerun_dense import WINDOW_POINTS, WORLD_POINTS  # noqa: E402
 from geocon_viewer.rerun_layers import RecordLayers  # noqa: E402
@@ -50,7 +50,7 @@ def _score(clip: Path, folder: Path, cfg, masks=None, dense=None):
         sink(fd)
 
     record = score_clip(clip, cfg, masks=masks, on_frame=on_frame, dense=dense)
-    overlays.close()
+    overlays.close(record_id(record))
     write_record(record, folder / "record")
     sink.finish(record)
     return record

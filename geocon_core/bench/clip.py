@@ -69,7 +69,7 @@ def score_to_folder(
     in place, and ``abort()`` (where it has one) when scoring fails. A sink with a ``commit()``
     (a Rerun recording) is finished before the record is committed and committed with it, as one
     unit (:func:`~geocon_core.bench.staging.staged_record`)."""
-    from ..record import OverlayWriter, write_record
+    from ..record import OverlayWriter, record_id, write_record
     from ..scoring import score_clip
     from .staging import staged_record
 
@@ -98,7 +98,7 @@ def score_to_folder(
                 on_frame=on_frame,
                 progress=progress,
             )
-            made[0].close()
+            made[0].close(record_id(record))  # the overlays name the record they belong to
             write_record(record, stage)
             for sink in made[1:]:  # complete every recording before the commit; renamed with the record
                 if hasattr(sink, "commit"):
@@ -148,7 +148,11 @@ def score_one(
 
 
 def _status(entry: ClipEntry, cfg: ScoreConfig, error: str | None = None) -> dict[str, Any]:
-    """A clip's ``status.json`` before scoring (``ok``), or of a clip that failed with ``error``."""
+    """A clip's ``status.json`` before scoring (``ok``), or of a clip that failed with ``error``;
+    ``fingerprint`` tells a resumed run whether the clip file is still the one scored
+    (:func:`geocon_core.media.clip_fingerprint`)."""
+    from ..media import clip_fingerprint
+
     return {
         "format": STATUS_FORMAT,
         "clip_id": entry.clip_id,
@@ -158,6 +162,7 @@ def _status(entry: ClipEntry, cfg: ScoreConfig, error: str | None = None) -> dic
         "config_hash": config_hash(cfg),
         "meta": entry.meta,
         "video": str(entry.video),
+        "fingerprint": clip_fingerprint(entry.video),
         "rrd": None,
         "warnings": [],
     }

@@ -8,7 +8,7 @@ one of three layouts (``docs/datasets.md``).
      "masks_path": "sora-0007.masks" | null, "category": "C3" | null, "scene_id": "kitchen-07",
      "video": "sora-0007.mp4"}
 
-``video`` is optional: without it the clip is ``<name>.<ext>`` (mp4, avi, mov, webm, gif, mkv) or a
+``video`` is optional: without it the clip is ``<name>.<ext>`` (:data:`VIDEO_SUFFIXES`) or a
 folder ``<name>/`` of PNG/JPEG frames next to the sidecar. ``masks_path`` (external object masks,
 see :mod:`geocon_core.masks`) and ``video`` are relative to the sidecar's folder. ``category`` is the
 expected family C1-C6, or null: not given, the scorer's category stands in and the clip has no
@@ -20,12 +20,17 @@ are kept and ignored.
 ``.csv`` / ``.jsonl`` file: one row per clip, a ``path`` (or ``video``) column relative to the
 manifest and optional ``clip_id``, ``model`` (or ``platform``; default: the name of the folder
 holding the clip file), ``prompt``, ``category``, ``seed``, ``scene_id``, ``masks_path``,
-``model_version``; other columns are kept as extra keys.
+``model_version``; other columns are kept as extra keys. A malformed row (an unclosed CSV quote, a
+JSONL line that is not one object) is refused with its line.
 
 **Plain folder.** No sidecar and no manifest: every video file below the folder is a clip, its
 platform the sub-folder it lies in (:func:`platform_of`), its id ``<platform>-<file stem>``
 (:func:`clip_ids`), its prompt the file name where that reads as one (:func:`prompt_from_name`),
 its scene shared with the other platforms' clips of the same prompt and index (:func:`scene_ids`).
+Every other file it holds is named in a note with the reason it is not a clip.
+
+**Paths.** A clip or masks path of a sidecar or a manifest must lie inside the dataset folder (a
+manifest's: its folder) or a folder given as ``roots`` (``--root``); any other is refused.
 
 Whatever a manifest or a plain folder does not give is filled by these stated rules or left
 empty, and each entry records where every field came from (:data:`SOURCES`); a category is never
@@ -99,8 +104,9 @@ REQUIRED_FIELDS = (
     "scene_id",
 )
 """The fields of a clip's metadata (a sidecar, a manifest row); those not given get stated defaults."""
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv")
-"""File suffixes (lower case) a plain folder is scanned for."""
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv", ".m4v", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts")
+"""File suffixes (lower case) a plain folder is scanned for (a ``.ts`` / ``.mts`` / ``.m2ts`` file
+only when it is an MPEG transport stream)."""
 _CLIP_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+=-]{0,199}$")
 LAYOUTS = ("sidecars", "manifest", "folder")
 """How a dataset describes its clips: a sidecar per clip, one manifest, or nothing but the files."""
@@ -285,7 +291,9 @@ def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
     for key in ("model", "scene_id"):
         if key in meta and (meta[key] is None or str(meta[key]).strip() == ""):
             problems.append(f"{name}: {key} is empty")
-    if "prompt" in meta and meta["prompt"] is not None and str(meta["prompt"]).strip() == "":
+    if "prompt" in meta and meta["prompt"] is not None and not isinstance(meta["prompt"], str):
+        problems.append(f"{name}: prompt must be text or null, got {meta['prompt']!r}")
+    elif "prompt" in meta and meta["prompt"] is not None and str(meta["prompt"]).strip() == "":
         problems.append(f"{name}: prompt is empty (write null for a clip without a prompt)")
     if meta.get("category") is not None and meta["category"] not in CATEGORIES:
         problems.append(
@@ -328,13 +336,19 @@ def _read_sidecar(sidecar: Path, name: str) -> tuple[dict[str, Any] | None, str]
     return meta, ""
 
 
-def _video_problems(name: str, sidecar: Path, meta: dict[str, Any], video: Path | None, check_clips: bool) -> list[str]:
-    """What is wrong with a sidecar's clip file (missing, or with ``check_clips`` unreadable)."""
+def _video_problems(
+    name: str, sidecar: Path, meta: dict[str, Any], video: Path | None, check_clips: bool, allowed: tuple[Path, ...]
+) -> list[str]:
+    """What is wrong with a sidecar's clip file (outside the ``allowed`` folders, missing, or with
+    ``check_clips`` unreadable)."""
     if video is None:
         return [
             f"{name}: no clip file next to it (expected {sidecar.name[: -len('.meta.json')]}.mp4 or another "
             "video, or a 'video' field)"
         ]
+    outside = _outside_problem(name, f"clip file {meta.get('video')}", video, allowed)
+    if outside is not None:
+        return [outside]
     if not video.exists():
         return [f"{name}: clip file {meta.get('video')} does not exist"]
     if check_clips:
@@ -345,11 +359,53 @@ def _video_problems(name: str, sidecar: Path, meta: dict[str, Any], video: Path 
     return []
 
 
+def _allowed_folders(own: Path, roots: Iterable[str | Path]) -> tuple[Path, ...]:
+    """The folders a dataset's paths may point into: its ``own`` folder first, then ``roots``
+    (absolute and normalised, links not followed)."""
+    return tuple(Path(os.path.normpath(os.path.abspath(p))) for p in (own, *roots))
+
+
+def _outside_problem(where: str, what: str, path: Path, allowed: tuple[Path, ...]) -> str | None:
+    """The problem of a clip or masks ``path`` (``what``: how the row names it) that lies outside
+    every ``allowed`` folder, or None. Judged by the path as written, so a link inside the dataset
+    folder to a clip elsewhere is inside: the rule keeps a mistyped or hostile path (``/etc``) from
+    being read, not a dataset from linking to its files."""
+    at = Path(os.path.normpath(os.path.abspath(path)))
+    if any(at == folder or folder in at.parents for folder in allowed):
+        return None
+    roots = f" or the --root folder(s) {', '.join(map(str, allowed[1:]))}" if len(allowed) > 1 else ""
+    return (
+        f"{where}: {what} lies outside the dataset folder {allowed[0]}{roots}; move it inside, or name the folder it "
+        "lies in with --root"
+    )
+
+
+def _masks_problems(where: str, value: str, masks: Path, allowed: tuple[Path, ...], check: bool) -> list[str]:
+    """What is wrong with the masks a row names as ``value`` (at ``masks``): outside the
+    ``allowed`` folders, missing, or with ``check`` not a masks layout
+    (:func:`geocon_core.masks.check_masks_path`)."""
+    outside = _outside_problem(where, f"masks_path {value}", masks, allowed)
+    if outside is not None:
+        return [outside]
+    if not masks.exists():
+        return [f"{where}: masks_path {value} does not exist"]
+    if check:
+        from ..masks import check_masks_path
+
+        try:
+            check_masks_path(masks)
+        except (ValueError, OSError) as exc:
+            return [f"{where}: masks_path {value} is not usable ({exc})"]
+    return []
+
+
 Progress = Callable[[int, int], None]
 """Called as ``progress(checked, total)`` after each clip is checked."""
 
 
-def _from_sidecars(base: Path, sidecars: list[Path], check_clips: bool, progress: Progress | None) -> Dataset:
+def _from_sidecars(
+    base: Path, sidecars: list[Path], check_clips: bool, progress: Progress | None, allowed: tuple[Path, ...]
+) -> Dataset:
     problems: list[str] = []
     entries: list[ClipEntry] = []
     seen: dict[str, Path] = {}
@@ -365,7 +421,7 @@ def _from_sidecars(base: Path, sidecars: list[Path], check_clips: bool, progress
         if isinstance(cid, str) and cid in seen:
             mine.append(f"{name}: clip_id {cid!r} is also used by {seen[cid].relative_to(base)}")
         video = _find_video(sidecar, meta)
-        mine += _video_problems(name, sidecar, meta, video, check_clips)
+        mine += _video_problems(name, sidecar, meta, video, check_clips, allowed)
         if progress is not None:
             progress(i + 1, len(sidecars))
         if video is not None and video.exists():
@@ -379,8 +435,7 @@ def _from_sidecars(base: Path, sidecars: list[Path], check_clips: bool, progress
         masks = None
         if isinstance(meta.get("masks_path"), str):
             masks = sidecar.parent / meta["masks_path"]
-            if not masks.exists():
-                mine.append(f"{name}: masks_path {meta['masks_path']} does not exist")
+            mine += _masks_problems(name, meta["masks_path"], masks, allowed, check_clips)
         if mine:
             problems.extend(mine)
             continue
@@ -447,9 +502,17 @@ def _jsonl_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]],
 
 def _csv_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
     """``(where, cells)`` per row of a CSV manifest (column names stripped and lower-cased), and
-    the problems of its form; a manifest without a path column is refused as a whole."""
-    reader = csv.DictReader(io.StringIO(text))
-    columns = [c.strip().lower() for c in reader.fieldnames or []]
+    the problems of its form; a manifest without a path column is refused as a whole. A quote
+    that is never closed (it would swallow the rows after it into one cell) or text after a
+    closing quote is refused with the line the row starts on, and so is a row that runs over
+    several lines (a quoted cell may hold line breaks) but has fewer cells than columns: the mark
+    of a quote closed rows later."""
+    reader = csv.DictReader(io.StringIO(text), strict=True)
+    try:
+        fieldnames = reader.fieldnames
+    except csv.Error as exc:
+        return [], [f"{name} line 1: not valid CSV ({_csv_reason(exc)})"]
+    columns = [c.strip().lower() for c in fieldnames or []]
     if not any(columns):
         return [], [f"{name}: is empty (expected a header row with a 'path' column, then one row per clip)"]
     if "path" not in columns and "video" not in columns:
@@ -461,15 +524,43 @@ def _csv_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], l
         return [], [f"{name}: column{'s' if len(dups) > 1 else ''} {', '.join(dups)} given twice"]
     reader.fieldnames = columns
     rows, problems = [], []
+    lines = text.split("\n")  # as the reader counts them
+    end = reader.line_num  # the last line of the row before
     try:
         for row in reader:
-            where = f"{name} line {reader.line_num}"
+            first = _row_start(lines, end)
+            where = f"{name} line {first}"
+            end = reader.line_num
             if None in row:
                 problems.append(f"{where}: more cells than the {len(columns)} columns")
+            elif end > first and any(v is None for v in row.values()):
+                problems.append(
+                    f"{where}: a quoted cell runs on to line {end} and the row has fewer cells than the "
+                    f"{len(columns)} columns (a quote that is not closed where it should be?); close the quote"
+                )
             rows.append((where, {k: v for k, v in row.items() if k is not None}))
     except csv.Error as exc:
-        problems.append(f"{name} line {reader.line_num}: not valid CSV ({exc})")
+        problems.append(f"{name} line {_row_start(lines, end)}: not valid CSV ({_csv_reason(exc)})")
     return rows, problems
+
+
+def _row_start(lines: list[str], after: int) -> int:
+    """The number of the first line after line ``after`` that is not blank (the CSV reader skips
+    blank lines before a row)."""
+    k = after
+    while k < len(lines) - 1 and not lines[k].strip():
+        k += 1
+    return k + 1
+
+
+def _csv_reason(exc: csv.Error) -> str:
+    """What a CSV error means, in words."""
+    msg = str(exc)
+    if "unexpected end of data" in msg:
+        return "a quote is opened and never closed, which would read every line after it into one cell"
+    if "expected after" in msg:
+        return "text follows a closing quote within a cell"
+    return msg
 
 
 def _manifest_rows(path: Path, name: str) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
@@ -532,28 +623,48 @@ def _clip_files(base: Path) -> tuple[list[Path], list[str]]:
     """The clips below ``base`` in path order: video files, and folders of frames (a sub-folder
     holding two or more PNG/JPEG images and no video file; read as one clip, not searched further).
     Hidden files and folders, and ``geocon bench`` results folders, are left out. Also the notes on
-    what was left out or read as frames."""
+    what was left out or read as frames: every other file is named with the reason it is not a
+    clip (:func:`_skipped_note`)."""
     from ..media import IMAGE_SUFFIXES
 
     files: list[Path] = []
     frame_dirs: list[str] = []
     results: list[str] = []
+    skipped: list[tuple[str, str]] = []
     for folder, dirs, names in os.walk(base):
         here = Path(folder)
         if RESULTS_MANIFEST in names and here != base:
             results.append(here.relative_to(base).as_posix())
             dirs[:] = []
             continue
-        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
-        visible = [n for n in names if not n.startswith(".")]
-        videos = [here / n for n in visible if Path(n).suffix.lower() in VIDEO_SUFFIXES and (here / n).is_file()]
+        rel = here.relative_to(base)
+        for d in sorted(dirs):
+            if d.startswith("."):
+                skipped.append(((rel / d).as_posix(), "hidden folder"))
+            elif (here / d).is_symlink():  # os.walk does not follow links to folders
+                skipped.append(((rel / d).as_posix(), "a link to a folder, not followed"))
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not (here / d).is_symlink())
+        visible = sorted(n for n in names if not n.startswith("."))
+        skipped += [((rel / n).as_posix(), "hidden") for n in sorted(names) if n.startswith(".")]
+        videos: list[tuple[str, str | None]] = []
+        others: list[tuple[str, str | None]] = []
+        for n in visible:
+            why = _not_a_video(here / n)
+            (videos if why is None else others).append((n, why))
         images = sum(Path(n).suffix.lower() in IMAGE_SUFFIXES for n in visible)
         if here != base and images >= 2 and not videos:
             files.append(here)
-            frame_dirs.append(here.relative_to(base).as_posix())
+            frame_dirs.append(rel.as_posix())
+            skipped += [((rel / d).as_posix(), "a folder inside a folder of frames") for d in dirs]
+            skipped += [
+                ((rel / n).as_posix(), "not a frame (a folder of frames is read as one clip)")
+                for n in visible
+                if Path(n).suffix.lower() not in IMAGE_SUFFIXES
+            ]
             dirs[:] = []
             continue
-        files += videos
+        files += [here / n for n, _ in videos]
+        skipped += [((rel / n).as_posix(), str(why)) for n, why in others]
     notes = []
     if results:
         notes.append(f"left out {len(results)} results folder(s) of `geocon bench`: {', '.join(results)}")
@@ -562,7 +673,61 @@ def _clip_files(base: Path) -> tuple[list[Path], list[str]]:
             f"{len(frame_dirs)} folder(s) of PNG/JPEG frames read as one clip each (e.g. {frame_dirs[0]}), "
             "its id and prompt from the folder's name"
         )
+    if skipped:
+        notes.append(_skipped_note(sorted(skipped)))
     return sorted(files, key=lambda p: p.relative_to(base).as_posix()), notes
+
+
+_NOT_CLIP_SUFFIXES = frozenset(
+    ".txt .md .rst .json .jsonl .csv .tsv .yaml .yml .toml .xml .html .pdf .log .srt .vtt .npz .npy .parquet "
+    ".rrd .pt .pth .ckpt .safetensors .py .sh .ipynb .zip .tar .gz .tgz .7z .wav .mp3 .m4a .aac .flac .ogg".split()
+)
+"""Suffixes of files that a dataset folder often holds besides its clips (text, data, archives, audio)."""
+_TS_SYNC_AT = {".ts": 0, ".mts": 4, ".m2ts": 4}
+""".ts / .mts / .m2ts: where an MPEG transport stream's first sync byte (0x47) lies (a .ts file may
+as well be TypeScript)."""
+SKIPPED_LISTED = 5
+"""Up to this many skipped files are named one by one; more are counted by reason, with examples."""
+
+
+def _not_a_video(path: Path) -> str | None:
+    """Why the file at ``path`` is not read as a video clip of a plain folder, or None when it is."""
+    from ..media import IMAGE_SUFFIXES
+
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        return "a link to nothing" if path.is_symlink() and not path.exists() else "not a regular file"
+    if suffix in IMAGE_SUFFIXES:
+        return "an image, not in a folder of frames"
+    if suffix not in VIDEO_SUFFIXES:
+        return "not a clip" if suffix in _NOT_CLIP_SUFFIXES else "unknown format"
+    at = _TS_SYNC_AT.get(suffix)
+    if at is not None:
+        try:
+            with path.open("rb") as fh:
+                head = fh.read(at + 1)
+        except OSError as exc:
+            return f"cannot be read ({exc.strerror or exc})"
+        if len(head) <= at or head[at] != 0x47:
+            return "not an MPEG transport stream: no sync byte"
+    return None
+
+
+def _skipped_note(skipped: list[tuple[str, str]]) -> str:
+    """The sentence naming the files of a plain folder that are not clips: each with its reason
+    when there are few, else a count per reason with two examples each."""
+    n = len(skipped)
+    head = f"skipped {n} file{'s' if n > 1 else ''}"
+    if n <= SKIPPED_LISTED:
+        return f"{head}: " + ", ".join(f"{name} ({why})" for name, why in skipped)
+    by_reason: dict[str, list[str]] = defaultdict(list)
+    for name, why in skipped:
+        by_reason[why].append(name)
+    parts = [
+        f"{len(names)} {why} ({', '.join(names[:2])}{', ...' if len(names) > 2 else ''})"
+        for why, names in by_reason.items()
+    ]
+    return f"{head}: " + "; ".join(parts)
 
 
 def _clip_stem(path: Path) -> str:
@@ -630,11 +795,17 @@ def _assign_ids(rows: list[_Row]) -> tuple[list[str], list[str], list[str]]:
     return [made[i] if i in made else str(r.fields["clip_id"]) for i, r in enumerate(rows)], problems, notes
 
 
-def _file_problems(row: _Row, masks_base: Path, seen: dict[tuple[int, int], str]) -> tuple[list[str], Path | None]:
-    """What is wrong with a row's clip file and masks (missing, the same file as another row's),
-    and the masks' path."""
+def _file_problems(
+    row: _Row, masks_base: Path, seen: dict[tuple[int, int], str], allowed: tuple[Path, ...], check_masks: bool
+) -> tuple[list[str], Path | None]:
+    """What is wrong with a row's clip file and masks (outside the ``allowed`` folders, missing,
+    the same file as another row's; with ``check_masks`` masks that are no masks layout), and the
+    masks' path."""
     mine = []
-    if not row.video.exists():
+    outside = _outside_problem(row.where, f"clip file {row.fields.get('video')}", row.video, allowed)
+    if outside is not None:
+        mine.append(outside)
+    elif not row.video.exists():
         mine.append(f"{row.where}: clip file {row.fields.get('video')} does not exist")
     else:
         st = row.video.stat()
@@ -647,8 +818,7 @@ def _file_problems(row: _Row, masks_base: Path, seen: dict[tuple[int, int], str]
     masks = None
     if isinstance(row.fields.get("masks_path"), str):
         masks = masks_base / row.fields["masks_path"]
-        if not masks.exists():
-            mine.append(f"{row.where}: masks_path {row.fields['masks_path']} does not exist")
+        mine += _masks_problems(row.where, row.fields["masks_path"], masks, allowed, check_masks)
     return mine, masks
 
 
@@ -702,23 +872,32 @@ def _entry(
 
 
 def _fill(
-    rows: list[_Row], source: str, masks_base: Path, check_clips: bool, progress: Progress | None
+    rows: list[_Row],
+    source: str,
+    masks_base: Path,
+    check_clips: bool,
+    progress: Progress | None,
+    allowed: tuple[Path, ...],
 ) -> tuple[list[ClipEntry], list[str], list[str]]:
     """The entries of ``rows`` (the given fields from ``source``, the rest by the stated rules),
-    the problems found, and the notes on the rules applied."""
+    the problems found, and the notes on the rules applied. A row whose fields failed their checks
+    gives only problems (its values of the wrong type take no part in the rules)."""
     ids, problems, notes = _assign_ids(rows)
     named = []
     for row, cid in zip(rows, ids, strict=True):
+        given: dict[str, Any] = (
+            row.fields if row.valid else {k: v for k, v in row.fields.items() if isinstance(v, (str, int))}
+        )
         name_prompt, name_index = prompt_from_name(_clip_stem(row.video))
-        prompt = row.fields.get("prompt") or name_prompt
-        index = row.fields["seed"] if row.fields.get("seed") is not None else name_index
-        named.append((cid, row.fields.get("model") or row.platform, prompt, index, name_prompt))
+        prompt = given.get("prompt") or name_prompt
+        index = given["seed"] if given.get("seed") is not None else name_index
+        named.append((cid, given.get("model") or row.platform, prompt, index, name_prompt))
     scenes = scene_ids([n[:4] for n in named])
     entries: list[ClipEntry] = []
     seen: dict[tuple[int, int], str] = {}
     sidecars: set[Path] = set()
     for k, (row, (cid, _, prompt, _, name_prompt), scene) in enumerate(zip(rows, named, scenes, strict=True)):
-        mine, masks = _file_problems(row, masks_base, seen)
+        mine, masks = _file_problems(row, masks_base, seen, allowed, check_clips)
         facts: tuple[list[int] | None, float | None, float | None, str] = (None, None, None, "default")
         if check_clips and not mine:
             try:
@@ -759,7 +938,7 @@ def _defaults_notes(entries: list[ClipEntry]) -> list[str]:
     return notes
 
 
-def _from_manifest(path: Path, check_clips: bool, progress: Progress | None) -> Dataset:
+def _from_manifest(path: Path, check_clips: bool, progress: Progress | None, roots: Iterable[str | Path]) -> Dataset:
     found, problems = _manifest_rows(path, path.name)
     rows = []
     for where, fields in found:
@@ -770,7 +949,8 @@ def _from_manifest(path: Path, check_clips: bool, progress: Progress | None) -> 
         video = path.parent / fields["video"]
         platform = Path(os.path.abspath(video)).parent.name  # without a model column: the clip's folder
         rows.append(_Row(where, video, fields, platform, "folder", valid=not mine))
-    entries, more, notes = _fill(rows, "manifest", path.parent, check_clips, progress)
+    allowed = _allowed_folders(path.parent, roots)
+    entries, more, notes = _fill(rows, "manifest", path.parent, check_clips, progress, allowed)
     problems += more
     if problems:
         line = re.compile(r" line (\d+): ")
@@ -791,7 +971,7 @@ def _from_folder(base: Path, check_clips: bool, progress: Progress | None) -> Da
         )
     default = base.resolve().name or "clips"
     rows = [_Row(p.relative_to(base).as_posix(), p, {}, *platform_of(p.relative_to(base), default)) for p in files]
-    entries, problems, more = _fill(rows, "folder", base, check_clips, progress)
+    entries, problems, more = _fill(rows, "folder", base, check_clips, progress, _allowed_folders(base, ()))
     if problems:
         raise DatasetError(base, problems)
     head = [
@@ -808,24 +988,32 @@ def _from_folder(base: Path, check_clips: bool, progress: Progress | None) -> Da
 # ---- entry points ------------------------------------------------------------------------------
 
 
-def scan_dataset(root: str | Path, *, check_clips: bool = True, progress: Progress | None = None) -> Dataset:
+def scan_dataset(
+    root: str | Path,
+    *,
+    check_clips: bool = True,
+    progress: Progress | None = None,
+    roots: Iterable[str | Path] = (),
+) -> Dataset:
     """The dataset at ``root``: a folder with sidecars, a folder with a manifest
     (:data:`MANIFEST_NAMES`), a plain folder of clips, or the path of a ``.csv`` / ``.jsonl``
     manifest. Everything is validated up front: fields and their types, known categories, unique
     clip ids, the clip files present (and, with ``check_clips``, their first two frames
-    decodable) and masks paths present. Raises :class:`DatasetError` with every problem found.
+    decodable), masks paths present (with ``check_clips``, a masks layout), and every clip and
+    masks path inside the dataset's folder (a manifest's: the manifest's folder) or one of the
+    ``roots`` folders. Raises :class:`DatasetError` with every problem found.
     ``progress(checked, total)`` hears each clip checked."""
-    base = Path(root)
+    base, roots = Path(root), tuple(roots)
     if base.is_file():
         if base.suffix.lower() in (".csv", ".jsonl"):
-            return _from_manifest(base, check_clips, progress)
+            return _from_manifest(base, check_clips, progress, roots)
         raise DatasetError(base, [f"{base}: not a folder, nor a manifest (.csv or .jsonl)"])
     if not base.is_dir():
         raise DatasetError(base, [f"{base}: not a folder"])
     sidecars = sorted(base.rglob("*.meta.json"))
     manifests = [base / n for n in MANIFEST_NAMES if (base / n).is_file()]
     if sidecars:
-        ds = _from_sidecars(base, sidecars, check_clips, progress)
+        ds = _from_sidecars(base, sidecars, check_clips, progress, _allowed_folders(base, roots))
         if manifests:
             ignored = (
                 f"{manifests[0].name} is ignored: the sidecars (*.meta.json) describe the dataset (give the "
@@ -838,7 +1026,7 @@ def scan_dataset(root: str | Path, *, check_clips: bool = True, progress: Progre
             base, [f"{base}: holds both {' and '.join(MANIFEST_NAMES)}; keep one (or give the path of the one to use)"]
         )
     if manifests:
-        return _from_manifest(manifests[0], check_clips, progress)
+        return _from_manifest(manifests[0], check_clips, progress, roots)
     return _from_folder(base, check_clips, progress)
 
 

@@ -14,8 +14,9 @@ A clip is finished when its ``status.json`` exists.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 __all__ = [
     "BENCH_FORMAT",
@@ -36,6 +37,10 @@ __all__ = [
     "read_manifest",
     "write_manifest",
     "write_json",
+    "RECORD_NAME",
+    "OutputKind",
+    "output_kind",
+    "check_output_kind",
 ]
 
 BENCH_FORMAT = "geocon-bench/1"
@@ -54,6 +59,46 @@ RRD_NAME = "audit.rrd"
 """Name of a flagged clip's Rerun recording inside its folder."""
 LOCK_NAME = "bench.lock"
 """The lock file of a run writing into the results folder (:class:`geocon_core.files.lockfile.FolderLock`)."""
+RECORD_NAME = "record.json"
+"""The file that makes a folder the record of one clip (``geocon score --out``)."""
+
+OutputKind = Literal["results", "record"]
+"""What an output folder of GeoCon is: the results of ``geocon bench``, or one clip's record."""
+_WRITTEN_BY = {
+    "results": f"the results folder of a `geocon bench` run (it holds {MANIFEST_NAME})",
+    "record": f"a record folder of `geocon score` (it holds {RECORD_NAME})",
+}
+_NEVER = {
+    "record": "a record never goes among benchmark results",
+    "results": "benchmark results never go into a record folder",
+}
+
+
+def output_kind(folder: Path) -> OutputKind | None:
+    """What ``folder`` holds: the results of ``geocon bench`` (``"results"``: its ``bench.json``,
+    written before anything else), one clip's record (``"record"``: its ``record.json``), or
+    neither (None, also for a folder that does not exist)."""
+    if (folder / MANIFEST_NAME).is_file():
+        return "results"
+    if (folder / RECORD_NAME).is_file():
+        return "record"
+    return None
+
+
+def check_output_kind(folder: Path, kind: OutputKind, option: str = "--out") -> None:
+    """Refuse to write a ``kind`` output (``"results"`` or ``"record"``) into ``folder`` when it is,
+    or lies inside, a folder of the other kind (:func:`output_kind`): a record written into a
+    results folder, or results written into a record folder, would mix with files of another
+    layout that every reader of either then misreads. Raises ``ValueError`` with one sentence
+    naming ``option``; nothing is created."""
+    other: OutputKind = "record" if kind == "results" else "results"
+    full = Path(os.path.realpath(folder))
+    for at in (full, *full.parents):
+        if output_kind(at) == other:
+            where = "is" if at == full else f"lies inside {at}, which is"
+            raise ValueError(
+                f"{option} {folder} {where} {_WRITTEN_BY[other]}, and {_NEVER[kind]}; choose another {option}"
+            )
 
 
 def clip_dir(results: Path, clip_id: str) -> Path:

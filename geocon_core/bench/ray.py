@@ -15,6 +15,7 @@ counted twice. Ray is imported only here, and only when this executor is chosen.
 
 from __future__ import annotations
 
+import math
 import os
 import socket
 import subprocess
@@ -56,10 +57,11 @@ class RayOptions:
     gpus_per_clip: float | None = None
 
     def __post_init__(self) -> None:
-        if self.cpus_per_clip <= 0:
-            raise ValueError(f"--ray-cpus-per-clip must be positive, got {self.cpus_per_clip}")
-        if self.gpus_per_clip is not None and self.gpus_per_clip < 0:
-            raise ValueError(f"--ray-gpus-per-clip must be 0 or more, got {self.gpus_per_clip}")
+        if not (math.isfinite(self.cpus_per_clip) and self.cpus_per_clip > 0):
+            raise ValueError(f"--ray-cpus-per-clip must be a positive number of CPUs, got {self.cpus_per_clip:g}")
+        gpus = self.gpus_per_clip
+        if gpus is not None and not (math.isfinite(gpus) and gpus >= 0):
+            raise ValueError(f"--ray-gpus-per-clip must be a number of GPUs (0 or more), got {gpus:g}")
         if self.local_cpus < 1:
             raise ValueError(f"--workers must be at least 1, got {self.local_cpus}")
 

@@ -6,7 +6,9 @@ killed run loses at most the clips that were in flight and never scores a clip t
 fails (unreadable, a crash in scoring, a worker process that dies) is recorded as failed with its
 reason and counted, never dropped; ``retry_failed`` scores failed clips again. A finished clip
 whose metadata changed since (a category set, a prompt fixed in its sidecar) takes the new
-metadata without being scored again, as long as its clip file and masks are the same.
+metadata without being scored again, as long as its clip file and masks are the same. A finished
+clip whose file was replaced since (same name, other bytes: its fingerprint changed) is scored
+again, and said so.
 """
 
 from __future__ import annotations
@@ -20,10 +22,11 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from ..config import ScoreConfig, config_hash
-from ..files import FolderLock, LockHeld, OutPathError, check_out_dir, die_with_parent
+from ..files import FolderLock, LockHeld, check_out_dir, die_with_parent, quiet_resource_tracker
+from ..media import clip_fingerprint
 from .clip import (
     MAX_CRASHES,
     BenchError,
@@ -37,6 +40,7 @@ from .dataset import ClipEntry, scan_dataset
 from .layout import (
     BENCH_FORMAT,
     CLIPS_DIR,
+    check_output_kind,
     clip_dir,
     lock_path,
     manifest_path,
@@ -124,6 +128,7 @@ def run_bench(
     executor: str = "pool",
     ray: "RayOptions | None" = None,
     on_note: Callable[[str], None] | None = None,
+    roots: Iterable[str | Path] = (),
 ) -> BenchSummary:
     """Score every clip of ``dataset`` (a folder or a manifest file, read by
     :func:`~geocon_core.bench.dataset.scan_dataset`) into ``results`` with ``workers`` processes
@@ -135,12 +140,14 @@ def run_bench(
     recording for flagged clips (:func:`geocon_core.scoring.verdict.is_flagged`). ``on_start(to_score, skipped)``
     is called once; ``on_clip(status, done, total, failed)`` after each clip. Raises
     :class:`~geocon_core.bench.dataset.DatasetError` or :class:`BenchError` before scoring anything:
-    ``results`` is checked (:func:`geocon_core.files.paths.check_out_dir`) before the dataset is read, and
+    ``results`` is checked (:func:`geocon_core.files.paths.check_out_dir`; not a record folder,
+    :func:`~geocon_core.bench.layout.check_output_kind`) before the dataset is read, and
     held with a lock file (:func:`geocon_core.bench.layout.lock_path`) for the whole run, so a second run
     into the same folder is refused naming the first one's PID (a lock of a dead run is taken over).
     The worker processes exit when this process dies (:func:`geocon_core.files.procs.die_with_parent`).
     ``on_note(sentence)`` hears the defaults the dataset took (a plain folder, a manifest) and what
-    the executor has to say (where it runs, a clip scored again)."""
+    the executor has to say (where it runs, a clip scored again). ``roots``: folders besides the
+    dataset's own that its clip and masks paths may lie in (:func:`~geocon_core.bench.dataset.scan_dataset`)."""
     cfg = config or ScoreConfig()
     if workers < 1:
         raise BenchError(f"--workers must be at least 1, got {workers}")
@@ -150,9 +157,10 @@ def run_bench(
     data, out = Path(dataset), Path(results)
     try:
         check_out_dir(out)
-    except OutPathError as exc:
+        check_output_kind(out, "results")
+    except ValueError as exc:
         raise BenchError(str(exc)) from None
-    dataset_read = scan_dataset(data)
+    dataset_read = scan_dataset(data, roots=roots)
     entries = list(dataset_read.entries)
     for sentence in dataset_read.notes:
         note(sentence)
@@ -192,7 +200,7 @@ def run_bench(
             assert ray is not None
             score_all_ray(todo, out, cfg, rrd_renderer, finished, ray, note)
         else:
-            _score_all(todo, out, cfg, workers, rrd_renderer, finished)
+            _score_all(todo, out, cfg, workers, rrd_renderer, finished, note)
         paths: tuple[Path, ...] = ()
         if tables:
             paths = write_tables(out)
@@ -220,17 +228,23 @@ def _busy(out: Path, held: LockHeld) -> str:
 def _unfinished(
     entries: list[ClipEntry], out: Path, retry_failed: bool, note: Callable[[str], None]
 ) -> tuple[list[ClipEntry], int]:
-    """The clips still to score (unfinished, or failed when ``retry_failed``) and how many failed
-    clips are kept as they are. A finished clip whose metadata changed takes the dataset's (its
-    ``status.json`` rewritten) when its clip file and ``masks_path`` are those it was scored from;
-    otherwise it keeps its earlier metadata and scores, and ``note`` says so."""
+    """The clips still to score (unfinished, failed when ``retry_failed``, or finished on a clip
+    file that was replaced since: its fingerprint changed) and how many failed clips are kept as
+    they are. A finished clip whose metadata changed takes the dataset's (its ``status.json``
+    rewritten) when its clip file and ``masks_path`` are those it was scored from; otherwise it
+    keeps its earlier metadata and scores, and ``note`` says so."""
     todo, failed_before = [], 0
-    refreshed, stale = 0, []
+    refreshed, stale, replaced = 0, [], []
     for entry in entries:
         folder = clip_dir(out, entry.clip_id)
         status = read_status(folder)
         if status is None or (retry_failed and status["status"] == "failed"):
             todo.append(entry)
+            continue
+        scored_on = _scored_fingerprint(folder, status)
+        if scored_on is not None and clip_fingerprint(entry.video) != scored_on:
+            todo.append(entry)
+            replaced.append(entry.clip_id)
             continue
         failed_before += status["status"] == "failed"
         meta = status.get("meta") or {}
@@ -248,7 +262,36 @@ def _unfinished(
             f"{len(stale)} finished clip(s) now name another clip file or masks and keep their earlier scores (e.g. "
             f"{stale[0]}); remove their folders from {out / CLIPS_DIR} to score them again"
         )
+    if replaced:
+        shown = ", ".join(replaced[:REPLACED_NAMED]) + (
+            f" and {len(replaced) - REPLACED_NAMED} more" if len(replaced) > REPLACED_NAMED else ""
+        )
+        note(
+            f"{len(replaced)} clip file(s) changed since they were scored (other bytes under the same name) and are "
+            f"scored again: {shown}"
+        )
     return todo, failed_before
+
+
+REPLACED_NAMED = 10
+"""Clips whose file changed since they were scored are named up to this many."""
+
+
+def _scored_fingerprint(folder: Path, status: dict[str, Any]) -> str | None:
+    """The fingerprint of the clip file a finished clip was scored on: in its ``status.json``, or
+    (results written before statuses held one) in its ``record.json``; None when neither says."""
+    if isinstance(status.get("fingerprint"), str):
+        return str(status["fingerprint"])
+    if status.get("status") != "ok":
+        return None
+    from ..record import RecordError, read_record_json
+
+    try:
+        video = read_record_json(folder)[1].get("video")
+    except RecordError:
+        return None
+    found = video.get("fingerprint") if isinstance(video, dict) else None
+    return found if isinstance(found, str) else None
 
 
 def _score_all(
@@ -258,15 +301,19 @@ def _score_all(
     workers: int,
     rrd_renderer: RecordRenderer | None,
     finished: Callable[[dict[str, Any]], None],
+    note: Callable[[str], None] = lambda _msg: None,
 ) -> None:
     """Score ``todo`` in worker processes, calling ``finished(status)`` per clip. A clip in flight
-    when a worker dies is retried alone, and recorded as failed after :data:`MAX_CRASHES` deaths."""
+    when a worker dies is retried alone, and recorded as failed after :data:`MAX_CRASHES` deaths;
+    ``note`` hears of each death in one sentence (and of a resource tracker killed with the
+    workers, which is started again without the tracebacks multiprocessing would print)."""
     threads = max(1, (os.cpu_count() or 1) // workers)
     crashes: dict[str, int] = {}
     queue = list(todo)
     ctx = multiprocessing.get_context("spawn")
     while queue:
         limit = 1 if crashes else workers  # after a worker died, suspects run alone
+        _tracker_checked(note)
         pool = ProcessPoolExecutor(
             max_workers=min(limit, len(queue)),
             mp_context=ctx,
@@ -286,6 +333,10 @@ def _score_all(
                 if not inflight:
                     break
                 done, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                lost = [inflight[fut].clip_id for fut in done if _died(fut)]
+                if lost and not broken:
+                    lost += [e.clip_id for f, e in inflight.items() if f not in done]  # the pool is gone with it
+                    note(_death_sentence(lost, workers, crashes))
                 for fut in done:
                     entry = inflight.pop(fut)
                     try:
@@ -304,6 +355,40 @@ def _score_all(
         except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
             for proc in list(getattr(pool, "_processes", {}).values()):
                 proc.terminate()
+            _tracker_checked(note)
             pool.shutdown(wait=False, cancel_futures=True)
             raise
+        _tracker_checked(note)  # before the pool's semaphores are forgotten by a tracker started anew
         pool.shutdown(wait=True)
+
+
+def _died(fut: Future[dict[str, Any]]) -> bool:
+    """Whether ``fut`` failed because its worker process died (the pool broke)."""
+    return fut.exception() is not None and isinstance(fut.exception(), BrokenProcessPool)
+
+
+def _death_sentence(lost: list[str], workers: int, crashes: dict[str, int]) -> str:
+    """What a run says when a worker process died with the clips ``lost`` in flight."""
+    given_up = [c for c in lost if crashes.get(c, 0) + 1 >= MAX_CRASHES]
+    done = "scoring it again" if len(lost) == 1 else "scoring them again"
+    if given_up:
+        done = f"recording {_named(given_up)} as failed (a worker died {MAX_CRASHES} times on it)"
+        if len(given_up) < len(lost):
+            done += ", scoring the others again"
+    if workers > 1 and not crashes:
+        done += ", one clip at a time from now on"
+    return (
+        f"a worker process died (killed, out of memory or a crash in a native library) while scoring "
+        f"{_named(lost)}; {done}"
+    )
+
+
+def _named(clip_ids: list[str], most: int = 5) -> str:
+    shown = ", ".join(clip_ids[:most])
+    return shown + (f" and {len(clip_ids) - most} more" if len(clip_ids) > most else "")
+
+
+def _tracker_checked(note: Callable[[str], None]) -> None:
+    """Start multiprocessing's resource tracker again, quietly, if it was killed; ``note`` says so."""
+    if quiet_resource_tracker():
+        note("the worker pool's resource tracker process had died; a new one was started")

@@ -17,7 +17,7 @@ import contextlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from ..files import clear_stale_parts, deferred_signals, part_path, remove_path
+from ..files import clear_stale_parts, deferred_signals, part_path, refuse_special, remove_path
 from ..record import OVERLAYS_DIR
 from .layout import RRD_NAME
 
@@ -29,6 +29,8 @@ RECORD_PARTS = (OVERLAYS_DIR, "matches.npz", RRD_NAME, "record.json")
 
 def _commit(stage: Path, out_dir: Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
+    for part in RECORD_PARTS:  # a device or a FIFO in a part's place is refused before anything moves
+        refuse_special(out_dir / part)
     for part in RECORD_PARTS:
         new, old = stage / part, out_dir / part
         if new.exists():

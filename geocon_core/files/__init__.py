@@ -3,7 +3,7 @@
 :mod:`.paths` (output folders checked before work, outputs kept apart from inputs, whole-folder
 replacement, signals held during a commit), :mod:`.lockfile` (one writer per results folder),
 :mod:`.procs` (worker processes that do not outlive their parent), :mod:`.jsonin` (strict JSON for
-sidecars and pose logs), :mod:`.npz` (the errors a damaged archive raises) and
+sidecars and pose logs), :mod:`.npz` (the errors a damaged archive raises, and what a file that is none is) and
 :mod:`.checkpoint` (the one reader of user-given network weights).
 """
 
@@ -22,6 +22,7 @@ from .lockfile import (
 )
 from .npz import (
     NPZ_ERRORS,
+    npz_problem,
 )
 from .paths import (
     PROTECTED_PARTS,
@@ -34,13 +35,17 @@ from .paths import (
     part_path,
     part_prefix,
     record_parts,
+    refuse_special,
     remove_path,
     replace_dir,
+    replace_file,
+    special_file,
 )
 from .procs import (
     PARENT_POLL_S,
     die_with_parent,
     pid_alive,
+    quiet_resource_tracker,
     reap_when_gone,
     start_reaper,
 )
@@ -48,6 +53,7 @@ from .procs import (
 __all__ = [
     "PARENT_POLL_S",
     "die_with_parent",
+    "quiet_resource_tracker",
     "pid_alive",
     "reap_when_gone",
     "start_reaper",
@@ -62,11 +68,15 @@ __all__ = [
     "part_prefix",
     "record_parts",
     "remove_path",
+    "refuse_special",
     "replace_dir",
+    "replace_file",
+    "special_file",
     "FolderLock",
     "LockHeld",
     "MAX_NUMBER_CHARS",
     "strict_json",
     "NPZ_ERRORS",
+    "npz_problem",
     "read_checkpoint_file",
 ]

@@ -37,10 +37,17 @@ def _number(text: str, where: str, kind: type) -> Any:
 
 def strict_json(text: str, where: str) -> Any:
     """Parse ``text`` (the contents of ``where``); ``ValueError`` naming ``where`` for a repeated
-    key or an absurdly long number, ``json.JSONDecodeError`` for text that is not JSON."""
-    return json.loads(
-        text,
-        object_pairs_hook=lambda pairs: _object(pairs, where),
-        parse_int=lambda s: _number(s, where, int),
-        parse_float=lambda s: _number(s, where, float),
-    )
+    key, an absurdly long number or arrays and objects nested deeper than the parser can follow,
+    ``json.JSONDecodeError`` for text that is not JSON."""
+    try:
+        return json.loads(
+            text,
+            object_pairs_hook=lambda pairs: _object(pairs, where),
+            parse_int=lambda s: _number(s, where, int),
+            parse_float=lambda s: _number(s, where, float),
+        )
+    except RecursionError:
+        raise ValueError(
+            f"{where}: arrays or objects are nested too deeply to be read (thousands of levels; no GeoCon file "
+            "nests more than a few)"
+        ) from None

@@ -3,7 +3,10 @@
 :func:`check_out_dir` says in one sentence why a folder cannot take a command's output before the
 command starts (``geocon bench --out``, ``geocon report --out``, ``geocon score --out``);
 :func:`replace_dir` builds a folder in a temporary sibling and moves it into place only when it is
-complete, so a run that fails or is killed leaves the previous folder exactly as it was.
+complete, so a run that fails or is killed leaves the previous folder exactly as it was. Nothing
+is written or renamed onto a device, a FIFO or a socket (:func:`special_file`; the null device is
+refused too): :func:`check_out_file` refuses one before any work, :func:`replace_file` and
+:func:`replace_dir` at the rename.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import os
 import secrets
 import shutil
 import signal
+import stat
 import threading
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -33,6 +37,9 @@ __all__ = [
     "part_prefix",
     "remove_path",
     "replace_dir",
+    "refuse_special",
+    "replace_file",
+    "special_file",
 ]
 
 _PSEUDO_FS = (Path("/proc"), Path("/sys"))
@@ -41,6 +48,52 @@ _PSEUDO_FS = (Path("/proc"), Path("/sys"))
 
 class OutPathError(ValueError):
     """An output folder that cannot be used (one sentence naming the option and the path)."""
+
+
+_SPECIAL_KINDS = (
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _null_rdev() -> int | None:
+    """The device numbers of the null device (read from its metadata, never opened)."""
+    try:
+        return os.stat(os.devnull).st_rdev
+    except OSError:
+        return None
+
+
+def special_file(path: Path) -> str | None:
+    """What ``path`` (or what a link there points to) is when it is neither a regular file, a
+    folder nor absent: ``"the null device"``, ``"a character device"``, ``"a block device"``,
+    ``"a FIFO (named pipe)"`` or ``"a socket"``; else None. The null device is told by its device
+    numbers, wherever its node lies."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISCHR(st.st_mode) and st.st_rdev == _null_rdev():
+        return "the null device"
+    return next((kind for test, kind in _SPECIAL_KINDS if test(st.st_mode)), None)
+
+
+def refuse_special(path: Path, option: str | None = None) -> None:
+    """Raise :class:`OutPathError` when ``path`` is a device, a FIFO or a socket: GeoCon writes
+    only regular files and replaces them by renaming, which would put a file in the device's place."""
+    kind = special_file(path)
+    if kind is None:
+        return
+    keeps = ", which keeps nothing" if kind == "the null device" else ", not a regular file"
+    if option:
+        raise OutPathError(
+            f"{option} {path} is {kind}{keeps}; GeoCon writes its outputs only to regular files: give a file name"
+        )
+    raise OutPathError(
+        f"{path} is {kind}{keeps}; GeoCon replaces only regular files: move it away or choose another path"
+    )
 
 
 def check_out_dir(path: Path, option: str = "--out") -> Path:
@@ -54,6 +107,8 @@ def check_out_dir(path: Path, option: str = "--out") -> Path:
     Permission checks use :func:`os.access`, so they say nothing for root (who may write anywhere
     but on a read-only file system)."""
     full = Path(os.path.abspath(path))
+    if not full.name:
+        raise OutPathError(f"{option} {path} is the root folder; choose a folder of its own")
     for pseudo in _PSEUDO_FS:
         if full == pseudo or pseudo in full.parents:
             raise OutPathError(f"{option} {path} is under {pseudo}, which cannot hold files; choose a folder on disk")
@@ -80,7 +135,11 @@ def check_out_dir(path: Path, option: str = "--out") -> Path:
 def check_out_file(path: Path, option: str) -> Path:
     """Check that a file can be written at ``path`` (``geocon score --rrd``): not a folder, and its
     folder can be (or is) a writable folder (:func:`check_out_dir`). Raises :class:`OutPathError`
-    with one sentence naming ``option``; returns ``path`` unchanged."""
+    with one sentence naming ``option``; returns ``path`` unchanged.
+
+    A device, a FIFO or a socket (the null device too, found by its device numbers) is refused:
+    outputs are written beside their place and renamed into it, which would replace the node."""
+    refuse_special(path, option)
     if path.is_dir():
         raise OutPathError(f"{option} {path} is a folder; give a file name (e.g. {path / 'audit.rrd'})")
     try:
@@ -135,8 +194,11 @@ def check_apart(
     ``records``: record folders an output may sit beside but never inside of (their
     :data:`PROTECTED_PARTS`). Compared by resolved path and by inode, so links and hard links are
     seen through. Raises :class:`OutPathError` with one sentence naming the option, the path and
-    the input it would destroy."""
-    for option, out in outputs:
+    the input it would destroy; two outputs that are one path are refused too."""
+    for i, (option, out) in enumerate(outputs):
+        for other, second in outputs[:i]:
+            if _same_file(out, second):
+                raise OutPathError(f"{option} {out} is also the {other} path; give each output a path of its own")
         for what, src in inputs:
             if _same_file(out, src):
                 raise OutPathError(
@@ -200,15 +262,21 @@ def short_name(name: str) -> str:
     return os.fsdecode(raw[: NAME_ROOM - 13]) + "~" + digest
 
 
+def _named(target: Path) -> Path:
+    """``target`` with a last name of its own: ``.`` and ``..`` are made absolute (the current
+    folder is built beside itself, in its parent, like any other)."""
+    return target if target.name not in ("", "..") else Path(os.path.abspath(target))
+
+
 def part_prefix(target: Path) -> str:
     """Name prefix of the temporary siblings in which ``target`` is built (``.NAME.part-``,
     followed by the writer's pid); a long NAME is shortened (:func:`short_name`)."""
-    return f".{short_name(target.name)}.part-"
+    return f".{short_name(_named(target).name)}.part-"
 
 
 def part_path(target: Path) -> Path:
     """This process's temporary sibling of ``target`` (``.NAME.part-<pid>``)."""
-    return target.with_name(f"{part_prefix(target)}{os.getpid()}")
+    return _named(target).with_name(f"{part_prefix(target)}{os.getpid()}")
 
 
 def remove_path(path: Path) -> None:
@@ -224,10 +292,22 @@ def clear_stale_parts(target: Path) -> None:
     is gone); those of running processes stay."""
     stem = part_prefix(target)
     with suppress(OSError):
-        for stale in target.parent.glob(f"{stem}*"):
+        for stale in _named(target).parent.glob(f"{stem}*"):
             pid = stale.name[len(stem) :].split("-", 1)[0]
             if pid.isdigit() and int(pid) != os.getpid() and not pid_alive(int(pid)):
                 remove_path(stale)
+
+
+def replace_file(tmp: Path, target: Path) -> None:
+    """Move the finished file ``tmp`` onto ``target`` (one rename, atomic on one file system). A
+    ``target`` that is a device, a FIFO or a socket (:func:`special_file`) is never replaced:
+    ``tmp`` is removed and :class:`OutPathError` raised."""
+    try:
+        refuse_special(target)
+    except OutPathError:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, target)
 
 
 @contextmanager
@@ -241,6 +321,8 @@ def replace_dir(target: Path) -> Iterator[Path]:
     no folder, then the new one; never a partial one."""
     if target.is_symlink():  # replace the folder the link points to, keep the link
         target = Path(os.path.realpath(target))
+    if target.exists() and not target.is_dir():  # only a folder is replaced, never a file or a device
+        raise OutPathError(f"{target} exists and is not a folder; choose a folder (it is created if missing)")
     parent = target.parent
     parent.mkdir(parents=True, exist_ok=True)
     clear_stale_parts(target)

@@ -10,12 +10,15 @@ pool's ``initializer``, makes a worker exit as soon as its parent is gone:
 - everywhere, a daemon thread that polls ``os.getppid()`` every :data:`PARENT_POLL_S` seconds and
   exits the process when the parent changed (the fallback where ``prctl`` is missing).
 
-The multiprocessing resource tracker needs nothing: it exits by itself once the last process holding
-its pipe (the parent and the workers) is gone.
+The multiprocessing resource tracker exits by itself once the last process holding its pipe (the
+parent and the workers) is gone. Killed with the workers (``pkill -f multiprocessing``), it is
+started again by :func:`quiet_resource_tracker`, silently: multiprocessing would start it again
+itself, with a warning and a traceback for every semaphore of the old pool it is told to forget.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import signal
@@ -23,8 +26,9 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 
-__all__ = ["PARENT_POLL_S", "die_with_parent", "pid_alive", "reap_when_gone", "start_reaper"]
+__all__ = ["PARENT_POLL_S", "die_with_parent", "pid_alive", "quiet_resource_tracker", "reap_when_gone", "start_reaper"]
 
 PARENT_POLL_S = 0.5
 """Seconds between two checks of the watchdog thread that the parent is still alive."""
@@ -59,6 +63,37 @@ def _watch_parent(parent_pid: int, poll_s: float) -> None:
     while os.getppid() == parent_pid:
         time.sleep(poll_s)
     os._exit(1)  # the parent is gone: nobody reads this process's results
+
+
+def quiet_resource_tracker() -> bool:
+    """Make sure multiprocessing's resource tracker runs, starting it (again, when it died) with
+    its stderr on the null device; whether a tracker that had been running was found dead. Call it
+    before a process pool starts and before it shuts down: a tracker started again by
+    multiprocessing itself prints a warning, and a traceback for each semaphore of the old pool it
+    is told to forget, on the terminal of a run that recovered. A no-op where multiprocessing has
+    no resource tracker (Windows)."""
+    try:
+        from multiprocessing import resource_tracker
+    except ImportError:
+        return False
+    tracker = resource_tracker._resource_tracker
+    was_started = getattr(tracker, "_fd", None) is not None
+    if was_started and tracker._check_alive():  # type: ignore[attr-defined]
+        return False
+    with contextlib.suppress(ValueError, OSError):
+        sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)  # the tracker inherits this descriptor as its stderr
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            tracker.ensure_running()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+    return was_started
 
 
 def pid_alive(pid: int) -> bool:

@@ -14,7 +14,10 @@ import itertools
 import math
 import os
 import re
+import shlex
 import shutil
+import stat
+import sys
 import tempfile
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -37,14 +40,20 @@ __all__ = [
     "FrameCount",
     "GifCut",
     "IMAGE_SUFFIXES",
+    "VIDEO_FILE_SUFFIXES",
     "SHORTFALL_EXACT",
     "SHORTFALL_ESTIMATED",
     "container_frame_count",
+    "frame_number_gaps",
     "timing_note",
+    "video_tracks",
     "gif_cut",
     "image_frames",
     "imread_any",
     "imwrite_any",
+    "is_rerun_recording",
+    "rerun_command",
+    "rerun_refusal",
     "native_path",
     "native_safe",
     "open_video",
@@ -119,6 +128,12 @@ SHORTFALL_ESTIMATED = 1 / 3
 """Share of a duration-based estimate (a container without a frame count: webm, mkv) that may fail
 to decode without a warning: the estimate is duration x average frame rate, which a variable
 frame rate overstates (a VFR mkv estimated at 32 frames holds 24). Warning-only."""
+VIDEO_FILE_SUFFIXES: frozenset[str] = frozenset(
+    {".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv", ".m4v", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts"}
+)
+"""Suffixes of video files: a folder holding these rather than frames is a dataset for ``geocon bench``."""
+_RRD_MAGIC = (b"RRF0", b"RRF1", b"RRF2")
+"""How a Rerun recording (``.rrd``) starts."""
 _VIDEO_MAGIC = (b"GIF87a", b"GIF89a", b"RIFF", b"\x1aE\xdf\xa3", b"OggS", b"FLV")
 _MP4_BOXES = (b"ftyp", b"moov", b"mdat", b"free", b"wide", b"skip", b"pnot")
 
@@ -164,16 +179,22 @@ def resolve_clip(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
     if not path.exists():
         raise ClipError(f"{name}: no such file")
     if path.is_dir():
-        files = sorted(
-            (p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()), key=_natural_key
-        )
+        files = _frame_files(path, name)
         if not files:
+            videos = _videos_in(path)
+            if videos:
+                raise ClipError(
+                    f"{name}: folder holds no PNG or JPEG frames but {videos} video file{'s' if videos > 1 else ''}: "
+                    f"score them all with `geocon bench {shlex.quote(name)}`, or one with `geocon score FILE`"
+                )
             raise ClipError(f"{name}: folder holds no PNG or JPEG frames")
         if len(files) == 1:
             raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
         return "images", files
     if not path.is_file():
         raise ClipError(f"{name}: not a regular file")
+    if is_rerun_recording(path):
+        raise ClipError(rerun_refusal(name))
     if path.suffix.lower() in ANIMATED_SUFFIXES and _animated_frames(path) >= 2:
         return "video", None  # an animated PNG or WebP: decoded by Pillow (open_video)
     if path.suffix.lower() in IMAGE_SUFFIXES:
@@ -187,6 +208,123 @@ def resolve_clip(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
         raise ClipError(f"{name}: cannot be read ({err.strerror or err})") from None
     kind: ClipKind = "gif" if path.suffix.lower() == ".gif" or head.startswith(b"GIF8") else "video"
     return kind, None
+
+
+def _frame_files(folder: Path, name: str) -> list[Path]:
+    """The frames of the image folder ``folder`` (given as ``name``): its entries with an image
+    suffix, in natural order. An entry with an image suffix that is not a regular file (a folder,
+    a device, a FIFO, a socket, a link to one of them or to nothing) raises :class:`ClipError`:
+    read, a device never ends and a FIFO blocks; left out, it would silently join its neighbours."""
+    files: list[Path] = []
+    odd: list[Path] = []
+    for p in folder.iterdir():
+        if p.suffix.lower() in IMAGE_SUFFIXES:
+            (files if p.is_file() else odd).append(p)
+    if odd:
+        bad = min(odd, key=_natural_key)
+        raise ClipError(
+            f"{bad}: is {_entry_kind(bad)}, not an image file, among the frames of {name}; a folder of frames must "
+            "hold image files only, so move it out"
+        )
+    return sorted(files, key=_natural_key)
+
+
+def _entry_kind(path: Path) -> str:
+    """What a folder entry that is not a regular file is, in words (``a link to a device``)."""
+    link = "a link to " if path.is_symlink() else ""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return "a link to nothing (or a loop of links)" if link else "unreadable"
+    if stat.S_ISDIR(mode):
+        return link + "a folder"
+    if stat.S_ISFIFO(mode):
+        return link + "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return link + "a device"
+    return link + ("a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+
+
+MAX_GAPS_NAMED = 8
+"""Gaps in a frame folder's numbering named one by one; more are counted."""
+
+
+def frame_number_gaps(files: Sequence[Path] | None, name: str) -> tuple[str, ...]:
+    """The warning, if any, that the frames of an image folder (``files``, in natural order; None
+    for a video) skip numbers: frames either side of a gap are scored as neighbours, one frame
+    apart. The number is a name's last run of digits; the folder is judged only when every name
+    has one, around the same text, and no number repeats. The step is the largest that fits every
+    number (frames exported every other one, ``0, 2, 4``, have no gap)."""
+    if not files or len(files) < 2:
+        return ()
+    shape, numbers = set(), []
+    for f in files:
+        m = re.fullmatch(r"(.*?)(\d+)(\D*)", f.stem)
+        if m is None:
+            return ()
+        shape.add((m[1].lower(), m[3].lower(), f.suffix.lower()))
+        numbers.append(int(m[2]))
+    if len(shape) > 1 or len(set(numbers)) < len(numbers):
+        return ()
+    numbers.sort()
+    step = math.gcd(*(b - a for a, b in itertools.pairwise(numbers)))
+    gaps = [(a + step, b - step) for a, b in itertools.pairwise(numbers) if b - a > step]
+    if not gaps:
+        return ()
+    spans = [str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in gaps[:MAX_GAPS_NAMED]]
+    missing = sum((hi - lo) // step + 1 for lo, hi in gaps)
+    more = f" and {len(gaps) - MAX_GAPS_NAMED} more gaps ({missing} in all)" if len(gaps) > MAX_GAPS_NAMED else ""
+    by = f" (numbered in steps of {step})" if step > 1 else ""
+    return (
+        f"frame number{'s' if missing > 1 else ''} {', '.join(spans)}{more} {'are' if missing > 1 else 'is'} missing "
+        f"from {name}{by}: the frames either side of a gap are scored as neighbours, one frame apart",
+    )
+
+
+def _videos_in(folder: Path, limit: int = 10_000) -> int:
+    """Video files (:data:`VIDEO_FILE_SUFFIXES`) in ``folder`` and its sub-folders one level down
+    (a dataset's platform folders), counting at most ``limit`` entries."""
+    found = 0
+    try:
+        entries = list(itertools.islice(folder.iterdir(), limit))
+        for entry in entries:
+            if entry.is_dir():
+                inner = itertools.islice(entry.iterdir(), limit)
+                found += sum(p.suffix.lower() in VIDEO_FILE_SUFFIXES and p.is_file() for p in inner)
+            elif entry.suffix.lower() in VIDEO_FILE_SUFFIXES and entry.is_file():
+                found += 1
+    except OSError:
+        return found
+    return found
+
+
+def is_rerun_recording(path: Path) -> bool:
+    """Whether the file at ``path`` is a Rerun recording (``.rrd`` suffix or its magic bytes)."""
+    if path.suffix.lower() == ".rrd":
+        return True
+    try:
+        with path.open("rb") as fh:
+            return fh.read(4) in _RRD_MAGIC
+    except OSError:
+        return False
+
+
+def rerun_refusal(name: str) -> str:
+    """The sentence for a Rerun recording given where a clip or a record is expected: what it is,
+    and the command that opens it."""
+    return f"{name} is a Rerun recording, not a clip or a record: open it with `{rerun_command()} {shlex.quote(name)}`"
+
+
+def rerun_command() -> str:
+    """How to start the Rerun viewer from here: ``rerun`` when it is on the PATH, else the one
+    installed beside this Python (a virtual environment that is not activated)."""
+    if shutil.which("rerun"):
+        return "rerun"
+    beside = Path(sys.executable).parent / "rerun"
+    if beside.is_file():
+        rel = os.path.relpath(beside)
+        return shlex.quote(rel if not rel.startswith("..") else str(beside))
+    return "rerun"
 
 
 def _natural_key(path: Path) -> tuple[list[tuple[int, int | str]], str]:
@@ -273,11 +411,14 @@ def open_video(name: str) -> tuple[float, "Frames"]:
 
 @dataclass(frozen=True)
 class _Peek:
-    """What PyAV sees of a video's first frame: whether it decodes, is interlaced, the frame rate."""
+    """What PyAV sees of a video's first frame: whether it decodes, is interlaced, the frame rate;
+    and the (w, h) of each of the file's video tracks (cover pictures left out), the first being
+    the one decoded."""
 
     decodes: bool
     interlaced: bool
     fps: float | None
+    tracks: tuple[tuple[int, int], ...] = ()
 
 
 def _pyav_peek(name: str) -> _Peek | None:
@@ -301,11 +442,29 @@ def _pyav_peek_file(name: str, _size: int, _mtime_ns: int) -> _Peek | None:
             stream = container.streams.video[0]
             rate = stream.average_rate or stream.guessed_rate
             fps = float(rate) if rate else None
+            cover = av.stream.Disposition.attached_pic
+            tracks = tuple(
+                _track_size(s) for s in container.streams.video if s.index == stream.index or not s.disposition & cover
+            )
             for frame in container.decode(stream):
-                return _Peek(True, bool(getattr(frame, "interlaced_frame", False)), fps)
-            return _Peek(False, False, fps)
+                return _Peek(True, bool(getattr(frame, "interlaced_frame", False)), fps, tracks)
+            return _Peek(False, False, fps, tracks)
     except (av.FFmpegError, OSError, ValueError, UnicodeError):
         return None
+
+
+def _track_size(stream: Any) -> tuple[int, int]:
+    """(w, h) of a video stream as its header states it; (0, 0) for a codec PyAV does not know."""
+    context = getattr(stream, "codec_context", None)
+    return (int(context.width or 0), int(context.height or 0)) if context is not None else (0, 0)
+
+
+def video_tracks(name: str) -> tuple[tuple[int, int], ...]:
+    """The (w, h) of each video track of the file ``name``, in the file's order (cover pictures
+    left out); the first is the one :func:`open_video` decodes (as OpenCV and PyAV both do). Empty
+    when PyAV cannot open the file."""
+    peek = _pyav_peek(name)
+    return () if peek is None else peek.tracks
 
 
 class _LibraryFrames(Iterator[np.ndarray]):
@@ -555,14 +714,46 @@ def container_frame_count(name: str) -> FrameCount | None:
             own = duration is not None and time_base is not None  # the stream's own duration
             if duration is not None and time_base is not None:  # (spelt out: mypy narrows on it)
                 seconds = float(duration * time_base)
-            else:  # the container's (Matroska stores no per-stream duration)
-                seconds = container.duration / 1e6 if container.duration else 0.0
+            else:  # Matroska stores no per-stream duration: its track tag, else the container's
+                seconds = _track_seconds(container, stream)
     except (av.error.FFmpegError, OSError, ValueError, ZeroDivisionError):
         return None
     by_duration = round(seconds * float(rate)) if rate and seconds > 0 and math.isfinite(seconds) else 0
     if index > 0:
         return FrameCount(min(index, by_duration) if own and by_duration > 0 else index, exact=True)
     return FrameCount(by_duration, exact=False) if by_duration > 0 else None
+
+
+def _hms(text: str) -> float | None:
+    """Seconds of a ``HH:MM:SS.fraction`` duration tag (Matroska's per-track ``DURATION``)."""
+    match = re.fullmatch(r"\s*(\d+):(\d{1,2}):(\d{1,2}(?:\.\d*)?)\s*", text)
+    if match is None:
+        return None
+    h, m, sec = match.groups()
+    return int(h) * 3600 + int(m) * 60 + float(sec)
+
+
+def _track_seconds(container: Any, stream: Any) -> float:
+    """How long the video ``stream`` lasts when the container stores no duration per stream
+    (Matroska, WebM), 0 when unknown: the track's ``DURATION`` tag, else the container's duration
+    when the video is its only stream. The container's duration spans every track (a longer audio
+    track, a second video track), so it says nothing about this one's frames when there are
+    others. Both may be counted from time 0 rather than from the track's first frame (FFmpeg's
+    Matroska muxer writes the end time), so a duration longer than the start time is taken as the
+    end time and the start is subtracted: a clip whose timestamps start late (at 10^6 s) is not
+    taken for a clip that long."""
+    start = 0.0
+    if stream.start_time is not None and stream.time_base is not None:
+        start = max(0.0, float(stream.start_time * stream.time_base))
+    tag = next((v for k, v in stream.metadata.items() if k.upper() == "DURATION"), None)
+    seconds = _hms(tag) if isinstance(tag, str) else None
+    if seconds is None:
+        if len(container.streams) != 1 or not container.duration:
+            return 0.0
+        seconds = container.duration / 1e6
+        if container.start_time:
+            start = max(start, container.start_time / 1e6)
+    return seconds - start if start and seconds > start else seconds
 
 
 def gif_cut(path: Path) -> GifCut | None:

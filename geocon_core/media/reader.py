@@ -59,11 +59,13 @@ from .decode import (
     FrameCount,
     Frames,
     container_frame_count,
+    frame_number_gaps,
     gif_cut,
     image_frames,
     open_video,
     resolve_clip,
     timing_note,
+    video_tracks,
 )
 
 SkipReason = Literal["duplicate_frame", "hard_cut", "fade"]
@@ -348,7 +350,9 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         fades=fades,
         warnings=_damage_warnings(Path(path), kind, n, None if video is None else video.error, promise)
         + _decoder_note(video)
-        + _timing_notes(name, kind, fps, video),
+        + _track_notes(name, kind, video)
+        + _timing_notes(name, kind, fps, video)
+        + frame_number_gaps(files, name),
     )
 
 
@@ -438,6 +442,22 @@ def _timing_notes(name: str, kind: ClipKind, fps: float, video: Frames | None) -
         return ()
     note = timing_note(name, fps)
     return () if note is None else (note,)
+
+
+def _track_notes(name: str, kind: ClipKind, video: Frames | None) -> tuple[str, ...]:
+    """Which video track was scored, when the file holds more than one (the first, always)."""
+    if kind != "video" or video is None or getattr(video, "decoder", "") == "pillow":
+        return ()
+    tracks = video_tracks(name)
+    if len(tracks) < 2:
+        return ()
+    sizes = ", ".join(f"{w}x{h}" for w, h in tracks)
+    w, h = tracks[0]
+    return (
+        f"the file holds {len(tracks)} video tracks ({sizes}): scored video track 1 of {len(tracks)} (the "
+        f"first, {w}x{h}) and ignored the others; to score another, copy it into a file of its own first "
+        "(ffmpeg's -map option)",
+    )
 
 
 def _damage_warnings(

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..files import NPZ_ERRORS, part_path
+from ..files import NPZ_ERRORS, npz_problem, part_path, replace_file
 from .log import POSE_LOG_FORMAT, PoseLog
 
 __all__ = ["from_colmap", "from_dust3r", "write_pose_log", "rotation_from_quaternion"]
@@ -145,16 +145,29 @@ def from_dust3r(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"{p} does not exist (an .npz with DUSt3R's poses and pts3d)")
+    problem = npz_problem(p)
+    if problem is not None:
+        raise ValueError(
+            f"{p} cannot be read as an .npz file ({problem}): a pose log is made from a DUSt3R scene saved as .npz "
+            "(poses and pts3d) or a COLMAP text model folder"
+        )
+    name = None
     try:
         with np.load(p, allow_pickle=False) as z:
             missing = [k for k in ("poses", "pts3d") if k not in z.files]
             if missing:
                 raise ValueError(f"{p}: lacks {', '.join(missing)} (found {', '.join(z.files) or 'nothing'})")
-            poses, pts = np.asarray(z["poses"], float), np.asarray(z["pts3d"], float)
+            name = "poses"
+            poses = np.asarray(z["poses"], float)
+            name = "pts3d"
+            pts = np.asarray(z["pts3d"], float)
+            name = "mask"
             mask = np.asarray(z["mask"], bool) if "mask" in z.files else None
     except ValueError as exc:
         if str(exc).startswith(str(p)):
             raise
+        if name is not None and "allow_pickle" in str(exc):
+            raise ValueError(f"{p}: {name!r} holds pickled Python objects, which GeoCon never loads") from None
         raise ValueError(f"{p} cannot be read as an .npz file ({exc})") from None
     except NPZ_ERRORS as exc:
         raise ValueError(f"{p} cannot be read as an .npz file ({type(exc).__name__}: {exc})") from None
@@ -180,14 +193,18 @@ def from_dust3r(path: str | Path) -> dict[str, Any]:
 
 def write_pose_log(log: dict[str, Any], out: str | Path) -> Path:
     """Write ``log`` as JSON to ``out`` once :class:`~geocon_core.pose.log.PoseLog` accepts it
-    (a rotation, a plausible translation): written beside ``out`` and renamed into place."""
+    (a rotation, a plausible translation): written beside ``out`` and renamed into place (never
+    onto a device, :func:`~geocon_core.files.replace_file`); a failed write leaves no partial file."""
     out = Path(out)
     tmp = part_path(out)
-    tmp.write_text(json.dumps(log, indent=1) + "\n", encoding="utf-8")
     try:
+        tmp.write_text(json.dumps(log, indent=1) + "\n", encoding="utf-8")
         PoseLog(tmp)
     except ValueError as exc:
         tmp.unlink(missing_ok=True)
         raise ValueError(str(exc).replace(str(tmp), str(out))) from None
-    tmp.replace(out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    replace_file(tmp, out)
     return out

@@ -16,6 +16,7 @@ from .clip import (
     read_matches,
     read_record,
     read_record_json,
+    record_id,
     write_record,
 )
 from .finding import (
@@ -95,6 +96,7 @@ __all__ = [
     "read_matches",
     "read_record",
     "read_record_json",
+    "record_id",
     "write_record",
     "FlowSlice",
     "FrameDiagnostics",

@@ -13,13 +13,14 @@ recompute scores.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
 import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -61,6 +62,8 @@ __all__ = [
     "read_record",
     "read_record_json",
     "read_matches",
+    "record_id",
+    "RECORD_ID_ARRAY",
 ]
 
 RECORD_FORMAT = "geocon-record/1"
@@ -118,6 +121,7 @@ class ClipRecord:
     dynamic_share: per frame, the share (0..1) of the content the motion segmentation found
         moving incoherently outside the objects (water, fire, smoke, foliage); empty when the
         mask source does not measure it.
+    record_id: see the attribute.
     """
 
     clip: str
@@ -143,6 +147,10 @@ class ClipRecord:
     shots: tuple[ShotRecord, ...] = ()
     dynamic_share: tuple[float, ...] = ()
     multiview: MultiViewResult | None = None
+    record_id: str | None = None
+    """The id that ties ``record.json`` to its ``matches.npz`` and ``overlays/index.json``
+    (:func:`record_id`), as read from ``record.json``; None for a record not yet written, or
+    written before records had ids."""
 
     def finding(self) -> ClipFinding:
         """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.record.finding`)."""
@@ -301,11 +309,8 @@ def _dumps(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=False, allow_nan=False) + "\n"
 
 
-def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
-    """Write ``record.json`` and ``matches.npz`` into ``out_dir`` (created), each atomically."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
+def _arrays(record: ClipRecord) -> dict[str, np.ndarray]:
+    """The arrays of ``matches.npz`` (without the record's id), by name, in the order written."""
     arrays = {name: getattr(record.matches, name) for name in MatchArrays.NAMES}
     if record.matches.any_independent:
         arrays.update({name: getattr(record.matches, name) for name in MatchArrays.OPTIONAL})
@@ -319,6 +324,37 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
         arrays.update(_dense_arrays(record.dense))
     if record.multiview is not None:
         arrays.update(record.multiview.arrays())
+    return arrays
+
+
+RECORD_ID_ARRAY = "record_id"
+"""The array of ``matches.npz`` that holds the record's id (one unicode string)."""
+
+
+def record_id(record: ClipRecord) -> str:
+    """The id of a record: 16 hex digits of a SHA-256 over its clip (name and fingerprint), its
+    configuration hash, its frame count and every array of its ``matches.npz``. The same scores
+    give the same id (records stay byte-stable); another record's parts give another.
+    :func:`write_record` stores it in ``record.json`` and ``matches.npz``, and the overlays writer
+    in ``overlays/index.json``, so that a part copied from another record is refused on reading."""
+    h = hashlib.sha256()
+    for text in (record.clip, record.video.fingerprint or "", record.config_hash, str(record.video.num_frames)):
+        h.update(text.encode("utf-8", "surrogateescape") + b"\0")
+    for name, value in _arrays(record).items():
+        arr = np.ascontiguousarray(value)
+        h.update(f"{name}:{arr.dtype.str}:{arr.shape}".encode() + b"\0")
+        h.update(arr.data)
+    return h.hexdigest()[:16]
+
+
+def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
+    """Write ``record.json`` and ``matches.npz`` into ``out_dir`` (created), each atomically, both
+    holding the record's id (:func:`record_id`)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    rid = record_id(record)
+    arrays = {**_arrays(record), RECORD_ID_ARRAY: np.array([rid])}
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -327,6 +363,7 @@ def write_record(record: ClipRecord, out_dir: str | Path) -> Path:
             np.lib.format.write_array(arr, np.ascontiguousarray(value), allow_pickle=False)
             zf.writestr(info, arr.getvalue())
     doc = record.to_json_dict()
+    doc = {"format": doc.pop("format"), "record_id": rid, **doc}
     if record.video.abs_path is not None:  # where the clip lies seen from the record: found again when both move
         doc["video"]["from_record"] = os.path.relpath(record.video.abs_path, os.path.abspath(out.parent))
     for name, data in (("matches.npz", buf.getvalue()), ("record.json", _dumps(doc).encode())):
@@ -489,9 +526,19 @@ def read_record(path: str | Path) -> ClipRecord:
     z = read_matches(
         folder,
         MatchArrays.NAMES,
-        (*MatchArrays.OPTIONAL, *cells_names, "cloud_xyz", "cloud_rgb", *dense_names, *pointmaps_names, *MV_ARRAYS),
+        (
+            *MatchArrays.OPTIONAL,
+            *cells_names,
+            "cloud_xyz",
+            "cloud_rgb",
+            *dense_names,
+            *pointmaps_names,
+            *MV_ARRAYS,
+            RECORD_ID_ARRAY,
+        ),
     )
     try:
+        _check_counts(d, z, folder / "record.json")
         return _record_from(d, z)
     except RecordError:
         raise
@@ -499,6 +546,86 @@ def read_record(path: str | Path) -> ClipRecord:
         raise RecordError(
             f"{folder / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc}): {_CORRUPT}"
         ) from None
+
+
+def _check_same_record(d: dict[str, Any], z: dict[str, np.ndarray], folder: Path) -> None:
+    """``matches.npz`` holds the id ``record.json`` names (both none: a record written before ids)."""
+    want = d.get("record_id")
+    got = None
+    if RECORD_ID_ARRAY in z:
+        stored = z[RECORD_ID_ARRAY]
+        got = str(stored.reshape(-1)[0]) if stored.dtype.kind == "U" and stored.size == 1 else repr(stored)
+    if want != got:
+        raise RecordError(
+            f"{folder / 'matches.npz'} belongs to another record (its record id is {got or 'missing'}, "
+            f"{folder / 'record.json'} names {want or 'none'}): copy a record folder whole, or score the clip again"
+        )
+
+
+MAX_WORKING_SIDE = 16384
+"""The largest side of a working canvas a record may name (px): a larger one is not a record GeoCon
+wrote (its canvas is never larger than the configured working size), and would be allocated."""
+
+
+def _check_counts(d: dict[str, Any], z: dict[str, np.ndarray], file: Path) -> None:
+    """The counts and sizes of a record that the readers and viewers allocate by (the frame count,
+    the canvas, the row offsets of ``matches.npz``) agree with what the record holds: its pairs,
+    its per-frame lists and, once ``matches.npz`` is known to be this record's
+    (:func:`_check_same_record`), its arrays; a :class:`RecordError` naming the field and the file
+    otherwise (an edited or damaged record), before anything is allocated."""
+
+    def refuse(what: str) -> RecordError:  # one sentence naming the file and the field
+        return RecordError(f"{file}: {what}: the record was edited or damaged; score the clip again")
+
+    video, pairs = d["video"], d["pairs"]
+    n = video["num_frames"]
+    if not isinstance(n, int) or isinstance(n, bool) or n < 2:
+        raise refuse(f"video.num_frames is {n!r}, not a frame count")
+    gaps = [int(g) for g in d["config"]["gaps"]]
+    t1s = [int(p["t1"]) for p in pairs]
+    if pairs and n != max(t1s) + 1:
+        raise refuse(f"video.num_frames is {n} but its pairs end at frame {max(t1s)} ({max(t1s) + 1} frames)")
+    if not pairs and gaps and n > min(gaps):
+        raise refuse(f"video.num_frames is {n} but it holds no frame pair (a clip of {n} frames has some)")
+    for p in pairs:
+        if not (0 <= int(p["t0"]) < int(p["t1"]) < n) or not 0 <= int(p["index"]) < len(pairs):
+            raise refuse(f"pair {p['index']} ({p['t0']}, {p['t1']}) lies outside its {n} frames or {len(pairs)} pairs")
+    for name in ("masked_share", "dynamic_share"):
+        values = d.get(name) or []
+        if len(values) not in (0, n):
+            raise refuse(f"{name} has {len(values)} values for video.num_frames {n}")
+    for e in d.get("object_entries", []):
+        if not 0 <= int(e["t0"]) < int(e["t1"]) < n:
+            raise refuse(f"an object entry on frames ({e['t0']}, {e['t1']}) lies outside its {n} frames")
+    cfg_w, cfg_h = (int(v) for v in d["config"]["working_size"])
+    w, h = (int(v) for v in video["working_size"])
+    if not (0 < w <= min(cfg_w, MAX_WORKING_SIDE) and 0 < h <= min(cfg_h, MAX_WORKING_SIDE)):
+        raise refuse(f"video.working_size {w}x{h} is larger than the configured {cfg_w}x{cfg_h} or empty")
+    _check_same_record(d, z, file.parent)  # before the arrays are measured against this record's counts
+    _check_offsets(z, "offsets", "x1", len(pairs), file, refuse)
+    if "cells_offsets" in z:
+        _check_offsets(z, "cells_offsets", "cells_weights", len(d.get("object_entries", [])), file, refuse)
+
+
+def _check_offsets(
+    z: dict[str, np.ndarray], name: str, rows: str, count: int, file: Path, refuse: Callable[[str], RecordError]
+) -> None:
+    """``z[name]`` holds the ``count + 1`` row offsets of ``count`` entries into ``z[rows]``: from 0,
+    rising, ending at its length."""
+    offsets = z[name]
+    total = len(z[rows]) if rows in z else 0
+    if (
+        offsets.ndim != 1
+        or offsets.dtype.kind not in "iu"
+        or len(offsets) != count + 1
+        or offsets[0] != 0
+        or np.any(np.diff(offsets) < 0)
+        or offsets[-1] != total
+    ):
+        raise refuse(
+            f"the {len(offsets)} {name} of {file.parent / 'matches.npz'} do not fit its {count} entries and "
+            f"{total} rows of {rows}"
+        )
 
 
 def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
@@ -550,4 +677,5 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         shots=tuple(ShotRecord(**s) for s in d.get("shots", [])),
         dynamic_share=tuple(float(v) for v in d.get("dynamic_share", [])),
         multiview=None if d.get("multiview") is None else MultiViewResult.from_parts(d["multiview"], z),
+        record_id=d.get("record_id"),
     )

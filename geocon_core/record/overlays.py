@@ -15,7 +15,9 @@ the numbers themselves live in the :class:`~geocon_core.record.ClipRecord`.
   (N, N + ``object_gap``), inside its box (RGBA: hue = direction, brightness = magnitude up to
   ``max_magnitude``, alpha = reliable object pixels);
 - ``index.json``: format ``geocon-overlays/1``; per frame the masked share, the labels file and
-  the flow slices with their boxes (x0, y0, x1, y1, working pixels, half-open).
+  the flow slices with their boxes (x0, y0, x1, y1, working pixels, half-open); and the
+  ``record_id`` of the record they belong to (absent from overlays written before records had
+  ids).
 
 Frames themselves are not copied: they are decoded again from the clip.
 """
@@ -25,12 +27,15 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
 from ..media import Frame, imread_any, imwrite_any
+
+if TYPE_CHECKING:
+    from .clip import ClipRecord
 
 __all__ = [
     "ObjectFlow",
@@ -180,11 +185,17 @@ class OverlayWriter:
             flows.append(OverlayFlow(of.object_id, of.t0, of.t1, of.box, name, vmax))
         self.frames[fd.index] = OverlayFrame(float(fd.masked_share), labels, tuple(flows))
 
-    def close(self) -> Path:
+    def close(self, record_id: str | None = None) -> Path:
+        """Write ``index.json``, naming the record the overlays belong to
+        (:func:`~geocon_core.record.clip.record_id`)."""
         path = self.dir / "index.json"
         tmp = self.dir / ".index.json.part"
         frames = {str(t): entry.to_json_dict() for t, entry in self.frames.items()}
-        tmp.write_text(json.dumps({"format": OVERLAYS_FORMAT, "frames": frames}, indent=1) + "\n")
+        doc: dict[str, Any] = {"format": OVERLAYS_FORMAT}
+        if record_id is not None:
+            doc["record_id"] = record_id
+        doc["frames"] = frames
+        tmp.write_text(json.dumps(doc, indent=1) + "\n")
         tmp.replace(path)
         return path
 
@@ -207,10 +218,13 @@ class FlowSlice:
 
 
 class Overlays:
-    """Read access to a record's ``overlays/`` folder (files are loaded on demand)."""
+    """Read access to a record's ``overlays/`` folder (files are loaded on demand). ``size``: the
+    record's working (W, H); when given, a PNG whose header states another size than its entry's
+    is refused before it is decoded."""
 
-    def __init__(self, folder: Path, index: dict[str, Any]) -> None:
+    def __init__(self, folder: Path, index: dict[str, Any], size: tuple[int, int] | None = None) -> None:
         self.folder = folder
+        self.size = size
         self.entries: dict[int, OverlayFrame] = {
             int(t): OverlayFrame.from_json_dict(e) for t, e in index["frames"].items()
         }
@@ -228,6 +242,7 @@ class Overlays:
         e = self.entries.get(t)
         if e is None or e.labels is None:
             return None
+        self._check_size(self.folder / e.labels, self.size)
         labels = imread_any(self.folder / e.labels, cv2.IMREAD_UNCHANGED)
         if labels is None:
             raise _missing(self.folder / e.labels)
@@ -237,12 +252,33 @@ class Overlays:
         e = self.entries.get(t)
         out = []
         for f in () if e is None else e.flows:
+            x0, y0, x1, y1 = f.box
+            self._check_size(self.folder / f.file, None if self.size is None else (x1 - x0, y1 - y0))
             bgra = imread_any(self.folder / f.file, cv2.IMREAD_UNCHANGED)
             if bgra is None or bgra.ndim != 3 or bgra.shape[2] != 4:
                 raise _missing(self.folder / f.file)
             img = cv2.cvtColor(bgra, cv2.COLOR_BGRA2RGBA)
             out.append(FlowSlice(f.object_id, f.t0, f.t1, f.box, f.max_magnitude, img))
         return out
+
+    @staticmethod
+    def _check_size(path: Path, size: tuple[int, int] | None) -> None:
+        """A PNG whose header states another (w, h) than ``size`` is refused unread (its pixels
+        would be allocated at the stated size)."""
+        if size is None:
+            return
+        try:
+            with open(path, "rb") as f:
+                head = f.read(24)
+        except OSError:
+            return  # the reading that follows says it is missing
+        if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+            stated = (int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big"))
+            if stated != size:
+                raise ValueError(
+                    f"{path}: an overlay of {stated[0]}x{stated[1]} px where the record's is {size[0]}x{size[1]}; "
+                    "score the clip again"
+                )
 
 
 def _missing(path: Path) -> ValueError:
@@ -253,9 +289,11 @@ MAX_INDEX_BYTES = 64 << 20
 """An overlays index larger than this is refused unread (a long clip's index is a few MB)."""
 
 
-def read_overlays(record_dir: str | Path) -> Overlays | None:
+def read_overlays(record_dir: str | Path, record: ClipRecord | None = None) -> Overlays | None:
     """The overlays stored beside a record, or None when the record has none; ``ValueError``
-    naming the file when the index is unreadable or not GeoCon's."""
+    naming the file when the index is unreadable or not GeoCon's. With the ``record`` read from
+    the same folder, the overlays must be that record's: the same ``record_id`` (both none for a
+    record written before ids), frames and boxes inside its frames and canvas."""
     folder = Path(record_dir)
     folder = (folder if folder.is_dir() else folder.parent) / OVERLAYS_DIR
     index = folder / "index.json"
@@ -268,6 +306,32 @@ def read_overlays(record_dir: str | Path) -> Overlays | None:
         if not isinstance(d, dict) or d.get("format") != OVERLAYS_FORMAT:
             fmt = d.get("format") if isinstance(d, dict) else None
             raise ValueError(f"{index}: not GeoCon overlays (format {fmt!r}, expected {OVERLAYS_FORMAT!r})")
-        return Overlays(folder, d)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
+        if record is None:
+            return Overlays(folder, d)
+        if d.get("record_id") != record.record_id:
+            raise ValueError(
+                f"{index}: the overlays of another record (record id {d.get('record_id') or 'missing'}, the record's "
+                f"is {record.record_id or 'none'}): copy a record folder whole, or score the clip again"
+            )
+        overlays = Overlays(folder, d, record.video.working_size)
+        _check_within(overlays, record, index)
+        return overlays
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:  # JSON and Unicode errors too
+        if isinstance(exc, ValueError) and str(exc).startswith(str(index)):
+            raise
         raise ValueError(f"{index}: cannot be read as GeoCon overlays ({type(exc).__name__}: {exc})") from None
+
+
+def _check_within(overlays: Overlays, record: ClipRecord, index: Path) -> None:
+    """Every frame and flow box of ``overlays`` lies inside the record's frames and canvas."""
+    n, (W, H) = record.video.num_frames, record.video.working_size
+    for t, entry in overlays.entries.items():
+        if not 0 <= t < n:
+            raise ValueError(f"{index}: an overlay of frame {t}, outside the record's {n} frames; score the clip again")
+        for f in entry.flows:
+            x0, y0, x1, y1 = f.box
+            if not (0 <= f.t0 < f.t1 < n and 0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H):
+                raise ValueError(
+                    f"{index}: a flow overlay on frames ({f.t0}, {f.t1}) in box {list(f.box)}, outside the record's "
+                    f"{n} frames or {W}x{H} canvas; score the clip again"
+                )

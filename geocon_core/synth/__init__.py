@@ -11,7 +11,7 @@ from .families import FAMILIES, Family, build_scene, family_info
 from .render import RenderedFrame, render_frame
 from .scene import ObjectTrack, Scene, SurfaceView, TexturedPlane, pose_from_center
 from .truth import FailureTruth, GroundTruth, ObjectTruth, load_ground_truth
-from .writer import DEFAULT_FAILURE_VARIANTS, ClipPlan, mean_scene_distance, plan_clips, write_clip
+from .writer import DEFAULT_FAILURE_VARIANTS, MAX_NOISE, ClipPlan, mean_scene_distance, plan_clips, write_clip
 
 __all__ = [
     "FAILURES",
@@ -33,6 +33,7 @@ __all__ = [
     "ObjectTruth",
     "load_ground_truth",
     "DEFAULT_FAILURE_VARIANTS",
+    "MAX_NOISE",
     "ClipPlan",
     "mean_scene_distance",
     "plan_clips",

@@ -60,6 +60,8 @@ def plan_benchmark(
         raise ValueError(f"unknown platform(s) {', '.join(unknown)}; valid: {', '.join(PLATFORMS)}")
     if scenes < 1:
         raise ValueError(f"scenes must be at least 1, got {scenes}")
+    _refuse_repeats("--families", families, lambda f: family_info(f).code)
+    _refuse_repeats("platforms", platforms, str)
     clips = []
     for platform in platforms:
         for family in families:
@@ -73,6 +75,18 @@ def plan_benchmark(
                     plan = ClipPlan(code)
                 clips.append(BenchClip(platform, plan, first_seed + k))
     return clips
+
+
+def _refuse_repeats(what: str, names: Sequence[str], key: Callable[[str], str]) -> None:
+    """A ``ValueError`` naming the first entry of ``names`` that repeats an earlier one (the same
+    ``key``): it would render the same clips into the same files twice, and count them twice."""
+    seen: dict[str, str] = {}
+    for name in names:
+        k = key(name)
+        if k in seen:
+            same = f" ({seen[k]!r} and {name!r} are the same)" if seen[k] != name else ""
+            raise ValueError(f"{what} lists {k} twice{same}; give each once")
+        seen[k] = name
 
 
 def write_benchmark(

@@ -34,7 +34,18 @@ from .render import render_frame
 from .scene import Scene
 from .truth import FailureTruth, GroundTruth, ObjectTruth
 
-__all__ = ["ClipPlan", "Codec", "DEFAULT_FAILURE_VARIANTS", "plan_clips", "write_clip", "mean_scene_distance"]
+__all__ = [
+    "ClipPlan",
+    "Codec",
+    "DEFAULT_FAILURE_VARIANTS",
+    "MAX_NOISE",
+    "plan_clips",
+    "write_clip",
+    "mean_scene_distance",
+]
+
+MAX_NOISE = 255.0
+"""The largest sensor noise (standard deviation, grey levels) a clip takes: beyond it every pixel saturates."""
 
 Codec = Literal["h264", "png"]
 """How :func:`write_clip` stores the frames: H.264 MP4, or a folder of lossless PNG frames."""
@@ -130,8 +141,8 @@ def write_clip(
     two frames are bit-identical (as with any real camera or generator). ``on_frame(t)`` is
     called after each frame (progress reporting). ``codec`` and ``crf`` (H.264 quality, 0-51,
     lower is better) choose how the frames are stored (see the module docstring)."""
-    if noise < 0:
-        raise ValueError(f"noise must be non-negative, got {noise}")
+    if not 0 <= noise <= MAX_NOISE:  # NaN fails too
+        raise ValueError(f"noise must be a standard deviation of 0 to {MAX_NOISE:g} grey levels, got {noise:g}")
     if codec not in ("h264", "png"):
         raise ValueError(f"codec must be h264 or png, got {codec!r}")
     from ..media import Mp4Writer, PngSequenceWriter

@@ -24,6 +24,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import errno
 import os
@@ -47,7 +48,7 @@ from . import (
     commands_validate,
     commands_view,
 )
-from .console import out
+from .console import PathsChecked, out
 
 __all__ = ["app", "main"]
 
@@ -76,22 +77,22 @@ def _main(
     """GeoCon: is a generated video geometrically real?"""
 
 
-app.command("synth")(commands_synth.synth)
-app.command("synth-failures")(commands_synth.synth_failures)
-app.command("demo")(commands_demo.demo)
-app.command("score")(commands_score.score)
-app.command("synth-bench")(commands_synth.synth_bench)
-app.command("dataset")(commands_dataset.dataset)
-app.command("bench")(commands_bench.bench)
-app.command("report")(commands_bench.report)
-app.command("presets")(commands_bench.presets)
-app.command("view")(commands_view.view)
-app.command("serve")(commands_view.serve)
-app.command("teach")(commands_teach.teach)
-app.command("validate")(commands_validate.validate)
-app.command("footage")(commands_validate.footage)
-app.command("pose-log")(commands_pose.pose_log)
-app.command("doctor")(commands_doctor.doctor)
+app.command("synth", cls=PathsChecked)(commands_synth.synth)
+app.command("synth-failures", cls=PathsChecked)(commands_synth.synth_failures)
+app.command("demo", cls=PathsChecked)(commands_demo.demo)
+app.command("score", cls=PathsChecked)(commands_score.score)
+app.command("synth-bench", cls=PathsChecked)(commands_synth.synth_bench)
+app.command("dataset", cls=PathsChecked)(commands_dataset.dataset)
+app.command("bench", cls=PathsChecked)(commands_bench.bench)
+app.command("report", cls=PathsChecked)(commands_bench.report)
+app.command("presets", cls=PathsChecked)(commands_bench.presets)
+app.command("view", cls=PathsChecked)(commands_view.view)
+app.command("serve", cls=PathsChecked)(commands_view.serve)
+app.command("teach", cls=PathsChecked)(commands_teach.teach)
+app.command("validate", cls=PathsChecked)(commands_validate.validate)
+app.command("footage", cls=PathsChecked)(commands_validate.footage)
+app.command("pose-log", cls=PathsChecked)(commands_pose.pose_log)
+app.command("doctor", cls=PathsChecked)(commands_doctor.doctor)
 
 
 RESOURCE_ERRORS = {
@@ -102,8 +103,24 @@ RESOURCE_ERRORS = {
     errno.EIO: "an input/output error",
     errno.EFBIG: "a file grew past the file system's limit",
     errno.ENAMETOOLONG: "a file name is too long for the file system",
+    errno.EMFILE: "too many open files for this process's limit (raise it with ulimit -n, e.g. ulimit -n 4096)",
+    errno.ENFILE: "too many open files on this system (close other programs, or raise the system's fs.file-max)",
 }
 """Errors of the machine, not of GeoCon: said in one sentence (what, where), never a traceback."""
+
+MEMORY_ADVICE = {
+    "score": "use --preset fast (it scores at 512x360) or score a shorter clip",
+    "demo": "close other programs and run it again",
+    "bench": "give a smaller --working-size (e.g. 640x360) or fewer --workers",
+    "report": "give fewer --bootstrap resamples (e.g. 1000)",
+    "synth": "give a smaller --size or fewer --frames",
+    "synth-bench": "give a smaller --size, fewer --frames or fewer --scenes",
+    "validate": "give fewer --jobs, or --quick",
+    "view": "view the record of a shorter clip, or use --headless (no viewer is opened)",
+    "teach": "give fewer --frames",
+}
+"""What each command can do with less memory, naming only its own options (the advice of the
+one-sentence out-of-memory error; other commands are told to close other programs)."""
 
 
 def _resource_sentence(exc: OSError) -> str:
@@ -134,13 +151,88 @@ def _address_space_sentence() -> str | None:
     )
 
 
+MIN_OPEN_FILES = 64
+"""Open files (``ulimit -n``) below which a command is refused up front, unless the hard limit lets
+the soft one be raised (measured: a small ``geocon score`` needs 6, 12 with ``--rrd``, below which
+Rerun aborts; ``geocon bench --workers 8`` needs 32)."""
+RAISED_OPEN_FILES = 1024
+"""The soft open-files limit a command raises a lower one to, where the hard limit allows."""
+
+
+def _open_files_sentence() -> str | None:
+    """Why this process cannot run GeoCon (an open-files limit below :data:`MIN_OPEN_FILES` that
+    cannot be raised), or None; a soft limit below it is raised when the hard limit allows."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY or soft >= MIN_OPEN_FILES:
+        return None
+    if hard == resource.RLIM_INFINITY or hard >= MIN_OPEN_FILES:
+        target = RAISED_OPEN_FILES if hard == resource.RLIM_INFINITY else min(hard, RAISED_OPEN_FILES)
+        with contextlib.suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
+            return None
+    return (
+        f"error: this process may open only {soft} files at once (ulimit -n {soft}); GeoCon needs at least "
+        f"{MIN_OPEN_FILES} (more with many workers): raise the limit, e.g. ulimit -n 1024"
+    )
+
+
+ASCII_STAND_INS = str.maketrans(
+    "\u00b2\u00b0\u2026\u2192\u2190\u2014\u2013\u00d7\u00b1\u2264\u2265"
+    "\u2260\u00b5\u03c4\u00b7\u2501\u2500\u2022\u26a0\u25c0\u25b6",
+    "2o.><--x~<>#ut.--*!<>",
+)
+"""Characters of GeoCon's tables, bars and sentences and the ASCII character a terminal that cannot
+show them gets instead (one for one, so tables stay aligned; any other character prints as ``?``,
+twice for a wide one)."""
+
+
+def _ascii_stand_in(exc: UnicodeError) -> tuple[str, int]:
+    """The ``geocon-ascii`` codec error handler: :data:`ASCII_STAND_INS`, else ``?`` per cell."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    from rich.cells import cell_len
+
+    text = exc.object[exc.start : exc.end]
+    stand_in = "".join(ch if ord(ch) < 128 else "?" * max(1, cell_len(ch)) for ch in text.translate(ASCII_STAND_INS))
+    return stand_in, exc.end
+
+
+def _plain_output() -> None:
+    """Let stdout and stderr print what their encoding cannot show (an ASCII locale,
+    ``PYTHONIOENCODING=ascii``) as ASCII stand-ins instead of raising ``UnicodeEncodeError``."""
+    codecs.register_error("geocon-ascii", _ascii_stand_in)
+    for stream in (sys.stdout, sys.stderr):
+        encoding = codecs.lookup(getattr(stream, "encoding", None) or "ascii").name
+        if encoding != "utf-8":
+            with contextlib.suppress(AttributeError, ValueError, OSError):
+                stream.reconfigure(errors="geocon-ascii")  # type: ignore[union-attr]
+
+
+def _command() -> str | None:
+    """The command this process runs (the first word of the command line that is no option)."""
+    return next((arg for arg in sys.argv[1:] if not arg.startswith("-")), None)
+
+
+def _memory_sentence(command: str | None) -> str:
+    advice = MEMORY_ADVICE.get(command or "", "close other programs and run it again")
+    return (
+        f"error: the process ran out of memory (a memory limit, or a clip too large for it); {advice}; the "
+        "previous results are unchanged"
+    )
+
+
 def main() -> None:
     """The ``geocon`` console script. A full disk, a read-only folder or a closed output ends the
     command with one sentence (exit 1) instead of a traceback; nothing half-written is left. An
-    address-space limit too small for the native libraries is refused before any work."""
-    small = _address_space_sentence()
-    if small is not None and not {"--help", "--version"} & set(sys.argv[1:]):
-        _say_and_exit(small, 1)
+    address-space or open-files limit too small for the native libraries is refused before any
+    work. Text the terminal's encoding cannot show prints as ASCII stand-ins."""
+    _plain_output()
+    if not {"--help", "--version"} & set(sys.argv[1:]):
+        small = _address_space_sentence() or _open_files_sentence()
+        if small is not None:
+            _say_and_exit(small, 1)
     if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # `kill` stops as cleanly as Ctrl-C: no partial files
         signal.signal(signal.SIGTERM, _terminated)
     try:
@@ -150,11 +242,7 @@ def main() -> None:
             raise
         _say_and_exit(_resource_sentence(exc), 1)
     except MemoryError:
-        _say_and_exit(
-            "error: the process ran out of memory (a memory limit, or a clip too large for it); "
-            "try a smaller --working-size or fewer workers; the previous results are unchanged",
-            1,
-        )
+        _say_and_exit(_memory_sentence(_command()), 1)
 
 
 TERM_GRACE_S = 10.0

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Annotated, Any, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from geocon_core.config import DEFAULT_PRESET
@@ -61,13 +62,12 @@ def bench(
         ),
     ] = None,
     ray_cpus: Annotated[
-        float, typer.Option("--ray-cpus-per-clip", min=0.01, help="CPUs each clip's Ray task asks for.")
+        float, typer.Option("--ray-cpus-per-clip", help="CPUs each clip's Ray task asks for (more than 0).")
     ] = 1.0,
     ray_gpus: Annotated[
         Optional[float],
         typer.Option(
             "--ray-gpus-per-clip",
-            min=0,
             help="GPUs each clip's Ray task asks for (default: 1 when a neural backend is selected and the "
             "cluster has a GPU, else 0).",
         ),
@@ -85,6 +85,14 @@ def bench(
         Optional[str],
         typer.Option(
             "--working-size", help="Working resolution WxH clips are fitted into (default: the preset's, 1024x720)."
+        ),
+    ] = None,
+    roots: Annotated[
+        Optional[list[Path]],
+        typer.Option(
+            "--root",
+            help="A folder the dataset's clip and masks paths may lie in besides the dataset's own folder (e.g. where "
+            "a manifest's absolute paths point); repeatable. Paths anywhere else are refused.",
         ),
     ] = None,
 ) -> None:
@@ -143,6 +151,7 @@ def bench(
                 executor=executor,
                 ray=ray_options,
                 on_note=on_note,
+                roots=roots or (),
             )
         finally:
             if bar.live.is_started:
@@ -162,16 +171,30 @@ def bench(
         f"records: {out_dir}/clips/<clip_id>/   tables: {out_dir}/tables/*.parquet   report: geocon report {out_dir}",
         soft_wrap=True,
     )
+    if summary.total and summary.failed == summary.total:
+        err.print(
+            f"[bold red]error:[/] every clip failed ({summary.failed} of {summary.total}), so the results say nothing "
+            f"about the dataset; the reasons are above and in {escape(str(out_dir))}/clips/<clip_id>/status.json",
+            soft_wrap=True,
+            highlight=False,
+        )
+        raise typer.Exit(code=1)
 
 
 def _check_bench_out(dataset: Path, out_dir: Path) -> None:
-    """The results folder is not the dataset folder itself (its records would sit among the clips)."""
-    from geocon_core.files import OutPathError
+    """The results folder is not the dataset folder itself (its records would sit among the clips),
+    nor a record folder of ``geocon score`` or inside one; a manifest file given as the dataset is
+    never the results folder either (:func:`~geocon_core.files.check_apart`)."""
+    from geocon_core.bench import check_output_kind
+    from geocon_core.files import OutPathError, check_apart
 
+    if dataset.is_file():
+        check_apart([("--out", out_dir)], [("dataset manifest", dataset)])
     if out_dir.exists() and dataset.exists() and os.path.samefile(out_dir, dataset):
         raise OutPathError(
             f"--out {out_dir} is the dataset folder; the results go into a folder of their own (e.g. {dataset}/results)"
         )
+    check_output_kind(out_dir, "results")
 
 
 def _ray_options(executor: str, address: str | None, workers: int, cpus: float, gpus: float | None) -> Any:
@@ -180,13 +203,14 @@ def _ray_options(executor: str, address: str | None, workers: int, cpus: float, 
 
     if executor not in EXECUTORS:
         raise ValueError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    from geocon_core.bench import RayOptions
+
+    options = RayOptions(address=address, local_cpus=workers, cpus_per_clip=cpus, gpus_per_clip=gpus)  # checked
     if executor != "ray":
         if address is not None:
             raise ValueError("--ray-address needs --executor ray")
         return None
-    from geocon_core.bench import RayOptions
-
-    return RayOptions(address=address, local_cpus=workers, cpus_per_clip=cpus, gpus_per_clip=gpus)
+    return options
 
 
 def _check_report_out(results: Path, out_dir: Path | None) -> None:

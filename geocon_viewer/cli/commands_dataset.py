@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 from rich.markup import escape
@@ -39,6 +39,14 @@ def dataset(
         typer.Option("--write", help="Write each clip's metadata as a <stem>.meta.json sidecar beside its file."),
     ] = False,
     force: Annotated[bool, typer.Option("--force", help="With --write: replace sidecars that exist.")] = False,
+    roots: Annotated[
+        Optional[list[Path]],
+        typer.Option(
+            "--root",
+            help="A folder the dataset's clip and masks paths may lie in besides the dataset's own folder; "
+            "repeatable (as for `geocon bench`).",
+        ),
+    ] = None,
 ) -> None:
     """List the clips `geocon bench` finds in a dataset: id, platform, prompt, category (or "from
     scorer" where none is given) and scene, each with where it came from (sidecar, manifest,
@@ -57,7 +65,7 @@ def dataset(
 
     try:
         try:
-            found = scan_dataset(path, progress=progress)
+            found = scan_dataset(path, progress=progress, roots=roots or ())
         finally:
             if bar.live.is_started:
                 bar.stop()
@@ -79,6 +87,10 @@ def dataset(
             out.print(f"to edit these values: geocon dataset {path} --write", soft_wrap=True, highlight=False)
         return
     try:
+        _check_sidecars(found)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    try:
         done = write_sidecars(found, force=force)
     except OSError as exc:
         raise fail(f"a sidecar could not be written ({exc.strerror or exc}: {exc.filename})") from None
@@ -95,6 +107,17 @@ def dataset(
             soft_wrap=True,
             highlight=False,
         )
+
+
+def _check_sidecars(found: Dataset) -> None:
+    """No sidecar ``--write`` would write is its own clip or masks, lies inside them, or is a
+    device or a FIFO (a sidecar is replaced by renaming; ``ValueError`` with one sentence)."""
+    from geocon_core.files import check_apart, refuse_special
+
+    for e in found.entries:
+        inputs = [("clip", e.video)] + ([] if e.masks is None else [("masks", e.masks)])
+        check_apart([("--write", e.sidecar)], inputs)
+        refuse_special(e.sidecar, "--write")
 
 
 def _cell(entry: ClipEntry, key: str) -> str:

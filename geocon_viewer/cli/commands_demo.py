@@ -10,8 +10,8 @@ from rich.table import Table
 
 from ..style import fmt
 from .commands_score import print_record, score_with_progress
-from .commands_synth import render_plans
-from .console import has_viewer_extra, out, rerun_version
+from .commands_synth import check_render_out, render_plans
+from .console import fail, has_viewer_extra, out, rerun_version
 
 __all__ = ["demo"]
 
@@ -25,6 +25,10 @@ def demo(
     from geocon_core.config import ScoreConfig
     from geocon_core.synth import ClipPlan
 
+    try:
+        check_render_out(out_dir)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
     plan = ClipPlan("C4", "elastic", 4.0)
     (gt,) = render_plans([plan], out_dir, seed=seed, width=640, height=360, frames=48, fps=24.0, quiet=False)
     table = Table(title="what the demo clip contains", title_justify="left", show_header=False)

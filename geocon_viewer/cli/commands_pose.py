@@ -32,10 +32,11 @@ def pose_log(
     """Turn a reconstruction made elsewhere (COLMAP, DUSt3R) into the pose log that `geocon score
     --pose-log` reads: the first -> last relative pose on the scale of the first camera's mean
     scene distance."""
-    from geocon_core.files import check_out_file
+    from geocon_core.files import check_apart, check_out_file
     from geocon_core.pose import PoseLog, from_colmap, from_dust3r, write_pose_log
 
     try:
+        check_apart([("--out", out_file)], [("COLMAP model" if source.is_dir() else "DUSt3R scene", source)])
         check_out_file(out_file, "--out")
         if source.is_dir():
             log = from_colmap(source, first, last)

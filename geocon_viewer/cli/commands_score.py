@@ -271,8 +271,10 @@ def check_inputs(
     clip: Path | None = None,
 ) -> None:
     """Everything a scoring command names besides the clip, checked before the clip is decoded:
-    the output folder, the pose log, the masks' layout and the recording's path, and that no output
-    would write over an input or into the record's own files (``ValueError`` with one sentence)."""
+    the output folder (not a results folder of ``geocon bench``, nor inside one), the pose log, the
+    masks' layout and the recording's path, and that no output would write over an input or into
+    the record's own files (``ValueError`` with one sentence)."""
+    from geocon_core.bench import check_output_kind
     from geocon_core.files import check_apart, check_out_dir, check_out_file
     from geocon_core.masks import check_masks_path
     from geocon_core.pose import load_pose_log
@@ -281,6 +283,7 @@ def check_inputs(
     outputs = [("--out", out_dir)] + ([] if rrd is None else [("--rrd", rrd)])
     check_apart(outputs, inputs, records=[out_dir])
     check_out_dir(out_dir, "--out")
+    check_output_kind(out_dir, "record")
     if pose_log is not None:
         load_pose_log(pose_log)
     if masks is not None:

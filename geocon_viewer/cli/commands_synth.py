@@ -16,7 +16,16 @@ from .console import fail, out, parse_size, progress_bar
 if TYPE_CHECKING:
     from geocon_core.synth import ClipPlan, GroundTruth
 
-__all__ = ["render_plans", "synth", "synth_failures", "synth_bench"]
+__all__ = ["check_render_out", "render_plans", "synth", "synth_failures", "synth_bench"]
+
+
+def check_render_out(out_dir: Path) -> None:
+    """``--out`` can take rendered clips (:func:`~geocon_core.files.check_out_dir`: a folder, or one
+    that can be made; ``ValueError`` with one sentence). Rendering reads no file, so no output can
+    write over an input."""
+    from geocon_core.files import check_out_dir
+
+    check_out_dir(out_dir, "--out")
 
 
 def render_plans(
@@ -121,7 +130,7 @@ def synth(
     severity: Annotated[
         Optional[float], typer.Option(help="Failure severity in the failure's unit (see `geocon synth-failures`).")
     ] = None,
-    noise: Annotated[float, typer.Option(min=0.0, help="Sensor noise, standard deviation in grey levels.")] = 2.0,
+    noise: Annotated[float, typer.Option(help="Sensor noise, standard deviation in grey levels (0 to 255).")] = 2.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout instead of a table.")] = False,
 ) -> None:
     """Render synthetic clips with exact ground truth: video (mp4), object masks, ground truth
@@ -129,9 +138,13 @@ def synth(
 
     'all' renders one clip per family plus one variant per failure kind."""
     from geocon_core.synth import plan_clips
+    from geocon_core.synth import MAX_NOISE
 
     width, height = parse_size(size)
+    if not 0 <= noise <= MAX_NOISE:  # NaN fails too
+        raise fail(f"--noise must be a standard deviation of 0 to {MAX_NOISE:g} grey levels, got {noise:g}")
     try:
+        check_render_out(out_dir)
         plans = plan_clips(family, failure, severity)
         gts = render_plans(
             plans, out_dir, seed=seed, width=width, height=height, frames=frames, fps=fps, quiet=as_json, noise=noise
@@ -168,17 +181,21 @@ def synth_bench(
     from geocon_core.synth import plan_benchmark, write_benchmark
 
     width, height = parse_size(size)
+    names = [f.strip() for f in families.split(",") if f.strip()]
+    if not names:
+        raise fail(f"--families names no family, got {families!r}: give some of C1..C6, e.g. C1,C2")
     try:
-        clips = plan_benchmark(families=[f.strip() for f in families.split(",") if f.strip()], scenes=scenes)
+        check_render_out(out_dir)
+        clips = plan_benchmark(families=names, scenes=scenes)
     except ValueError as exc:
         raise fail(str(exc)) from None
     with progress_bar("rendering", "frames", eta=False) as bar:
         task = bar.add_task("render", total=len(clips) * frames)
-        write_benchmark(
+        written = write_benchmark(
             out_dir, clips, width=width, height=height, num_frames=frames, on_frame=lambda _t: bar.advance(task)
         )
     out.print(
-        f"{len(clips)} clips in {out_dir} (platforms clean, breathing, elastic). "
+        f"{len(set(written))} clips in {out_dir} (platforms clean, breathing, elastic). "
         f"Next: geocon bench {out_dir} --out RESULTS",
         soft_wrap=True,
     )

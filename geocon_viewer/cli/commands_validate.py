@@ -26,15 +26,27 @@ def _ints(text: str | None, name: str) -> tuple[int, ...] | None:
     if text is None:
         return None
     try:
-        return tuple(int(v) for v in text.split(",") if v.strip())
+        return _once(tuple(int(v) for v in text.split(",") if v.strip()), name)
     except ValueError:
         raise fail(f"--{name} takes comma-separated whole numbers, got {text!r}") from None
 
 
-def _names(text: str | None) -> tuple[str, ...] | None:
+def _names(text: str | None, name: str) -> tuple[str, ...] | None:
     if text is None:
         return None
-    return tuple(v.strip() for v in text.split(",") if v.strip() and v.strip().lower() != "none")
+    return _once(tuple(v.strip() for v in text.split(",") if v.strip() and v.strip().lower() != "none"), name)
+
+
+def _once(values: tuple[Any, ...], name: str) -> tuple[Any, ...]:
+    """``values`` of the list option ``--name``, refused when one is given twice (its cases would
+    be planned, and counted, twice)."""
+    seen: set[str] = set()
+    for v in values:
+        key = str(v).lower()
+        if key in seen:
+            raise fail(f"--{name} lists {v} twice; give each once")
+        seen.add(key)
+    return values
 
 
 def print_report(report: ValidationReport) -> None:
@@ -148,10 +160,10 @@ def validate(
         cfg = preset(preset_name or DEFAULT_PRESET)  # the validation measures the default
         given = {
             "heights": _ints(heights, "heights") or (QUICK.heights if quick else None),
-            "codecs": _names(codecs) if codecs is not None else (QUICK.codecs if quick else None),
-            "families": _names(families),
-            "failures": _names(failures),
-            "levels": _names(levels),
+            "codecs": _names(codecs, "codecs") if codecs is not None else (QUICK.codecs if quick else None),
+            "families": _names(families, "families"),
+            "failures": _names(failures, "failures"),
+            "levels": _names(levels, "levels"),
             "frames": frames or (QUICK.frames if quick else None),
             "max_frames": max_frames or (QUICK.max_frames if quick else None),
         }
@@ -168,6 +180,7 @@ def validate(
             split=split,
         )
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
+        _check_outputs(out_dir, cache, plan, annotations, footage_from)
     except (ValueError, OSError) as exc:
         raise fail(str(exc)) from None
     if real and not data.is_dir():
@@ -185,6 +198,25 @@ def validate(
         )
     print_report(report)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
+
+
+def _check_outputs(
+    out_dir: Path, cache: Path | None, plan: ValidationPlan, annotations: Path | None, footage_from: Path | None
+) -> None:
+    """``--out`` and ``--cache`` are folders that can be written and lie apart from everything the
+    run reads: the real clips' folders, the footage cache, the annotations and the clones the
+    footage cache is filled from (``ValueError`` with one sentence)."""
+    from geocon_core.files import check_apart, check_out_dir
+
+    outputs = [("--out", out_dir)] + ([] if cache is None else [("--cache", cache)])
+    read = [("--data folder", plan.data), ("--real2 folder", plan.real2), ("footage cache", plan.footage)]
+    read += [("annotation file", annotations), ("--footage-from folder", footage_from)]
+    inputs = [(what, path) for what, path in read if path is not None]
+    check_apart(outputs, inputs)
+    if footage_from is not None and plan.footage is not None:
+        check_apart([("--footage", plan.footage)], [("--footage-from folder", footage_from)])
+    for option, path in outputs:
+        check_out_dir(path, option)
 
 
 def _say_missing(plan: ValidationPlan, notes: dict[str, Annotation]) -> None:
@@ -245,6 +277,14 @@ def footage(
     if action == "fill":
         if sources is None:
             raise fail("fill needs --from DIR: a folder of clones of the annotated repositories")
+        from geocon_core.files import check_apart, check_out_dir
+
+        read = [("--from folder", sources)] + ([] if annotations is None else [("annotation file", annotations)])
+        try:
+            check_apart([("--footage", cache_dir)], read)
+            check_out_dir(cache_dir, "--footage")
+        except ValueError as exc:
+            raise fail(str(exc)) from None
         _fill(notes, cache_dir, sources)
         return
     items = footage_status(notes, cache_dir)

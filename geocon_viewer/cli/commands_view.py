@@ -42,6 +42,10 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
         return target.parent
     if not target.exists():
         raise fail(f"{target} does not exist: give a clip or a record folder (one with record.json)")
+    from geocon_core.media import ClipError, check_clip, is_rerun_recording, rerun_refusal
+
+    if target.is_file() and is_rerun_recording(target):
+        raise fail(rerun_refusal(str(target)))
     folder = default_out(target, has_out=False)
     if (folder / "record.json").exists():
         err.print(f"using the saved record {folder} (delete it or run `geocon score` to re-score)")
@@ -51,6 +55,10 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
     try:
         cfg = preset(preset_name)
     except ValueError as exc:
+        raise fail(str(exc)) from None
+    try:
+        check_clip(target)  # a file that is no clip is refused before anything is said or made
+    except ClipError as exc:
         raise fail(str(exc)) from None
     err.print(f"no saved record for {target}: scoring it first (record: {folder})")
     try:
@@ -83,6 +91,35 @@ def _check_outputs(record: Any, folder: Path, rrd: Path, screenshot: Path | None
     outputs = [("--save", rrd)] + ([] if screenshot is None else [("--screenshot", screenshot)])
     check_apart(outputs, inputs, records=[folder])
     check_out_file(rrd, "--save")
+    if screenshot is not None:
+        check_out_file(screenshot, "--screenshot")
+
+
+def _check_connect(url: str | None) -> None:
+    """Refuse a ``--connect`` URL that is malformed (exit 2) or where no viewer answers (exit 1),
+    before anything is scored or rendered."""
+    from ..processes import ViewerUnreachable, ViewerUrlError, check_viewer_url
+
+    if url is None:
+        return
+    try:
+        check_viewer_url(url)
+    except ViewerUrlError as exc:
+        raise fail(str(exc)) from None
+    except ViewerUnreachable as exc:
+        raise fail(str(exc), code=1) from None
+
+
+def _stream_failed(connect: str | None, exc: RuntimeError) -> typer.Exit:
+    """The one sentence (exit 1) of a viewer that went away while the recording streamed to it;
+    ``exc`` itself when nothing streamed (a bug, with its traceback)."""
+    if connect is None:
+        raise exc
+    return fail(
+        f"the Rerun viewer at {connect} stopped answering while the recording streamed ({exc}); the recording "
+        "is not kept: start the viewer again and rerun the command",
+        code=1,
+    )
 
 
 def view(
@@ -126,7 +163,8 @@ def view(
         raise fail(f"--at must be a frame index (0 or more), got {at}")
     if not has_viewer_extra("rerun"):
         raise fail(f"geocon view needs the viewer extra: {VIEWER_EXTRA}")
-    from geocon_core.record import RecordError, read_record
+    _check_connect(connect)
+    from geocon_core.record import read_overlays, read_record
 
     from ..rerun_log import quiet_encoder_logs, worst_frame, write_rrd
 
@@ -134,7 +172,8 @@ def view(
     folder = _resolve_record(target, preset_name)
     try:
         record = read_record(folder)  # before any rendering: a corrupt record is one sentence naming its file
-    except RecordError as exc:
+        read_overlays(folder, record)  # and overlays of another record, or outside its frames
+    except ValueError as exc:  # a RecordError, or the overlays'
         raise fail(str(exc)) from None
     n = record.video.num_frames
     if at is not None and at >= n:
@@ -148,11 +187,20 @@ def view(
     try:
         with progress_bar("rendering", "frames", elapsed=False, eta=False) as bar:
             task = bar.add_task("render", total=None)
-            write_rrd(
-                folder, rrd, connect=connect, progress=lambda done, total: bar.update(task, completed=done, total=total)
-            )
+            try:
+                write_rrd(
+                    folder,
+                    rrd,
+                    connect=connect,
+                    progress=lambda done, total: bar.update(task, completed=done, total=total),
+                )
+            except BaseException:
+                bar.live.transient = True  # a failed render leaves its error, not a half-filled bar
+                raise
     except ValueError as exc:
         raise fail(str(exc)) from None
+    except RuntimeError as exc:  # Rerun's gRPC client: the viewer went away while the recording streamed
+        raise _stream_failed(connect, exc) from None
     frame = at if at is not None else worst_frame(record)
     out.print(
         f"recording: {rrd} ({rrd.stat().st_size / 1e6:.1f} MB, Rerun {rerun_version()}: open it with a viewer "

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import typer
 from rich.console import Console
 from rich.markup import escape
+from typer.core import TyperCommand, TyperOption
 
 if TYPE_CHECKING:
     from rich.progress import Progress
@@ -28,6 +29,7 @@ __all__ = [
     "progress_bar",
     "reach",
     "serve_until_stopped",
+    "PathsChecked",
 ]
 
 err = Console(stderr=True)
@@ -37,10 +39,47 @@ VIEWER_EXTRA = "pip install 'geocon[viewer]' (or run bash scripts/bootstrap.sh v
 """How to install the viewers, quoted when a command needs them."""
 
 
-def fail(message: str) -> typer.Exit:
-    """Print ``message`` as an error on stderr; the caller raises the returned exit (code 2)."""
+def fail(message: str, code: int = 2) -> typer.Exit:
+    """Print ``message`` as an error on stderr; the caller raises the returned exit (code 2: bad
+    input or options; 1: the machine or the network failed)."""
     err.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
-    return typer.Exit(code=2)
+    return typer.Exit(code=code)
+
+
+PATH_LIKE = frozenset({"masks"})
+"""Parameters typed ``str`` that take a path too (``--masks DIR`` or ``--masks sam2``)."""
+
+
+class PathsChecked(TyperCommand):
+    """A command that refuses an empty path, ``--out ''`` or ``--out=``, with one sentence before
+    anything runs: the command would otherwise see ``Path('')``, which is ``.``, the current folder
+    (and write there, or fail with a traceback). Checked on the raw words of the command line,
+    since once converted an empty path and ``.`` are one value."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        if not ctx.resilient_parsing:
+            empty = _empty_path(self, ctx, args)
+            if empty is not None:
+                raise fail(f"{empty} is an empty path; give a file or folder name (`.` for the current folder)")
+        return super().parse_args(ctx, args)
+
+
+def _empty_path(command: TyperCommand, ctx: Any, args: list[str]) -> str | None:
+    """The option (``--out``) or argument (``CLIP``) of ``command`` given an empty path in
+    ``args``, or None; a command line the parser rejects is left to it to report."""
+    try:
+        opts, _rest, _order = command.make_parser(ctx).parse_args(args=list(args))
+    except Exception:  # a usage error: said by the real parse that follows
+        return None
+    for param in command.params:
+        annotation = getattr(getattr(param, "type_descriptor", None), "annotation", None)
+        if not ("Path" in str(annotation) or param.name in PATH_LIKE):
+            continue
+        value = opts.get(param.name)
+        values = value if isinstance(value, (list, tuple)) else [value]
+        if "" in values:
+            return param.opts[0] if isinstance(param, TyperOption) else (param.name or "").upper()
+    return None
 
 
 MAX_SIDE = 8192
