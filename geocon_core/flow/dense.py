@@ -58,6 +58,7 @@ Backends
 from __future__ import annotations
 
 import importlib.util
+import math
 import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -226,6 +227,31 @@ class _RegionFlow:
         return out[0], out[1]
 
 
+def _dis_safe_padding(h: int, w: int, patch: int, finest: int, ph: int, pw: int) -> tuple[int, int]:
+    """The padding (rows, columns) that lets OpenCV's DIS compute an (h, w) region (already padded
+    by ``ph``, ``pw``) without reading outside its pyramid: ``ph``, ``pw`` themselves, unless the
+    region is so thin that DIS crashes the process (a segmentation fault, or an assertion in
+    ``resize``). DIS builds its pyramid from the longer side down to the level where the shorter
+    one still holds a patch; when that level is finer than the preset's finest scale, it picks
+    the levels from the width alone, and a strip (16x256 px: a 2048x16 clip at working
+    resolution) then has levels less than a patch high. Such a region is padded so that the
+    shorter side holds a patch at the finest scale and the longer one spans the preset's usual
+    pyramid (2048x16 becomes 2048x32 with the ``fast`` preset); regions DIS reads as they are
+    (every clip's frames and objects of ordinary shape) keep their flow unchanged."""
+    longer, shorter = max(h, w), min(h, w)
+    usual = min(int(math.log2(longer / (4.0 * patch)) + 0.5), int(math.log2(shorter / patch)))
+    if usual >= finest:
+        return ph, pw
+    by_width = max(0, math.floor(math.log2(2.0 * w / (5.0 * patch))))  # OpenCV's choice from the width
+    if (h >> by_width) >= patch and (w >> by_width) >= patch:
+        return ph, pw
+    need_short = patch << finest
+    need_long = math.ceil(4.0 * patch * 2.0 ** (finest + 0.5))
+    grow_h = max(need_short, need_long if h >= w else 0) - h
+    grow_w = max(need_short, need_long if w > h else 0) - w
+    return ph + max(0, grow_h), pw + max(0, grow_w)
+
+
 class DisFlow(_RegionFlow):
     """OpenCV DIS optical flow (``name = "dis"``); see the module docstring for the preset and
     the reliability rule.
@@ -252,13 +278,14 @@ class DisFlow(_RegionFlow):
         h, w = a.shape
         side = self.config.min_side
         ph, pw = max(0, side - h), max(0, side - w)
-        if ph or pw:  # DIS needs a side of at least one patch: pad tiny regions, crop back
-            a = cv2.copyMakeBorder(a, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
-            b = cv2.copyMakeBorder(b, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
         # A fresh OpenCV instance per call: a DIS object keeps state from its previous call (a reused
         # one gives different flow for the same images depending on what it computed before), so
         # reusing one per thread made results depend on thread scheduling.
         dis = cv2.DISOpticalFlow_create(DIS_PRESETS[self.config.preset])  # type: ignore[attr-defined]  # missing from the cv2 stubs
+        ph, pw = _dis_safe_padding(max(h, side), max(w, side), dis.getPatchSize(), dis.getFinestScale(), ph, pw)
+        if ph or pw:  # DIS needs a side of at least one patch: pad tiny or thin regions, crop back
+            a = cv2.copyMakeBorder(a, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
+            b = cv2.copyMakeBorder(b, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
         return np.ascontiguousarray(dis.calc(a, b, None)[:h, :w])
 
     def _both(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

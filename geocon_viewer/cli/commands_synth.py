@@ -137,8 +137,7 @@ def synth(
     (.gt.json) and benchmark metadata (.meta.json) per clip.
 
     'all' renders one clip per family plus one variant per failure kind."""
-    from geocon_core.synth import plan_clips
-    from geocon_core.synth import MAX_NOISE
+    from geocon_core.synth import MAX_NOISE, plan_clips
 
     width, height = parse_size(size)
     if not 0 <= noise <= MAX_NOISE:  # NaN fails too
