@@ -21,7 +21,9 @@ clips), :mod:`geocon_core.geometry` (features, two-view formulas, H and F fits),
 :mod:`geocon_core.reconstruction` (dense clouds, the multi-view check),
 :mod:`geocon_core.scoring` (the composition and every verdict rule), :mod:`geocon_core.record`
 (the audit record); :mod:`geocon_core.bench` and :mod:`geocon_core.report` (many clips),
-:mod:`geocon_core.synth` (synthetic scenes) and :mod:`geocon_core.validation`.
+:mod:`geocon_core.synth` (synthetic scenes), :mod:`geocon_core.plant` (failures planted into
+real footage) and :mod:`geocon_core.validation`;
+:mod:`geocon_core.intervals` (confidence intervals shared by the report and the validation).
 """
 
 from __future__ import annotations

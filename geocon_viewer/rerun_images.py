@@ -14,8 +14,10 @@ __all__ = ["colormap", "object_rgba", "png_bytes", "residual_map"]
 
 
 def colormap(values: np.ndarray, vmax: float) -> np.ndarray:
-    """Inferno colours (N, 4) uint8 of values in [0, vmax]."""
-    v = np.clip(np.asarray(values, np.float64) / max(vmax, 1e-9), 0.0, 1.0)
+    """Inferno colours (N, 4) uint8 of values in [0, vmax] (none for none: a pair without matches)."""
+    v = np.clip(np.asarray(values, np.float64).ravel() / max(vmax, 1e-9), 0.0, 1.0)
+    if not v.size:
+        return np.zeros((0, 4), np.uint8)
     idx = np.round(v * 255).astype(np.uint8).reshape(-1, 1)
     bgr = cv2.applyColorMap(idx, cv2.COLORMAP_INFERNO).reshape(-1, 3)
     out = np.full((len(v), 4), 255, np.uint8)

@@ -101,7 +101,9 @@ class RerunAudit:
 
     fps: the clip's frame rate (for ``video_time``; the reader's ``DEFAULT_FPS`` when not
     positive); frames: ``"video"`` (AV1, compact, the default) or ``"jpeg"`` (one JPEG per frame,
-    ``quality``); scale: which scale's matches are drawn over the frames (default: the largest).
+    ``quality``; also what ``"video"`` falls back to for frames too thin for the encoder,
+    :meth:`~geocon_viewer.rerun_video.FrameVideo.encodes`); scale: which scale's matches are drawn
+    over the frames (default: the largest).
     """
 
     def __init__(
@@ -139,6 +141,8 @@ class RerunAudit:
             f = frames_from_diagnostics(f)
         rec = self.rec
         self._time(f.index)
+        if self.video is not None and not self.video.indices and not FrameVideo.encodes(*f.rgb.shape[1::-1]):
+            self.video, self.frames_mode, self.quality = None, "jpeg", 80  # too thin for the AV1 encoder
         if self.video is not None:
             self.video.add(f.index, f.rgb)
         else:

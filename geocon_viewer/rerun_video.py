@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FrameVideo", "quiet_encoder_logs"]
+__all__ = ["FrameVideo", "MAX_RATE", "MIN_SIDE", "quiet_encoder_logs"]
 
 
 def quiet_encoder_logs() -> None:
@@ -54,10 +54,25 @@ class _EncoderThreads:
                     os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
 
 
+MIN_SIDE = 32
+"""Frames whose shorter side (trimmed to even) is below this many pixels are not encoded: SVT-AV1
+never returns from encoding a frame less than 32 px high that is 128 px wide or wider (or the
+transposed), and refuses sides under 4 px. Such frames (a 2048x16 strip) are logged as images."""
+MAX_RATE = 240
+"""The highest frame rate SVT-AV1 accepts; a faster clip (a 960 frames/s slow-motion camera) is
+encoded at this rate. Only the video's own playback speed changes: every frame is referenced by
+the timestamp the container gives it."""
+
+
 class FrameVideo:
     """Frames encoded into one AV1 mp4 in memory as they arrive (SVT-AV1, low-delay: no frame
     reordering), logged at the end as an ``AssetVideo`` with one ``VideoFrameReference`` per
     frame. AV1 decodes in both the native and the web viewer without extra software."""
+
+    @staticmethod
+    def encodes(width: int, height: int) -> bool:
+        """Whether frames of ``width`` x ``height`` can go into the video (:data:`MIN_SIDE`)."""
+        return min(width - width % 2, height - height % 2) >= MIN_SIDE
 
     def __init__(self, fps: float, crf: int) -> None:
         import io
@@ -78,7 +93,8 @@ class FrameVideo:
             h, w = rgb.shape[:2]
             from fractions import Fraction
 
-            st = self.container.add_stream("libsvtav1", rate=Fraction(self.fps).limit_denominator(1001))
+            rate = Fraction(min(self.fps, MAX_RATE)).limit_denominator(1001)
+            st = self.container.add_stream("libsvtav1", rate=rate)
             st.width, st.height, st.pix_fmt = w - w % 2, h - h % 2, "yuv420p"
             st.options = {"preset": "10", "crf": str(self.crf), "svtav1-params": "pred-struct=1:keyint=48"}
             self.stream = st

@@ -25,4 +25,6 @@ class ServedApp:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}"
+        """``http://HOST:PORT``, an IPv6 address in brackets (``http://[::1]:8080``)."""
+        host = self.host
+        return f"http://[{host}]:{self.port}" if ":" in host else f"http://{host}:{self.port}"

@@ -22,13 +22,15 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
+from typer.testing import CliRunner
 
 from geocon_viewer.cli import RESOURCE_ERRORS, app
 
 from . import test_bad_input as catalogue
 from .bad_inputs import pan_frames, snapshot, write_video
-from .test_bad_input import FAST, Case, Ctx, Outcome, dataset, judge, nothing
+from .test_bad_input import FAST, Case, Ctx, Outcome, dataset, judge, nothing, score
 
 assets = catalogue.assets
 ctx = catalogue.ctx
@@ -376,7 +378,11 @@ def test_a_killed_bench_worker_and_resource_tracker_print_no_traceback(tmp_path)
         while not killed and time.monotonic() < deadline and proc.poll() is None:
             if list((tmp_path / "res").glob("clips/*")):  # a worker is scoring
                 for child in psutil.Process(proc.pid).children():
-                    if "multiprocessing" in " ".join(child.cmdline()):
+                    try:
+                        cmdline = " ".join(child.cmdline())
+                    except psutil.NoSuchProcess:  # a child that ended between the listing and the look
+                        continue
+                    if "multiprocessing" in cmdline:
                         os.kill(child.pid, signal.SIGKILL)
                         killed.append(child.pid)
             time.sleep(0.05)
@@ -467,3 +473,336 @@ def test_out_of_memory_in_report_advises_fewer_bootstrap_resamples(tmp_path):
     res = _run_patched(tmp_path, patch, "report", "res")
     sentence = _one_sentence(res, "out of memory", "--bootstrap")
     assert "--working-size" not in sentence
+
+
+# --- odd option values: an option as a value, an option twice, options that exclude each other ----
+
+
+def no_folder(*names: str) -> Callable[[Ctx, Outcome], None]:
+    """A check: the refused run left none of the folders ``names`` (an empty folder is invisible
+    to :func:`snapshot`, which lists files)."""
+
+    def check(ctx: Ctx, _res: Outcome) -> None:
+        left = [name for name in names if (ctx.tmp / name).exists()]
+        assert not left, f"a refused run left the folders {left}"
+
+    return check
+
+
+def config_row(*words: str, absent: tuple[str, ...] = ()) -> Callable[[Ctx, Outcome], None]:
+    """A check: the summary's ``config`` row says ``words`` and none of ``absent``."""
+
+    def check(_ctx: Ctx, res: Outcome) -> None:
+        text = " ".join(res.stdout.split())  # the table wraps its cells
+        assert all(w in text for w in words) and not any(w in text for w in absent), res.stdout
+
+    return check
+
+
+def record_in(folder: str) -> Callable[[Ctx, Outcome], None]:
+    def check(ctx: Ctx, _res: Outcome) -> None:
+        assert (ctx.tmp / folder / "record.json").is_file(), sorted(p.name for p in ctx.tmp.iterdir())
+
+    return check
+
+
+def pan(ctx: Ctx) -> None:
+    ctx.pan()
+
+
+def pan_and_junk_checkpoint(ctx: Ctx) -> None:
+    ctx.pan()
+    ctx.write("sam2.pt", np.random.default_rng(11).bytes(2000))
+
+
+def paper_orb(*more: str) -> tuple[str, ...]:
+    return ("score", "clip.mp4", "--preset", "paper", "--matcher", "orb", "--out", "out", *more)
+
+
+ODD = [
+    Case("score-out-value-is-an-option", pan, ("score", "clip.mp4", *FAST, "--out", "--json"), 2,
+         ("--out", "--json", "./--json"), check=no_folder("--json")),
+    Case("score-masks-value-is-an-option", pan, score("clip.mp4", "--masks", "--no-masks"), 2,
+         ("--masks", "--no-masks")),
+    Case("score-pose-log-value-is-an-option", pan, score("clip.mp4", "--pose-log", "--rrd", "a.rrd"), 2,
+         ("--pose-log", "--rrd")),
+    Case("score-out-equals-an-option-name-is-taken-as-written", pan, ("score", "clip.mp4", *FAST, "--out=--json"), 0,
+         check=record_in("--json")),
+    Case("synth-frames-twice", nothing, ("synth", "C1", "--out", "s", *SMALL, "--frames", "9"), 2,
+         ("--frames", "4", "9", "twice"), check=no_folder("s")),
+    Case("synth-same-value-twice-is-fine", nothing, ("synth", "C1", "--out", "out", *SMALL, "--frames", "4", "--json",
+         "--json"), 0, check=lambda c, _res: (c.tmp / "out" / "c1_static.mp4").stat()),
+    Case("score-preset-twice", pan, ("score", "clip.mp4", "--preset", "paper", *FAST, "--out", "out"), 2,
+         ("--preset", "paper", "fast")),
+    Case("score-dense-and-no-dense", pan, score("clip.mp4", "--dense", "--no-dense"), 2, ("--dense", "--no-dense")),
+    Case("bench-rrd-and-no-rrd", dataset, ("bench", "ds", "--out", "res", *FAST, "--rrd", "--no-rrd"), 2,
+         ("--rrd", "--no-rrd")),
+    Case("dataset-root-may-repeat", dataset, ("dataset", "ds", "--root", "ds", "--root", "."), 0),
+    Case("view-at-twice", lambda c: c.record(), ("view", "rec", "--headless", "--at", "3", "--at", "5"), 2,
+         ("--at", "3", "5"), needs=("rerun",)),
+    Case("view-headless-and-serve", lambda c: c.record(), ("view", "rec", "--headless", "--serve"), 2,
+         ("--serve", "--headless"), needs=("rerun",)),
+    Case("view-serve-and-connect", lambda c: c.record(),
+         ("view", "rec", "--serve", "--connect", "rerun+http://127.0.0.1:9876/proxy"), 2, ("--serve", "--connect"),
+         needs=("rerun",)),
+    Case("view-unknown-preset-with-a-saved-record", lambda c: c.record(), ("view", "rec", "--headless", "--preset",
+         "nope"), 2, ("nope", "valid:"), needs=("rerun",)),
+    Case("bench-working-size-0x0", dataset, ("bench", "ds", "--out", "res", *FAST, "--working-size", "0x0"), 2,
+         ("--working-size", "0x0"), forbids=("--size",)),
+    Case("bench-working-size-past-8k", dataset, ("bench", "ds", "--out", "res", *FAST, "--working-size", "10000x100"),
+         2, ("--working-size", "8192"), forbids=("--size", "encoder")),
+    Case("score-sam2-size-0", pan_and_junk_checkpoint, score("clip.mp4", "--masks", "sam2", "--sam2-checkpoint",
+         "sam2.pt", "--sam2-size", "0"), 2, ("--sam2-size", "got 0")),
+    Case("score-sam2-size-a-million", pan_and_junk_checkpoint, score("clip.mp4", "--masks", "sam2",
+         "--sam2-checkpoint", "sam2.pt", "--sam2-size", "1048576"), 2, ("--sam2-size", "4096")),
+    Case("score-missing-clip-default-out", nothing, score("nothere.mp4", out=None), 2, ("nothere.mp4",),
+         check=no_folder("geocon-out")),
+    Case("score-missing-clip-nested-out", nothing, score("nothere.mp4", out="a/b/rec"), 2, ("nothere.mp4",),
+         check=no_folder("a")),
+    Case("score-paper-preset-with-a-matcher-says-so", pan, paper_orb(), 0,
+         check=config_row("paper preset changed by options", "matcher orb")),
+    Case("score-fast-preset-unchanged", pan, score("clip.mp4"), 0, check=config_row("fast preset, hash",
+         absent=("changed by options",))),
+    Case("score-brought-masks-are-no-change", lambda c: c.c4(), score("c4.mp4", "--masks", "c4.masks"), 0,
+         check=config_row("fast preset, hash", absent=("changed by options",))),
+]  # fmt: skip
+
+
+def test_the_odd_values_catalogue_is_complete():
+    names = [c.name for c in CASES + ODD]
+    assert len(names) == len(set(names)), "case names are unique"
+
+
+@pytest.mark.parametrize("case", ODD, ids=[c.name for c in ODD])
+def test_odd_option_values(case: Case, ctx: Ctx):
+    for module in case.needs:
+        pytest.importorskip(module)
+    case.build(ctx)
+    before = snapshot(ctx.tmp)
+    res = ctx.invoke(list(case.argv))
+    problems = judge_all(case, ctx, res, before)
+    assert not problems, f"{case.name}: {res.describe()}\n  - " + "\n  - ".join(problems)
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (("synth", "C1", "--out", "s", "--frames", "99999999999999999999999", "--size", "64x64"), "--frames"),
+        (("synth", "C1", "--out", "s", "--frames", "100001", "--size", "64x64"), "--frames"),
+        (("synth-bench", "--out", "s", "--scenes", "1000000000", "--families", "C1", *SMALL), "--scenes"),
+        (("validate", "--out", "s", "--no-real", "--frames", "99999999999999999999"), "--frames"),
+        (("validate", "--out", "s", "--no-real", "--max-frames", "99999999999999999999"), "--max-frames"),
+        (("demo", "--out", "s", "--seed", "-1"), "--seed"),
+        (("demo", "--out", "s", "--seed", "4294967296"), "--seed"),
+        (("teach", "--seed", "-5"), "--seed"),
+        (("teach", "--frames", "0"), "--frames"),
+    ],
+    ids=lambda v: "-".join(v) if isinstance(v, tuple) else v,
+)
+def test_out_of_range_counts_and_seeds_are_refused_before_any_work(tmp_path, monkeypatch, argv, option):
+    """Counts past any use (``--frames 1e23`` overflowed NumPy, ``--scenes 1e9`` planned for ever)
+    and seeds NumPy cannot take (``demo --seed -1`` was a traceback, ``teach --seed -5`` a broken
+    page) are refused by the parser, naming the option."""
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(app, list(argv))
+    assert res.exit_code == 2 and option in res.output and "Traceback" not in res.output, res.output
+    assert not (tmp_path / "s").exists()
+
+
+# --- the process: Ctrl-C while loading, a second Ctrl-C, a hang-up, ulimit -t, closed streams ------
+
+
+def _run_script(cwd: Path, script: str, **options) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(script)], cwd=cwd, capture_output=True, text=True,
+                          timeout=120, **options)  # fmt: skip
+
+
+def test_ctrl_c_while_the_command_loads_prints_no_traceback(tmp_path):
+    """Ctrl-C in the first half second, while ``geocon`` imports its libraries, ends it (130)
+    without the 40-line traceback of the import it cut short."""
+    res = _run_script(
+        tmp_path,
+        """
+        import os, signal, sys
+
+        class CtrlC:  # Ctrl-C arrives while the commands' modules load
+            def find_spec(self, name, path=None, target=None):
+                if name == "geocon_viewer.cli.commands_demo":
+                    os.kill(os.getpid(), signal.SIGINT)
+                return None
+
+        sys.meta_path.insert(0, CtrlC())
+        sys.argv = ["geocon", "presets"]
+        from geocon_viewer.cli import main
+        main()
+        """,
+    )
+    assert res.returncode == 130 and "Traceback" not in res.stderr and "KeyboardInterrupt" not in res.stderr, res
+
+
+def _sentence_after_progress(res: subprocess.CompletedProcess, *words: str) -> None:
+    """Exit 1 and one ``error:`` sentence holding ``words``, after nothing but progress bars."""
+    lines = [line for line in res.stderr.splitlines() if line.strip() and " frames " not in line]
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert len(lines) == 1 and lines[0].startswith("error: "), res.stderr
+    assert all(word in lines[0] for word in words), lines[0]
+
+
+def _interrupted_synth(cwd: Path, signum: str, *, again: bool) -> subprocess.CompletedProcess:
+    """``geocon synth C4`` that gets ``signum`` while it renders frame 3 and, with ``again``, the
+    same signal again while it removes its temporary files."""
+    return _run_patched(
+        cwd,
+        f"""
+        import os, signal
+        from geocon_core.synth import writer
+        render, remove = writer.render_frame, writer._remove
+        def render_frame(scene, t, failure):
+            if t == 3:
+                os.kill(os.getpid(), signal.{signum})
+            return render(scene, t, failure)
+        def again(path):
+            if {again}:
+                os.kill(os.getpid(), signal.{signum})
+            remove(path)
+        writer.render_frame, writer._remove = render_frame, again
+        """,
+        "synth", "C4", "--out", "s", "--frames", "8", "--size", "64x64",
+    )  # fmt: skip
+
+
+def test_a_second_ctrl_c_lets_the_clean_up_finish(tmp_path):
+    """A second Ctrl-C while the first one's clean-up runs no longer cuts it short (it left the
+    temporary clip and masks behind, and could abort in native threads)."""
+    res = _interrupted_synth(tmp_path, "SIGINT", again=True)
+    assert res.returncode == 130 and "Traceback" not in res.stderr and "terminate" not in res.stderr, res.stderr
+    assert not (tmp_path / "s").exists(), sorted(p.name for p in (tmp_path / "s").iterdir())
+
+
+def test_a_closed_terminal_stops_the_run_cleanly(tmp_path):
+    """SIGHUP (the terminal or the ssh session closed) stops the run as Ctrl-C does; it killed
+    the process and left the temporary clip and masks."""
+    res = _interrupted_synth(tmp_path, "SIGHUP", again=False)
+    assert res.returncode == 130 and "Traceback" not in res.stderr, res.stderr
+    assert not (tmp_path / "s").exists(), sorted(p.name for p in (tmp_path / "s").iterdir())
+
+
+def test_the_cpu_time_limit_stops_the_run_with_one_sentence(tmp_path):
+    """SIGXCPU (the soft limit of ``ulimit -t``) stops the run cleanly with one sentence; it
+    killed the process (and dumped core) and left the temporary clip and masks. It repeats every
+    second past the limit: the repeats do not cut the clean-up short."""
+    res = _interrupted_synth(tmp_path, "SIGXCPU", again=True)
+    _sentence_after_progress(res, "CPU time limit", "ulimit -t")
+    assert not (tmp_path / "s").exists(), sorted(p.name for p in (tmp_path / "s").iterdir())
+
+
+def test_a_real_ulimit_t_ends_synth_with_one_sentence(tmp_path):
+    import resource
+
+    def cap() -> None:
+        hard = resource.getrlimit(resource.RLIMIT_CPU)[1]
+        resource.setrlimit(resource.RLIMIT_CPU, (3, hard))
+
+    res = subprocess.run(
+        [*GEOCON, "synth", "C4", "--out", "s", "--frames", "5000", "--size", "160x90"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, preexec_fn=cap,
+    )  # fmt: skip
+    _sentence_after_progress(res, "CPU time limit")
+    assert not (tmp_path / "s").exists()
+
+
+def _closed(*fds: int, address_space: int | None = None) -> Callable[[], None]:
+    import resource
+
+    def close() -> None:
+        if address_space is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (address_space, address_space))
+        for fd in fds:
+            os.close(fd)
+
+    return close
+
+
+def test_json_on_a_closed_stdout_is_one_sentence_and_the_record_is_kept(tmp_path, clip):
+    """``geocon score --json >&-``: Python leaves ``sys.stdout`` None, where the JSON was an
+    AttributeError traceback."""
+    res = subprocess.run(
+        [*GEOCON, "score", "clip.mp4", *FAST, "--out", "rec", "--json"],
+        cwd=tmp_path, stderr=subprocess.PIPE, text=True, timeout=120, preexec_fn=_closed(1),
+    )  # fmt: skip
+    _one_sentence(res, "standard output is closed")
+    assert (tmp_path / "rec" / "record.json").is_file()
+
+
+def test_a_refusal_up_front_with_stdout_closed_is_one_sentence(tmp_path):
+    """The address-space refusal said its sentence, then failed on ``sys.stdout.fileno()`` of a
+    closed stdout with a traceback."""
+    res = subprocess.run(
+        [*GEOCON, "synth", "C1", "--out", "s", *SMALL],
+        cwd=tmp_path, stderr=subprocess.PIPE, text=True, timeout=120, preexec_fn=_closed(1, address_space=1 << 30),
+    )  # fmt: skip
+    _one_sentence(res, "address space")
+
+
+def test_closed_standard_streams_are_not_handed_to_the_command_s_files(tmp_path):
+    """With stdin and stderr closed (``<&- 2>&-``) the command still runs, and its descriptors 0
+    and 2 are the null device: the first file it opened took descriptor 0, and a native library's
+    message meant for stderr would have gone into the next one."""
+    read, write = os.pipe()
+    script = f"""
+        import os, sys
+        sys.argv = ["geocon", "synth", "C1", "--out", "s", "--frames", "4", "--size", "64x64"]
+        from geocon_viewer import cli
+        from geocon_viewer.cli import commands_synth
+        real = commands_synth.render_plans
+        def render_plans(*args, **kwargs):
+            with open("probe.txt", "w") as f:  # the first file the command opens
+                os.write({write}, str(f.fileno()).encode())
+            return real(*args, **kwargs)
+        commands_synth.render_plans = render_plans
+        cli.main()
+    """
+
+    def close_std() -> None:
+        for fd in (0, 2):
+            os.close(fd)
+
+    proc = subprocess.Popen([sys.executable, "-c", textwrap.dedent(script)], cwd=tmp_path, pass_fds=(write,),
+                            stdout=subprocess.DEVNULL, preexec_fn=close_std)  # fmt: skip
+    os.close(write)
+    with os.fdopen(read) as pipe:
+        fd = pipe.read()
+    assert proc.wait(timeout=120) == 0
+    assert fd and int(fd) > 2, f"the command's file took descriptor {fd}"
+    assert (tmp_path / "s" / "c1_static.mp4").is_file()
+
+
+def test_a_failed_synth_bench_leaves_no_empty_folders(tmp_path):
+    """A file-size limit stops ``synth-bench`` in its first clip: no ``ds/clean/C1-seed0``
+    folders are left behind (the full disk's sentence is tested in test_resources)."""
+    import resource
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20 << 10, 20 << 10))
+
+    res = subprocess.run(
+        [*GEOCON, "synth-bench", "--out", "ds", "--scenes", "1", "--families", "C1", "--frames", "24",
+         "--size", "320x180"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, preexec_fn=cap,
+    )  # fmt: skip
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert not (tmp_path / "ds").exists(), sorted(str(p) for p in (tmp_path / "ds").rglob("*"))
+
+
+@pytest.mark.parametrize("home", ["", "relative"])
+def test_an_empty_or_relative_home_is_no_footage_cache_at_the_root(tmp_path, home):
+    """``HOME=`` made ``~/.cache/geocon/footage`` the folder ``/.cache/geocon/footage`` (and a
+    relative HOME one under the current folder); the user database's home is used instead."""
+    import pwd
+
+    env = {k: v for k, v in os.environ.items() if k != "GEOCON_FOOTAGE"} | {"HOME": home}
+    res = subprocess.run([*GEOCON, "footage", "status"], cwd=tmp_path, capture_output=True, text=True, env=env,
+                         timeout=120)  # fmt: skip
+    expected = Path(pwd.getpwuid(os.getuid()).pw_dir) / ".cache" / "geocon" / "footage"
+    assert res.returncode == 0, res.stderr
+    assert f"footage cache {expected}:" in " ".join(res.stdout.split()), res.stdout

@@ -19,7 +19,7 @@ import pytest
 
 from . import test_bad_input as catalogue
 from .bad_inputs import broken_bench_clip, pan_frames, snapshot, write_pngs, write_video
-from .test_bad_input import FAST, Case, Ctx, H, N, Outcome, W, judge, record
+from .test_bad_input import FAST, Case, Ctx, H, N, Outcome, W, judge, nothing, record
 
 assets = catalogue.assets
 ctx = catalogue.ctx
@@ -357,7 +357,327 @@ ROWS = [
          ("a.meta.json", "nested")),
 ]  # fmt: skip
 
-CASES = RESUME + KINDS + FOLDERS + FRAMES + PATHS + ROWS
+# --- 8. manifests and sidecars written on other machines -------------------------------------------
+
+
+def sidecar(name: str = "a", raw: str | None = None, **fields: object) -> Callable[[Ctx], None]:
+    """``ds/<name>.mp4`` (the pan) and its sidecar ``ds/<name>.meta.json``: every field, ``fields``
+    changed; ``raw`` replaces the JSON text whole (``{}`` in it stands for the fields it does not
+    give itself)."""
+
+    def build(ctx: Ctx) -> None:
+        ctx.pan(f"ds/{name}.mp4")
+        meta = {"clip_id": name, "prompt": "a pan", "model": "m", "model_version": None, "seed": 0,
+                "resolution": [W, H], "fps": 24, "duration": 0.5, "masks_path": None, "category": "C1",
+                "scene_id": name, **fields}  # fmt: skip
+        if raw is not None:
+            meta = {k: v for k, v in meta.items() if f'"{k}":' not in raw}
+        text = json.dumps(meta) if raw is None else raw.replace("{}", json.dumps(meta)[1:-1])
+        ctx.write(f"ds/{name}.meta.json", text)
+
+    return build
+
+
+def encoded_manifest(data: bytes, name: str = "manifest.csv") -> Callable[[Ctx], None]:
+    """``ds/a.mp4`` and a manifest of these bytes."""
+
+    def build(ctx: Ctx) -> None:
+        ctx.pan("ds/a.mp4")
+        ctx.write(f"ds/{name}", data)
+
+    return build
+
+
+def said_category(cat: str) -> Callable[[Ctx, Outcome], None]:
+    def check(_ctx: Ctx, res: Outcome) -> None:
+        assert f"│ {cat}" in res.stdout and "manifest" in res.stdout, res.stdout
+
+    return check
+
+
+def a_sidecar_dataset(_ctx: Ctx, res: Outcome) -> None:
+    assert "a folder of clips with sidecars (*.meta.json), 1 clip(s)" in res.stdout, res.stdout
+
+
+def sidecar_folder(ctx: Ctx) -> None:
+    sidecar()(ctx)
+    (ctx.tmp / "ds" / "x.meta.json").mkdir()
+
+
+def sidecar_dangling(ctx: Ctx) -> None:
+    sidecar()(ctx)
+    os.symlink("nowhere.json", ctx.tmp / "ds" / "b.meta.json")
+
+
+def a_clip_file(ctx: Ctx) -> None:
+    ctx.pan("a.mp4")
+
+
+ELSEWHERE = [
+    Case("dataset-manifest-in-utf16", encoded_manifest("path,category\na.mp4,C1\n".encode("utf-16")),
+         ("dataset", "ds"), 2, ("manifest.csv", "UTF-16", "save it as UTF-8"), forbids=("codec",)),
+    Case("dataset-manifest-in-latin1", encoded_manifest("path,prompt\na.mp4,café au lait\n".encode("latin-1")),
+         ("dataset", "ds"), 2, ("manifest.csv", "not UTF-8", "0xe9"), forbids=("codec",)),
+    Case("dataset-manifest-separated-by-semicolons", encoded_manifest(b"path;category\na.mp4;C1\n"),
+         ("dataset", "ds"), 2, ("manifest.csv", "separated by ';'")),
+    Case("dataset-manifest-with-a-byte-order-mark", encoded_manifest(b"\xef\xbb\xbfpath,category\na.mp4,C3\n"),
+         ("dataset", "ds"), 0, check=said_category("C3")),
+    Case("dataset-sidecar-with-a-byte-order-mark", sidecar(raw="\ufeff{{}}"), ("dataset", "ds"), 0,
+         check=a_sidecar_dataset),
+    Case("dataset-sidecar-is-a-folder", sidecar_folder, ("dataset", "ds"), 2, ("x.meta.json", "is a folder")),
+    Case("dataset-sidecar-is-a-link-to-nothing", sidecar_dangling, ("dataset", "ds"), 2,
+         ("b.meta.json", "link to nothing")),
+    Case("dataset-manifest-with-windows-paths",
+         manifest("manifest.csv", "path\nvideos\\sora\\a.mp4\n", "videos/sora/a.mp4"), ("dataset", "ds"), 2,
+         ("manifest.csv line 2", "as on Windows", "videos/sora/a.mp4")),
+    Case("dataset-manifest-of-urls", manifest("manifest.csv", "path\nhttps://example.com/a.mp4\n"),
+         ("dataset", "ds"), 2, ("manifest.csv line 2", "URL", "local files")),
+    Case("bench-a-single-clip-file", a_clip_file, bench("a.mp4"), 2, ("a.mp4", "one clip", "geocon score a.mp4")),
+]  # fmt: skip
+
+# --- 9. clip ids, names and links ------------------------------------------------------------------
+
+LONG = "a" * 247
+"""A file stem that makes a legal 251-byte clip name (``.mp4``), too long for ``<stem>.meta.json``."""
+
+
+def ids_are(*ids: str) -> Callable[[Ctx, Outcome], None]:
+    def check(ctx: Ctx, _res: Outcome) -> None:
+        assert sorted(os.listdir(ctx.tmp / "out" / "clips")) == sorted(ids), os.listdir(ctx.tmp / "out" / "clips")
+
+    return check
+
+
+def two_sidecars_one_id_in_two_cases(ctx: Ctx) -> None:
+    sidecar("a", clip_id="Clip")(ctx)
+    sidecar("b", clip_id="clip")(ctx)
+
+
+def hard_linked(ctx: Ctx) -> None:
+    ctx.pan("ds/p/a.mp4")
+    os.link(ctx.tmp / "ds/p/a.mp4", ctx.tmp / "ds/p/b.mp4")
+
+
+def unicode_platforms(ctx: Ctx) -> None:
+    ctx.pan("ds/日本/a.mp4")
+    ctx.video("ds/中国/a.mp4", pan_frames(W, H, N, seed=5))
+
+
+def unicode_ids(_ctx: Ctx, res: Outcome) -> None:
+    assert "│ a " in res.stdout and "│ a_2 " in res.stdout, res.stdout
+    assert notes(res, "note: 日本/a.mp4: clip id a_2 (numbered"), res.stderr
+
+
+IDS = [
+    Case("bench-manifest-clip-id-dot-dot", manifest("manifest.csv", "path,clip_id\na.mp4,..\n"), bench(), 2,
+         ("manifest.csv line 2", "'..'", "start with a letter or a digit")),
+    Case("dataset-manifest-clip-id-dot", manifest("manifest.csv", "path,clip_id\na.mp4,.\n"), ("dataset", "ds"), 2,
+         ("manifest.csv line 2", "'.'", "start with a letter or a digit")),
+    Case("bench-sidecar-clip-id-ending-in-a-line-break", sidecar(clip_id="a\n"), bench(), 2,
+         ("a.meta.json", "clip_id 'a\\n'")),
+    Case("dataset-sidecar-clip-ids-differing-in-case", two_sidecars_one_id_in_two_cases, ("dataset", "ds"), 2,
+         ("b.meta.json", "clip_id 'clip' is also used by a.meta.json")),
+    Case("dataset-plain-folder-hard-link", hard_linked, ("dataset", "ds"), 2,
+         ("p/b.mp4", "same file as p/a.mp4", "hard link"), forbids=("row",)),
+    Case("bench-251-byte-clip-name", lambda c: c.pan(f"ds/p/{LONG}.mp4"), bench(), 0,
+         check=ids_are(f"p-{LONG}"[:190])),
+    Case("bench-manifest-200-character-clip-id", manifest("manifest.csv", f"path,clip_id\na.mp4,{'b' * 200}\n"),
+         bench(), 0, check=ids_are("b" * 200)),
+    Case("dataset-unicode-platforms-give-one-id-numbered", unicode_platforms, ("dataset", "ds"), 0,
+         check=unicode_ids),
+]  # fmt: skip
+
+# --- 10. numbers JSON does not have ---------------------------------------------------------------
+
+NUMBERS = [
+    Case("bench-sidecar-fps-infinity", sidecar(raw='{{}, "fps": Infinity}'), bench(), 2,
+         ("a.meta.json", "Infinity", "not a JSON number")),
+    Case("bench-jsonl-extra-key-nan", manifest("manifest.jsonl", '{"path": "a.mp4", "weight": NaN}\n'), bench(), 2,
+         ("manifest.jsonl line 1", "NaN")),
+    Case("dataset-sidecar-duration-nan", sidecar(raw='{{}, "duration": NaN}'), ("dataset", "ds"), 2,
+         ("a.meta.json", "NaN")),
+]  # fmt: skip
+
+# --- 11. --root and --write ------------------------------------------------------------------------
+
+
+def long_named(ctx: Ctx) -> None:
+    ctx.pan(f"ds/p/{LONG}.mp4")
+    ctx.video("ds/p/b.mp4", pan_frames(W, H, N, seed=5))
+
+
+def sidecars_read_back(ctx: Ctx, res: Outcome) -> None:
+    names = sorted(n for n in os.listdir(ctx.tmp / "ds" / "p") if n.endswith(".meta.json"))
+    assert len(names) == 2 and "b.meta.json" in names, names
+    assert all(len(os.fsencode(n)) < 255 for n in names) and not [
+        n for n in os.listdir(ctx.tmp / "ds/p") if ".part" in n
+    ]
+    from geocon_core.bench import scan_dataset
+
+    again = scan_dataset(ctx.tmp / "ds")
+    assert again.layout == "sidecars" and [e.clip_id for e in again.entries] == [f"p-{LONG}"[:190], "p-b"]
+    assert again.entries[0].video.name == f"{LONG}.mp4"
+
+
+ROOTS_AND_WRITES = [
+    Case("dataset-root-that-does-not-exist", manifest("manifest.csv", "path\na.mp4\n"),
+         ("dataset", "ds", "--root", "nowhere"), 2, ("--root nowhere", "not a folder")),
+    Case("bench-root-that-is-a-file", manifest("manifest.csv", "path\na.mp4\n"),
+         bench("ds", "out", "--root", "ds/a.mp4"), 2, ("--root ds/a.mp4", "not a folder")),
+    Case("dataset-write-a-251-byte-clip-name", long_named, ("dataset", "ds", "--write"), 0, check=sidecars_read_back),
+]  # fmt: skip
+
+# --- 12. results edited, damaged or moved between two runs -----------------------------------------
+
+
+def benched_then(change: Callable[[Ctx], None]) -> Callable[[Ctx], None]:
+    """``two_clips`` scored into ``out``, then ``change``."""
+
+    def build(ctx: Ctx) -> None:
+        two_clips(ctx)
+        run_ok(ctx, bench())
+        change(ctx)
+
+    return build
+
+
+def write_to(path: str, data: bytes) -> Callable[[Ctx], None]:
+    return lambda ctx: ctx.write(path, data)
+
+
+def cut_to(path: str, size: int) -> Callable[[Ctx], None]:
+    def cut(ctx: Ctx) -> None:
+        p = ctx.tmp / path
+        p.write_bytes(p.read_bytes()[:size])
+
+    return cut
+
+
+def removed(path: str) -> Callable[[Ctx], None]:
+    return lambda ctx: (ctx.tmp / path).unlink()
+
+
+def table_ids(ctx: Ctx) -> list[str]:
+    import pandas as pd
+
+    return list(pd.read_parquet(ctx.tmp / "out" / "tables" / "clips.parquet")["clip_id"])
+
+
+def a_scored_again(ctx: Ctx, res: Outcome) -> None:
+    """p-a is scored again (its damage named in a note), p-b kept; both are in the tables."""
+    assert "2 clips: 2 scored, 0 failed (1 in this run, 1 finished earlier)" in res.stdout, res.stdout
+    said = notes(res, "note: 1 finished clip(s) have a damaged status.json")
+    assert len(said) == 1 and said[0].endswith(": p-a"), res.stderr
+    assert table_ids(ctx) == ["p-a", "p-b"]
+    assert json.loads((ctx.tmp / "out/clips/p-a/status.json").read_text())["status"] == "ok"
+
+
+def b_left_out(ctx: Ctx, res: Outcome) -> None:
+    assert "1 clips: 1 scored, 0 failed (0 in this run, 1 finished earlier)" in res.stdout, res.stdout
+    said = notes(res, "note: 1 clip folder(s) in out/clips hold clips the dataset no longer has")
+    assert len(said) == 1 and "p-b" in said[0], res.stderr
+    assert table_ids(ctx) == ["p-a"] and (ctx.tmp / "out/clips/p-b/record.json").is_file()
+
+
+def other_dataset(ctx: Ctx) -> None:
+    ctx.video("ds2/q/c.mp4", pan_frames(W, H, N, seed=7))
+
+
+def now_of_ds2(ctx: Ctx, res: Outcome) -> None:
+    assert notes(res, f"note: out held the results of the dataset {ctx.tmp / 'ds'}; it holds those of ds2"), res.stderr
+    assert notes(res, "note: 2 clip folder(s) in out/clips hold clips the dataset no longer has"), res.stderr
+    assert table_ids(ctx) == ["q-c"]
+    assert json.loads((ctx.tmp / "out/bench.json").read_text())["dataset"] == str(ctx.tmp / "ds2")
+
+
+def project_moved(ctx: Ctx) -> None:
+    """A plain folder ``first/ds`` scored into ``first/out``, then both moved here (a project
+    folder moved or copied with its results)."""
+    ctx.pan("first/ds/p/a.mp4")
+    ctx.video("first/ds/p/b.mp4", pan_frames(W, H, N, seed=5))
+    run_ok(ctx, bench("first/ds", "first/out"))
+    for name in ("ds", "out"):
+        (ctx.tmp / "first" / name).rename(ctx.tmp / name)
+
+
+def nothing_scored_after_the_move(ctx: Ctx, res: Outcome) -> None:
+    assert "2 clips: 2 scored, 0 failed (0 in this run, 2 finished earlier)" in res.stdout, res.stdout
+    assert notes(res, f"note: out held the results of the dataset {ctx.tmp / 'first' / 'ds'}"), res.stderr
+    assert json.loads((ctx.tmp / "out/bench.json").read_text())["dataset"] == str(ctx.tmp / "ds")
+    assert table_ids(ctx) == ["p-a", "p-b"]
+
+
+DAMAGED = [
+    Case("bench-resume-status-json-is-an-array", benched_then(write_to("out/clips/p-a/status.json", b"[]")), bench(),
+         0, check=a_scored_again),
+    Case("bench-resume-status-json-not-utf8", benched_then(write_to("out/clips/p-a/status.json", b"\xff\xfe\x00")),
+         bench(), 0, check=a_scored_again),
+    Case("bench-resume-status-json-without-its-status",
+         benched_then(write_to("out/clips/p-a/status.json", b'{"format": "geocon-bench-clip/1", "clip_id": "p-a"}')),
+         bench(), 0, check=a_scored_again),
+    Case("bench-resume-record-json-deleted", benched_then(removed("out/clips/p-a/record.json")), bench(), 0,
+         check=a_scored_again),
+    Case("bench-resume-record-json-cut-short", benched_then(cut_to("out/clips/p-a/record.json", 100)), bench(), 0,
+         check=a_scored_again),
+    Case("bench-resume-matches-npz-cut-short", benched_then(cut_to("out/clips/p-a/matches.npz", 100)), bench(), 0,
+         check=a_scored_again),
+    Case("bench-resume-bench-json-is-an-array", benched_then(write_to("out/bench.json", b"[]")), bench(), 2,
+         ("out/bench.json", "an array", "--out")),
+    Case("bench-resume-bench-json-not-utf8", benched_then(write_to("out/bench.json", b"\x98\x00\xff")), bench(), 2,
+         ("out/bench.json", "not UTF-8", "--out")),
+    Case("bench-resume-after-a-clip-was-removed", benched_then(removed("ds/p/b.mp4")), bench(), 0, check=b_left_out),
+    Case("bench-another-dataset-into-the-same-out", benched_then(other_dataset), bench("ds2"), 0, check=now_of_ds2),
+    Case("bench-resume-a-moved-project", project_moved, bench(), 0, check=nothing_scored_after_the_move),
+]  # fmt: skip
+
+# --- 13. validation options and annotation files ---------------------------------------------------
+
+NO_WORK = ("--out", "out", "--no-real", "--no-peer")
+ANNOTATION_HEADER = "clip,regime,gate,movers,static_camera,source,stable_scene,category,artifacts,note"
+
+
+def nothing_met(ctx: Ctx, _res: Outcome) -> None:
+    rows = json.loads((ctx.tmp / "out" / "validation.json").read_text())["metrics"]
+    first = rows[0]
+    assert first["metric"] == "cases scored" and first["n"] == 0 and first["ok"] is None, first
+
+
+VALIDATION = [
+    Case("validate-heights-100000", nothing, ("validate", *NO_WORK, "--heights", "100000"), 2,
+         ("--heights", "at most 4608 px", "100000")),
+    Case("validate-heights-zero", nothing, ("validate", *NO_WORK, "--heights", "0"), 2, ("--heights", "got 0")),
+    Case("validate-heights-an-empty-list", nothing, ("validate", *NO_WORK, "--heights", ","), 2,
+         ("--heights", "lists none")),
+    Case("validate-codecs-an-empty-list", nothing, ("validate", *NO_WORK, "--codecs", ","), 2,
+         ("--codecs", "lists none", "png")),
+    Case("validate-annotations-missing", nothing, ("validate", *NO_WORK, "--annotations", "nope.csv"), 2,
+         ("annotation file nope.csv", "does not exist"), forbids=("Errno",)),
+    Case("validate-report-only-with-nothing-scored", nothing, ("validate", *NO_WORK, "--report-only"), 0,
+         check=nothing_met),
+    Case("footage-fill-from-a-folder-that-does-not-exist", nothing, ("footage", "fill", "--from", "nope"), 2,
+         ("--from nope", "does not exist"), forbids=("--footage-from",)),
+    Case("footage-fill-from-a-file", lambda c: c.write("afile", "x\n"), ("footage", "fill", "--from", "afile"), 2,
+         ("--from afile", "a file")),
+    Case("footage-status-of-a-cache-that-is-a-file", lambda c: c.write("afile", "x\n"),
+         ("footage", "status", "--footage", "afile"), 2, ("--footage afile", "not a folder")),
+    Case("footage-status-annotations-of-other-columns", lambda c: c.write("other.csv", "a,b\n1,2\n"),
+         ("footage", "status", "--annotations", "other.csv"), 2, ("other.csv", "no columns clip", "annotation CSV")),
+    Case("footage-status-annotations-empty", lambda c: c.write("empty.csv", ""),
+         ("footage", "status", "--annotations", "empty.csv"), 2, ("empty.csv", "no columns")),
+    Case("footage-status-annotations-a-folder", lambda c: (c.tmp / "adir").mkdir(),
+         ("footage", "status", "--annotations", "adir"), 2, ("annotation file adir", "a folder"), forbids=("Errno",)),
+    Case("footage-status-annotations-not-utf8", lambda c: c.write("bin.csv", b"\xff\xfe\x00"),
+         ("footage", "status", "--annotations", "bin.csv"), 2, ("bin.csv", "not UTF-8"), forbids=("codec",)),
+    Case("footage-status-annotations-row-short-of-cells",
+         lambda c: c.write("short.csv", f"{ANNOTATION_HEADER}\nreal/x.gif,pan,H\n"),
+         ("footage", "status", "--annotations", "short.csv"), 0),
+    Case("footage-status-annotations-movers-not-a-number",
+         lambda c: c.write("m.csv", f"{ANNOTATION_HEADER}\nreal/x.gif,pan,H,two,no,x,yes,C2,,\n"),
+         ("footage", "status", "--annotations", "m.csv"), 2, ("m.csv row 2", "movers", "'two'")),
+]  # fmt: skip
+
+CASES = RESUME + KINDS + FOLDERS + FRAMES + PATHS + ROWS + ELSEWHERE + IDS + NUMBERS + ROOTS_AND_WRITES + DAMAGED
+CASES += VALIDATION
 
 
 def test_the_catalogue_is_complete():

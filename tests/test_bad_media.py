@@ -11,8 +11,12 @@ To add a case, append a ``Case`` to one of the tables (``CONTAINERS``, ``NOT_CLI
 from __future__ import annotations
 
 import json
+import os
 import pickle
 import re
+import shutil
+import subprocess
+import sys
 from collections.abc import Callable
 from fractions import Fraction
 from pathlib import Path
@@ -22,7 +26,7 @@ import pytest
 
 from . import test_bad_input as catalogue
 from .bad_inputs import pan_frames, snapshot
-from .test_bad_input import Case, Ctx, H, N, Outcome, W, frames_of, judge, record, score
+from .test_bad_input import Case, Ctx, H, N, Outcome, W, build_all_checks, frames_of, judge, record, score
 
 assets = catalogue.assets
 """The catalogue's session inputs (a fixture), shared with ``test_bad_input.py``."""
@@ -432,3 +436,335 @@ def test_an_overlay_png_of_another_size_is_refused_from_its_header(assets, tmp_p
     png.write_bytes(bytes(header))
     with pytest.raises(ValueError, match="1073741824x1073741824"):
         overlays.labels(t)
+
+
+# --- odd sizes, rates, names, frame folders; records from elsewhere; the viewers' inputs ----------
+#
+# Run by ``test_odd_media`` below: a case that could crash the process (a native library) or hang
+# runs as a subprocess of its own, through ``geocon``'s own entry point (so the terminal's lines are
+# judged as a user sees them), with a limit that leaves room for a loaded machine.
+
+ODD_SUBPROCESS_LIMIT_S = 60.0
+"""A subprocess case of ``ODD`` still running after this long hangs (it is killed and fails)."""
+
+
+def clip_of(name: str, width: int = W, height: int = H, **options) -> Callable[[Ctx], None]:
+    """``name``: ``N`` frames of the pan at ``width`` x ``height``, written by ``write_video``."""
+    return lambda ctx: ctx.video(name, pan_frames(width, height, N, seed=3), **options)
+
+
+def turned_90(ctx: Ctx) -> None:
+    """``turned.mp4``: the pan whose track header turns it by 90 degrees (a phone held upright)."""
+    import struct
+
+    data = bytearray(ctx.video("turned.mp4", frames_of("pan")).read_bytes())
+    at = data.find(b"tkhd") + 4 + 40  # version 0: the matrix follows 40 bytes of fields
+    data[at : at + 36] = struct.pack(">9i", 0, 0x10000, 0, -0x10000, 0, 0, 0, 0, 0x40000000)
+    (ctx.tmp / "turned.mp4").write_bytes(bytes(data))
+
+
+def other_clip_beside(name: str, beside: str) -> Callable[[Ctx], None]:
+    """``name`` (the pan, ``N`` frames) with another clip of 4 frames as ``beside``."""
+
+    def build(ctx: Ctx) -> None:
+        ctx.pan(name)
+        ctx.video(beside, pan_frames(W, H, 4, seed=9))
+
+    return build
+
+
+def frame_folder(extra: Callable[[Path, list[np.ndarray]], object]) -> Callable[[Ctx], None]:
+    """``frames/``: the pan as ``00000.png, ...``, then ``extra(folder, frames)``."""
+
+    def build(ctx: Ctx) -> None:
+        from .bad_inputs import write_pngs
+
+        frames = frames_of("pan")
+        folder = write_pngs(ctx.tmp / "frames", frames)
+        extra(folder, frames)
+
+    return build
+
+
+def _bgr(rgb: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(rgb[..., ::-1])
+
+
+def jpeg_of_each(folder: Path, frames: list[np.ndarray]) -> None:
+    import cv2
+
+    for t, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"{t:05d}.jpg"), _bgr(f))
+
+
+def copy_named(folder: Path, frames: list[np.ndarray]) -> None:
+    """A file manager's copy of frame 3 that holds frame 4: ``00003 (1).png``."""
+    import cv2
+
+    cv2.imwrite(str(folder / "00003 (1).png"), _bgr(frames[4]))
+
+
+def upper_case_twin(folder: Path, frames: list[np.ndarray]) -> None:
+    import cv2
+
+    cv2.imwrite(str(folder / "00003.PNG"), _bgr(frames[6]))
+
+
+def apple_double(folder: Path, frames: list[np.ndarray]) -> None:
+    """``._00000.png, ...``: the metadata macOS writes beside each file it copies to a foreign disk."""
+    for t in range(len(frames)):
+        (folder / f"._{t:05d}.png").write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        " + bytes(200))
+
+
+def exif_turned(ctx: Ctx) -> None:
+    """``frames/``: the pan as JPEGs, frame 5 tagged with EXIF orientation 6 (turn by 90 degrees)."""
+    from PIL import Image
+
+    (ctx.tmp / "frames").mkdir()
+    for t, f in enumerate(frames_of("pan")):
+        image = Image.fromarray(f)
+        exif = image.getexif()
+        if t == 5:
+            exif[0x0112] = 6
+        image.save(ctx.tmp / "frames" / f"{t:05d}.jpg", exif=exif)
+
+
+def truncated_png_frame(folder: Path, _frames: list[np.ndarray]) -> None:
+    data = (folder / "00002.png").read_bytes()
+    (folder / "00002.png").write_bytes(data[: len(data) // 2])
+
+
+def multipage_tiff(ctx: Ctx) -> None:
+    from PIL import Image
+
+    pages = [Image.fromarray(f) for f in frames_of("pan")]
+    pages[0].save(ctx.tmp / "pages.tif", save_all=True, append_images=pages[1:])
+
+
+def damaged_h264(ctx: Ctx) -> None:
+    """``flip.mp4``: key frames only, 40 bytes of its later two thirds inverted (frames decode, with
+    errors the decoder would print)."""
+    data = bytearray(ctx.video("flip.mp4", frames_of("pan"), intra=True, faststart=True).read_bytes())
+    for at in np.random.default_rng(1).integers(len(data) // 3, len(data), 40):
+        data[at] ^= 0xFF
+    (ctx.tmp / "flip.mp4").write_bytes(bytes(data))
+
+
+def masks_folder_named_sam2(ctx: Ctx) -> None:
+    ctx.c4()
+    shutil.copytree(ctx.tmp / "c4.masks", ctx.tmp / "sam2")
+
+
+def record_and_clip(ctx: Ctx) -> None:
+    """The C4 clip (``c4.mp4``) and its record ``rec``."""
+    ctx.c4()
+    ctx.record()
+
+
+def warns(words: str) -> Callable[[Ctx, Outcome], None]:
+    """A check: every frame scored, and the record warns with ``words``."""
+
+    def check(ctx: Ctx, _res: Outcome) -> None:
+        rec = record(ctx)
+        assert any(words in w for w in rec["warnings"]), rec["warnings"]
+
+    return check
+
+
+def frames_scored(n: int = N, **video: object) -> Callable[[Ctx, Outcome], None]:
+    """A check: ``n`` frames scored, and ``record.json``'s ``video`` block holds ``video``."""
+
+    def check(ctx: Ctx, _res: Outcome) -> None:
+        got = record(ctx)["video"]
+        assert got["num_frames"] == n, f"{got['num_frames']} frames scored, expected {n}"
+        for key, want in video.items():
+            assert got[key] == want, f"video.{key} = {got[key]!r}, expected {want!r}"
+
+    return check
+
+
+def with_rrd(name: str) -> Callable[[Ctx, Outcome], None]:
+    """A check: every frame scored and the recording ``name`` written."""
+
+    def check(ctx: Ctx, res: Outcome) -> None:
+        frames_scored()(ctx, res)
+        assert (ctx.tmp / name).is_file() and (ctx.tmp / name).stat().st_size > 0, f"no recording {name}"
+
+    return check
+
+
+def no_decoder_lines(_ctx: Ctx, res: Outcome) -> None:
+    """No line of FFmpeg's (``[h264 @ 0x...]``) or OpenCV's (``[ WARN:...]``) own on the terminal."""
+    noise = [line for line in res.stderr.splitlines() if " @ 0x" in line or "WARN:" in line or "libpng" in line]
+    assert not noise, noise[:3]
+
+
+def nothing_served(_ctx: Ctx, res: Outcome) -> None:
+    assert "http://" not in res.stdout, f"the server started before the refusal: {res.stdout[:200]!r}"
+
+
+STRIP = ("score", "strip.mp4", *catalogue.FAST, "--out", "out")
+ODD = [
+    # sizes: OpenCV's DIS flow crashed the process on a strip (its pyramid chosen from the width
+    # alone); SVT-AV1 never returned from a frame under 32 px high and 128 px wide or more
+    Case("score-2048x16-strip", clip_of("strip.mp4", 2048, 16), STRIP, 0,
+         check=frames_scored(source_size=[2048, 16]), runner="subprocess"),
+    Case("score-4096x2-strip", clip_of("strip.mp4", 4096, 2, pix_fmt="yuv444p"), STRIP, 0,
+         check=frames_scored(source_size=[4096, 2]), runner="subprocess"),
+    Case("score-rrd-of-a-2048x16-strip", clip_of("strip.mp4", 2048, 16), (*STRIP, "--rrd", "a.rrd"), 0,
+         check=with_rrd("a.rrd"), runner="subprocess", needs=("rerun",)),
+    Case("score-rrd-of-a-16x16-clip", clip_of("tiny.mp4", 16, 16), score("tiny.mp4", "--rrd", "a.rrd"), 0,
+         check=with_rrd("a.rrd"), needs=("rerun",)),
+    Case("score-161x91-yuv444", clip_of("odd.mp4", 161, 91, pix_fmt="yuv444p"), score("odd.mp4"), 0,
+         check=frames_scored(source_size=[161, 91])),
+    Case("score-turned-90-degrees", turned_90, score("turned.mp4"), 0, check=frames_scored(source_size=[H, W])),
+    # frame rates
+    Case("score-rrd-at-999-fps", clip_of("fast.mp4", fps=999), score("fast.mp4", "--rrd", "a.rrd"), 0,
+         check=with_rrd("a.rrd"), needs=("rerun",)),
+    Case("score-1000-fps-says-so", clip_of("fast.mp4", fps=1000), score("fast.mp4"), 0,
+         check=build_all_checks(frames_scored(fps=24.0), warns("states 1000 frames/s"))),
+    Case("score-bare-h264-stream", clip_of("bare.h264", container="h264"), score("bare.h264"), 0,
+         check=warns("no timestamps")),
+    # names FFmpeg would read as a protocol
+    Case("score-iso-time-name", lambda c: c.pan("2024-05-01T12:30:00.mp4"), score("2024-05-01T12:30:00.mp4"), 0,
+         check=frames_scored()),
+    Case("score-name-file-colon", other_clip_beside("file:b.mp4", "b.mp4"), score("file:b.mp4"), 0,
+         check=frames_scored()),
+    Case("score-name-pipe-colon", lambda c: c.pan("pipe:0.mp4"), score("pipe:0.mp4"), 0, check=frames_scored(),
+         runner="subprocess"),
+    Case("score-fifo-says-save-to-a-file", lambda c: os.mkfifo(c.tmp / "pipe.mp4"), score("pipe.mp4"), 2,
+         ("pipe.mp4", "FIFO", "save the clip"), runner="subprocess"),
+    # files and folders of pictures
+    Case("score-multipage-tiff", multipage_tiff, score("pages.tif"), 0, check=frames_scored(), needs=("PIL",)),
+    Case("score-frames-png-and-jpeg-of-each", frame_folder(jpeg_of_each), score("frames"), 2,
+         ("00000.jpg", "00000.png", "one frame stored twice")),
+    Case("score-frames-with-a-copy-name", frame_folder(copy_named), score("frames"), 2,
+         ("00003.png", "00003 (1).png")),
+    Case("score-frames-png-and-PNG", frame_folder(upper_case_twin), score("frames"), 2, ("00003.PNG", "00003.png")),
+    Case("score-frames-with-appledouble-files", frame_folder(apple_double), score("frames"), 0,
+         check=build_all_checks(frames_scored(), warns("left out 12 hidden files"))),
+    Case("score-frames-exif-turned", exif_turned, score("frames"), 2, ("00005.jpg", "EXIF orientation"),
+         needs=("PIL",)),
+    # the terminal as a user sees it: one line, none of the decoders' own
+    Case("score-junk-one-line", lambda c: c.write("junk.bin", b"no video here\n" * 40), score("junk.bin"), 2,
+         ("junk.bin",), runner="subprocess"),
+    Case("score-truncated-png-frame-one-line", frame_folder(truncated_png_frame), score("frames"), 2,
+         ("00002.png",), runner="subprocess"),
+    Case("score-damaged-h264-quietly", damaged_h264, score("flip.mp4"), 0, check=no_decoder_lines,
+         runner="subprocess"),
+    # masks
+    Case("masks-sam2-is-also-a-folder", masks_folder_named_sam2, score("c4.mp4", "--masks", "sam2"), 2,
+         ("--masks sam2", "./sam2")),
+    # records from elsewhere
+    Case("view-record-format-2", edited(set_in("format", value="geocon-record/2")), VIEW, 2,
+         ("record.json", "geocon-record/2", "score the clip again"), ("not a GeoCon record",), needs=("rerun",)),
+    Case("view-fps-infinite", edited(set_in("video", "fps", value=float("inf"))), VIEW, 2,
+         ("record.json", "video.fps"), check=fast, needs=("rerun",)),
+    Case("view-fps-1e300", edited(set_in("video", "fps", value=1e300)), VIEW, 2, ("record.json", "video.fps"),
+         needs=("rerun",)),
+    Case("view-record-reformatted", edited(lambda d: None), VIEW, 0, check=rendered, needs=("rerun",)),
+    Case("view-matches-npz-of-a-record", record_and_clip, ("view", "rec/matches.npz", "--headless"), 2,
+         ("rec/matches.npz", "part of the record", "geocon view rec"), check=nothing_made, needs=("rerun",)),
+    # the servers' inputs (127.0.0.1 only)
+    Case("serve-a-clip-file", lambda c: c.pan(), ("serve", "clip.mp4", "--port", "0"), 2,
+         ("clip.mp4", "is a file", "geocon view clip.mp4"), runner="subprocess", needs=("viser",)),
+    Case("serve-clip-not-in-the-results", record_and_clip, ("serve", "rec", "--port", "0", "--clip", "nope"), 2,
+         ("--clip", "nope", "rec"), check=nothing_served, runner="subprocess", needs=("viser",)),
+    Case("serve-screenshot-onto-a-folder", record_and_clip,
+         ("serve", "rec", "--port", "0", "--screenshot", "rec"), 2, ("--screenshot", "rec/screenshot.png"),
+         check=nothing_served, runner="subprocess", needs=("viser",)),
+    Case("teach-screenshot-onto-a-folder", lambda c: (c.tmp / "shots").mkdir(),
+         ("teach", "--port", "0", "--screenshot", "shots"), 2, ("--screenshot", "shots/screenshot.png"),
+         check=nothing_served, runner="subprocess", needs=("viser",)),
+]  # fmt: skip
+
+
+def test_the_odd_catalogue_is_complete():
+    names = [c.name for c in CASES + ODD]
+    assert len(names) == len(set(names)), "case names are unique"
+
+
+@pytest.mark.parametrize("case", ODD, ids=[c.name for c in ODD])
+def test_odd_media(case: Case, ctx: Ctx, monkeypatch: pytest.MonkeyPatch):
+    for module in case.needs:
+        pytest.importorskip(module)
+    monkeypatch.setattr(catalogue, "SUBPROCESS_TIMEOUT_S", ODD_SUBPROCESS_LIMIT_S)
+    case.build(ctx)
+    before = snapshot(ctx.tmp)
+    res = ctx.invoke(list(case.argv)) if case.runner == "cli" else ctx.spawn(list(case.argv))
+    problems = judge(case, ctx, res, before)
+    assert not problems, f"{case.name}: {res.describe()}\n  - " + "\n  - ".join(problems)
+
+
+def test_dis_flow_of_thin_regions_does_not_crash():
+    """Every region shape DIS is given, down to 1 px on a side and up to 4096 px long, gives a flow
+    of its own size with each preset (run in a child process: a crash there fails the test, not the
+    run); regions of ordinary shape are computed unpadded, as before."""
+    code = """
+import cv2, numpy as np
+from geocon_core.flow.dense import DisFlow, _dis_safe_padding
+cv2.setNumThreads(1)
+rng = np.random.default_rng(0)
+big = rng.integers(0, 255, (4100, 4100), dtype=np.uint8)
+for preset in ("ultrafast", "fast", "medium"):
+    flow = DisFlow(preset=preset)
+    for h, w in [(16, 256), (16, 100), (24, 1000), (2, 4096), (1, 50), (31, 91), (16, 2048), (5, 512)]:
+        for hh, ww in ((h, w), (w, h)):
+            f = flow._calc(np.ascontiguousarray(big[:hh, :ww]), np.ascontiguousarray(big[1:hh + 1, 1:ww + 1]))
+            assert f.shape == (hh, ww, 2), (preset, hh, ww, f.shape)
+assert _dis_safe_padding(90, 160, 8, 1, 0, 0) == (0, 0)  # a frame of an ordinary clip: as it is
+assert _dis_safe_padding(40, 60, 8, 2, 0, 0) == (0, 0)  # a small object's region DIS reads as it is
+assert _dis_safe_padding(16, 256, 8, 2, 0, 0) == (16, 0)  # the strip: 32 rows for the fast presets
+print("ok")
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0 and res.stdout.strip() == "ok", (res.returncode, res.stderr[-2000:])
+
+
+def test_frames_too_thin_for_the_av1_encoder_are_logged_as_images():
+    pytest.importorskip("rerun")
+    from geocon_viewer.rerun_video import FrameVideo
+
+    assert FrameVideo.encodes(160, 90) and FrameVideo.encodes(33, 4096)
+    assert not FrameVideo.encodes(2048, 16) and not FrameVideo.encodes(16, 16) and not FrameVideo.encodes(2, 360)
+
+
+def test_pycolmap_keeps_the_process_signal_handlers():
+    """Importing pycolmap installs glog's failure handler, which answers ``kill`` with a native stack
+    trace and the process's end; imported through GeoCon (here from a worker thread, as ``geocon
+    teach`` does), ``kill`` still reaches Python's own handler."""
+    pytest.importorskip("pycolmap")
+    code = """
+import os, signal, threading, time
+ran = []
+signal.signal(signal.SIGTERM, lambda *_: ran.append(1))
+from geocon_core.reconstruction.multiview import _pycolmap
+worker = threading.Thread(target=_pycolmap)
+worker.start()
+worker.join()
+os.kill(os.getpid(), signal.SIGTERM)
+time.sleep(0.2)
+print("handled" if ran else "not handled")
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == "handled", (res.returncode, res.stderr[-1500:])
+    assert "Aborted at" not in res.stderr
+
+
+def test_served_urls_put_ipv6_addresses_in_brackets():
+    from geocon_viewer.served import ServedApp
+
+    class Server:
+        def __init__(self, host: str) -> None:
+            self.host = host
+
+        def get_host(self) -> str:
+            return self.host
+
+        def get_port(self) -> int:
+            return 8080
+
+    app = ServedApp()
+    for host, url in (("::1", "http://[::1]:8080"), ("127.0.0.1", "http://127.0.0.1:8080")):
+        app.server = Server(host)  # type: ignore[assignment]
+        assert app.url == url

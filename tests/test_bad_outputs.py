@@ -176,7 +176,81 @@ EMPTY = [
     Case("score-out-is-the-current-folder", pan, score("clip.mp4", out="."), 0, check=record_here),
 ]  # fmt: skip
 
-CASES = DEVICES + INPUTS + EMPTY
+# --- reports of results that are damaged, unfinished or still being written ----------------------
+
+
+def benched(c: Ctx) -> None:
+    """``ds/p/a.mp4`` scored by ``geocon bench`` into ``res`` (bench.json, clips/, tables/)."""
+    c.pan("ds/p/a.mp4")
+    res = c.invoke(["bench", "ds", "--out", "res", *FAST, "--no-rrd"])
+    assert res.code == 0, res.describe()
+
+
+def benched_then(path: str, data: bytes | None) -> Callable[[Ctx], None]:
+    """``benched``, then ``res/<path>`` replaced by ``data`` (removed, a folder, when None)."""
+
+    def build(c: Ctx) -> None:
+        benched(c)
+        target = c.tmp / "res" / path
+        if data is None:
+            import shutil
+
+            shutil.rmtree(target)
+        else:
+            target.write_bytes(data)
+
+    return build
+
+
+HELD: list[object] = []
+"""Locks the cases hold while their command runs (released by the next case that takes one)."""
+
+
+def bench_running(c: Ctx) -> None:
+    """``benched``, and its results folder's lock held, as a running ``geocon bench`` holds it."""
+    from geocon_core.bench import lock_path
+    from geocon_core.files import FolderLock
+
+    benched(c)
+    while HELD:
+        HELD.pop().release()  # type: ignore[attr-defined]
+    lock = FolderLock(lock_path(c.tmp / "res"))
+    lock.acquire()
+    HELD.append(lock)
+
+
+def released(_c: Ctx, _res: Outcome) -> None:
+    while HELD:
+        HELD.pop().release()  # type: ignore[attr-defined]
+
+
+LONG_NAME = "r" * 255
+"""A folder name at the 255-byte limit of common file systems."""
+
+
+def report_here(c: Ctx, _res: Outcome) -> None:
+    assert (c.tmp / LONG_NAME / "report.html").is_file()
+    assert not [n for n in os.listdir(c.tmp) if ".part" in n or ".old" in n]
+
+
+REPORTS = [
+    Case("report-bench-json-is-an-array", benched_then("bench.json", b"[]"), ("report", "res", "--bootstrap", "100"),
+         2, ("res/bench.json", "an array", "damaged")),
+    Case("report-bench-json-not-utf8", benched_then("bench.json", b"\x98\x00\xff"),
+         ("report", "res", "--bootstrap", "100"), 2, ("res/bench.json", "not UTF-8"), forbids=("codec", "again")),
+    Case("report-of-a-damaged-parquet-table", benched_then("tables/clips.parquet", b"PAR1 and then nothing"),
+         ("report", "res", "--bootstrap", "100"), 2, ("res/tables/clips.parquet", "Parquet", "geocon bench")),
+    Case("report-of-results-without-tables", benched_then("tables", None), ("report", "res", "--bootstrap", "100"), 2,
+         ("res/tables", "missing clips.parquet")),
+    Case("report-while-a-bench-writes-the-results", bench_running, ("report", "res", "--bootstrap", "100"), 2,
+         ("res", "running `geocon bench`", f"PID {os.getpid()}"), check=released),
+    Case("report-out-with-a-255-byte-name", benched, ("report", "res", "--bootstrap", "100", "--out", LONG_NAME), 0,
+         check=report_here),
+    Case("bench-out-with-a-255-byte-name", lambda c: c.pan("ds/p/a.mp4"),
+         ("bench", "ds", "--out", LONG_NAME, *FAST, "--no-rrd"), 0),
+]  # fmt: skip
+
+CASES = DEVICES + INPUTS + EMPTY + REPORTS
 
 
 def test_the_catalogue_is_complete():
@@ -323,3 +397,139 @@ def test_a_recording_written_by_the_pipe_reads_back_whole(scored: Path):
         if chunk.entity_path == "/frame/matches/inliers":
             frames.update(chunk.to_record_batch().column("frame").to_pylist())
     assert frames == set(range(11)), sorted(frames)  # pairs (t, t+1) of the 12 frames
+
+
+# --- benchmarks, reports and sidecars on a disk that fills or cannot be written --------------------
+
+
+def _plain_dataset(work: Path, clips: int = 2, frames: int = 12, size: tuple[int, int] = (160, 90)) -> None:
+    from .bad_inputs import pan_frames, write_video
+
+    (work / "ds" / "p").mkdir(parents=True)
+    for k in range(clips):
+        write_video(work / "ds" / "p" / f"c{k}.mp4", pan_frames(*size, frames, seed=k + 1))
+
+
+def _hidden(folder: Path) -> list[str]:
+    """What a run left of its temporary files below ``folder``."""
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if ".part" in p.name or ".old-" in p.name)
+
+
+def _machines_sentence(res: subprocess.CompletedProcess, words: str) -> None:
+    """Exit 1 and, besides the notes on the dataset and the progress bar, one line: ``error: WORDS...``."""
+    lines = [line for line in res.stderr.splitlines() if line.strip() and not line.startswith(("note: ", "benchmark"))]
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert len(lines) == 1 and lines[0].startswith(f"error: {words}"), res.stderr
+
+
+def test_a_bench_on_a_full_disk_stops_records_no_failure_and_resumes(tmp_path: Path):
+    """A full disk is the machine's failure, not the clip's: the run stops with one sentence,
+    no clip is recorded as failed (a resumed run would keep that), nothing partial is left, and
+    the same command finishes the benchmark once there is room."""
+    _plain_dataset(tmp_path)
+    mount = tmp_path / "disk"
+    _mount(mount)
+    try:
+        _fill(mount, 64 * 1024)
+        res = _geocon(["bench", "ds", "--out", str(mount / "res"), *FAST, "--no-rrd"], tmp_path)
+        _machines_sentence(res, "the disk is full")
+        assert "failed p-" not in res.stderr and not list(mount.rglob("status.json")) and not _hidden(mount)
+        (mount / "filler").unlink()
+        again = _geocon(["bench", "ds", "--out", str(mount / "res"), *FAST, "--no-rrd"], tmp_path)
+        assert again.returncode == 0 and "2 clips: 2 scored, 0 failed" in again.stdout, again.stderr
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+def test_a_bench_whose_disk_is_full_at_its_first_file_leaves_no_results_folder(tmp_path: Path):
+    _plain_dataset(tmp_path, clips=1)
+    mount = tmp_path / "disk"
+    _mount(mount)
+    try:
+        _fill(mount, 4 * 1024)
+        res = _geocon(["bench", "ds", "--out", str(mount / "res"), *FAST, "--no-rrd"], tmp_path)
+        _machines_sentence(res, "the disk is full")
+        assert sorted(p.name for p in mount.iterdir()) == ["filler"]
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+def test_a_report_on_a_full_disk_is_the_machines_sentence_and_leaves_nothing(tmp_path: Path):
+    _plain_dataset(tmp_path, clips=1)
+    assert _geocon(["bench", "ds", "--out", "res", *FAST, "--no-rrd"], tmp_path).returncode == 0
+    mount = tmp_path / "disk"
+    _mount(mount)
+    try:
+        _fill(mount, 64 * 1024)
+        res = _geocon(["report", "res", "--bootstrap", "100", "--out", str(mount / "rep")], tmp_path)
+        lines = [line for line in res.stderr.splitlines() if not line.startswith(("report: ", "note: "))]
+        assert res.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: the disk is full"), res.stderr
+        assert sorted(p.name for p in mount.iterdir()) == ["filler"]
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+def _dataset_lines(res: subprocess.CompletedProcess) -> list[str]:
+    """stderr of ``geocon dataset`` less its notes on the dataset."""
+    return [line for line in res.stderr.splitlines() if line.strip() and not line.startswith("note: ")]
+
+
+def test_dataset_write_into_a_read_only_folder_is_the_machines_sentence(tmp_path: Path):
+    _plain_dataset(tmp_path / "src", clips=1)
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    bound = subprocess.run(["mount", "--bind", str(tmp_path / "src" / "ds"), str(ds)], capture_output=True)
+    if bound.returncode != 0:
+        pytest.skip(f"cannot bind-mount here ({bound.stderr.decode(errors='replace').strip()})")
+    try:
+        subprocess.run(["mount", "-o", "remount,ro,bind", str(ds)], check=True, capture_output=True)
+        before = snapshot(ds)
+        res = _geocon(["dataset", "ds", "--write"], tmp_path)
+        lines = _dataset_lines(res)
+        assert res.returncode == 1 and len(lines) == 1, res.stderr
+        assert lines[0].startswith("error: the file system is read-only") and "p/c0.meta.json" in lines[0], lines
+        assert snapshot(ds) == before
+    finally:
+        subprocess.run(["umount", "-l", str(ds)], capture_output=True)
+
+
+def test_dataset_write_on_a_full_disk_writes_every_sidecar_or_none(tmp_path: Path):
+    """Room for one sidecar but not two: none is written (a dataset with one sidecar would read as
+    a sidecar dataset without its other clip), and no temporary file is left."""
+    mount = tmp_path / "disk"
+    _mount(mount)
+    try:
+        _plain_dataset(mount, clips=2, frames=4, size=(32, 32))
+        before = snapshot(mount / "ds")
+        _fill(mount, 4096)  # one page of the tmpfs
+        res = _geocon(["dataset", str(mount / "ds"), "--write"], tmp_path)
+        lines = _dataset_lines(res)
+        assert res.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: the disk is full"), res.stderr
+        assert snapshot(mount / "ds") == before and not _hidden(mount)
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+def test_ctrl_c_during_a_bench_leaves_no_staging_folder_and_the_rerun_finishes(tmp_path: Path):
+    """Ctrl-C (SIGINT to the process group) while clips are being scored: exit 130, the clips in
+    flight leave nothing behind (neither their staging folders nor their clip folders), and the
+    same command scores them."""
+    import signal
+    import time
+
+    _plain_dataset(tmp_path, clips=3, frames=48, size=(320, 180))
+    argv = [sys.executable, "-m", "geocon_viewer.cli", "bench", "ds", "--out", "res", *FAST, "--no-rrd"]
+    proc = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    clips = tmp_path / "res" / "clips"
+    deadline = time.monotonic() + RUN_LIMIT_S
+    while not (clips.is_dir() and _hidden(clips)) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the run ended before a clip was in flight"
+    os.killpg(proc.pid, signal.SIGINT)
+    _out, err = proc.communicate(timeout=RUN_LIMIT_S)
+    assert proc.returncode == 130 and "Traceback" not in err and "interrupted" in err, err
+    assert not _hidden(tmp_path / "res")
+    assert all((c / "status.json").is_file() for c in clips.iterdir()), sorted(os.listdir(clips))
+    again = _geocon(["bench", "ds", "--out", "res", *FAST, "--no-rrd"], tmp_path)
+    assert again.returncode == 0 and "3 clips: 3 scored, 0 failed" in again.stdout, again.stderr

@@ -195,8 +195,9 @@ def test_manifest_problems_are_listed_at_once_with_their_lines(tmp_path):
         "scorer's)",
         "manifest.csv line 3: clip file clips/missing.mp4 does not exist",
         "manifest.csv line 5: clip_id 'dup' is also used by manifest.csv line 4",
-        "manifest.csv line 6: clip_id 'bad id!' must be letters, digits and . _ + = - (it names the result folder), "
-        "or empty for one made from the file name",
+        "manifest.csv line 6: clip_id 'bad id!' must start with a letter or a digit and hold only letters, digits "
+        "and . _ + = - (at most 200 characters; it names the result folder), or be empty for one made from the file "
+        "name",
         "manifest.csv line 7: no path (the clip file, relative to the manifest)",
     ]
     assert "5 problems in the dataset" in str(exc.value)

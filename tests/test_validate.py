@@ -374,7 +374,10 @@ def test_auc_rows_put_the_clip_score_beside_the_peer_on_each_half():
     table = {(m.metric, m.subset): m for m in compute_metrics(rows)}
     vis = table["AUC, clip score (visible artifact vs clean-looking generated)", "check half"]
     assert (vis.value, vis.hits, vis.n, vis.ok) == (1.0, 2, 4, True)  # c2 (cannot judge) counts at 0.5
-    assert vis.detail == "peer 0.00; 1 not judged counted at 0.5"
+    assert vis.detail == (
+        "peer 0.00 [0.00, 0.00]; GeoCon - peer +1.00 [+1.00, +1.00]: too few clips (2 vs 2) to tell the two apart; "
+        "1 not judged counted at 0.5"
+    )
     geo = table["AUC, clip score (geometric artifact vs clean-looking generated)", "check half"]
     assert geo.ok is True and geo.target == ">= 0.80"
     real = table["AUC, clip score (generated vs real cameras)", "check half"]
@@ -383,9 +386,11 @@ def test_auc_rows_put_the_clip_score_beside_the_peer_on_each_half():
     assert (tune.value, tune.ok, tune.target) == (0.0, None, "reported")
     # flag rates beside the peer at GeoCon's clean-looking flag rate (1 of 2 -> the peer's top clean score, 0.6)
     clean = table["flagged inconsistent, GeoCon", "clean-looking generated, check half"]
-    assert (clean.hits, clean.n, clean.detail) == (1, 2, "peer at the same clean-looking rate: 1/2")
+    assert (clean.hits, clean.n) == (1, 2)
+    assert clean.detail.startswith("peer at the same clean-looking rate: 50% [9%, 91%] (1/2); GeoCon - peer +0 points")
     loose = table["F keeps within 1 px (median share)", "real cameras, check half"]
     assert loose.value == pytest.approx(0.85) and loose.n == 2
     assert loose.detail == "0.5 px 0.60 · 1 px 0.85 · 2 px 0.95 · 4 px 1.00; tau_F ~ 7.0 px (median)"
     cams = table["flagged inconsistent, GeoCon", "real cameras, check half"]
-    assert (cams.hits, cams.n, cams.detail) == (0, 2, "peer at the same clean-looking rate: 0/2")
+    assert (cams.hits, cams.n) == (0, 2)
+    assert cams.detail.startswith("peer at the same clean-looking rate: 0% [0%, 66%] (0/2); GeoCon - peer +0 points")

@@ -4,6 +4,7 @@ executors (:mod:`geocon_core.bench`'s process pool and :mod:`geocon_core.bench.r
 
 from __future__ import annotations
 
+import errno
 import shutil
 import time
 import traceback
@@ -29,6 +30,10 @@ __all__ = [
 
 MAX_CRASHES = 2
 """A clip in flight when a worker process dies this many times is recorded as failed."""
+MACHINE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EMFILE, errno.ENFILE})
+"""Errors of the machine, not of a clip (a full disk, a read-only folder, a file-size or open-files
+limit): they stop the run instead of being recorded as the clip's failure, which a resumed run
+would keep."""
 
 
 class BenchError(ValueError):
@@ -140,6 +145,11 @@ def score_one(
         if renderer is not None and _flagged(record, expected_model(entry.category)):
             renderer(out, out / RRD_NAME)
             status["rrd"] = RRD_NAME
+    except OSError as exc:
+        if exc.errno in MACHINE_ERRNOS:
+            shutil.rmtree(out, ignore_errors=True)  # nothing of this clip is left: a resumed run scores it
+            raise
+        status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
     except Exception as exc:  # every failure is recorded with its reason, never dropped
         status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
     status["seconds"] = round(time.perf_counter() - start, 3)

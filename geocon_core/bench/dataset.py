@@ -48,6 +48,7 @@ import json
 import os
 import re
 from collections import defaultdict
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -107,7 +108,15 @@ REQUIRED_FIELDS = (
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv", ".m4v", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts")
 """File suffixes (lower case) a plain folder is scanned for (a ``.ts`` / ``.mts`` / ``.m2ts`` file
 only when it is an MPEG transport stream)."""
-_CLIP_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+=-]{0,199}$")
+_CLIP_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+=-]{0,199}")
+"""A clip id names its results folder: a letter or digit, then letters, digits and ``. _ + = -``
+(never ``.`` or ``..``, nor a line break), at most 200 characters (matched whole: ``fullmatch``)."""
+_ID_RULE = (
+    "must start with a letter or a digit and hold only letters, digits and . _ + = - (at most 200 characters; it "
+    "names the result folder)"
+)
+NAME_MAX = 255
+"""Bytes in a file name on common file systems; a sidecar's name is kept within it."""
 LAYOUTS = ("sidecars", "manifest", "folder")
 """How a dataset describes its clips: a sidecar per clip, one manifest, or nothing but the files."""
 MANIFEST_NAMES = ("manifest.csv", "manifest.jsonl")
@@ -284,10 +293,10 @@ def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
     if missing:
         problems.append(f"{name}: missing field{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
     cid = meta.get("clip_id")
-    if "clip_id" in meta and (not isinstance(cid, str) or not _CLIP_ID.match(cid)):
-        problems.append(
-            f"{name}: clip_id {cid!r} must be a string of letters, digits and . _ + = - (it names the result folder)"
-        )
+    if "clip_id" in meta and not isinstance(cid, str):
+        problems.append(f"{name}: clip_id {cid!r} must be text: {_ID_RULE.removeprefix('must ')}")
+    elif isinstance(cid, str) and not _CLIP_ID.fullmatch(cid):
+        problems.append(f"{name}: clip_id {cid!r} {_ID_RULE}")
     for key in ("model", "scene_id"):
         if key in meta and (meta[key] is None or str(meta[key]).strip() == ""):
             problems.append(f"{name}: {key} is empty")
@@ -319,14 +328,39 @@ def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
     return problems
 
 
+def _read_text(path: Path, name: str, what: str) -> tuple[str | None, str]:
+    """The text of a sidecar or a manifest at ``path`` (``name``: how problems name it; ``what``:
+    what it should be, for a folder in its place), a byte-order mark dropped; or None and the
+    problem: a folder or a link to nothing in its place, or bytes that are not UTF-8 text."""
+    try:
+        data = path.read_bytes()
+    except IsADirectoryError:
+        return None, f"{name}: is a folder, not {what}; rename it"
+    except FileNotFoundError:
+        if path.is_symlink():
+            return None, f"{name}: is a link to nothing ({os.readlink(path)})"
+        return None, f"{name}: does not exist"
+    except OSError as exc:
+        return None, f"{name}: cannot be read ({exc.strerror or exc})"
+    try:
+        return data.decode("utf-8-sig"), ""
+    except UnicodeDecodeError as exc:
+        utf16 = data[:2] in (b"\xff\xfe", b"\xfe\xff")
+        found = "UTF-16 text" if utf16 else f"UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})"
+        return None, f"{name}: is {found if utf16 else 'not ' + found}; save it as UTF-8"
+
+
 def _read_sidecar(sidecar: Path, name: str) -> tuple[dict[str, Any] | None, str]:
     """The parsed sidecar, or None and the problem with it."""
     from ..files import strict_json
 
+    text, problem = _read_text(
+        sidecar, name, "a sidecar file (every *.meta.json below the dataset folder is read as a clip's sidecar)"
+    )
+    if text is None:
+        return None, problem
     try:
-        meta = strict_json(sidecar.read_text(), name)
-    except (OSError, UnicodeDecodeError) as exc:
-        return None, f"{name}: cannot be read ({exc})"
+        meta = strict_json(text, name, constants=False)
     except json.JSONDecodeError as exc:
         return None, f"{name}: not valid JSON ({exc.msg} at line {exc.lineno})"
     except ValueError as exc:
@@ -350,13 +384,25 @@ def _video_problems(
     if outside is not None:
         return [outside]
     if not video.exists():
-        return [f"{name}: clip file {meta.get('video')} does not exist"]
+        return [_missing(name, "clip file", meta.get("video"))]
     if check_clips:
         try:
             check_clip(video)
         except ClipError as exc:
             return [f"{name}: unreadable clip ({exc})"]
     return []
+
+
+def _missing(where: str, what: str, value: object) -> str:
+    """The problem of a clip or masks path (``what``) that names nothing, saying what a path
+    written for another machine looks like: a URL, or Windows separators."""
+    text = str(value)
+    hint = ""
+    if re.match(r"[A-Za-z][A-Za-z0-9+.-]*://", text):
+        hint = " (it is a URL; GeoCon reads local files only: download the clips and name the files)"
+    elif "\\" in text:
+        hint = f" (paths are written with /; this one has \\ as on Windows: {text.replace(chr(92), '/')})"
+    return f"{where}: {what} {text} does not exist{hint}"
 
 
 def _allowed_folders(own: Path, roots: Iterable[str | Path]) -> tuple[Path, ...]:
@@ -388,7 +434,7 @@ def _masks_problems(where: str, value: str, masks: Path, allowed: tuple[Path, ..
     if outside is not None:
         return [outside]
     if not masks.exists():
-        return [f"{where}: masks_path {value} does not exist"]
+        return [_missing(where, "masks_path", value)]
     if check:
         from ..masks import check_masks_path
 
@@ -418,8 +464,8 @@ def _from_sidecars(
             continue
         mine = _field_problems(name, meta)
         cid = meta.get("clip_id")
-        if isinstance(cid, str) and cid in seen:
-            mine.append(f"{name}: clip_id {cid!r} is also used by {seen[cid].relative_to(base)}")
+        if isinstance(cid, str) and cid.casefold() in seen:  # results folders may ignore letter case
+            mine.append(f"{name}: clip_id {cid!r} is also used by {seen[cid.casefold()].relative_to(base)}")
         video = _find_video(sidecar, meta)
         mine += _video_problems(name, sidecar, meta, video, check_clips, allowed)
         if progress is not None:
@@ -440,7 +486,7 @@ def _from_sidecars(
             problems.extend(mine)
             continue
         assert isinstance(cid, str) and video is not None  # checked by _field_problems and above
-        seen[cid] = sidecar
+        seen[cid.casefold()] = sidecar
         entries.append(
             ClipEntry(
                 clip_id=cid,
@@ -486,7 +532,7 @@ def _jsonl_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]],
             continue
         where = f"{name} line {n}"
         try:
-            row = strict_json(line, where)
+            row = strict_json(line, where, constants=False)
         except json.JSONDecodeError as exc:
             problems.append(f"{where}: not valid JSON ({exc.msg})")
             continue
@@ -516,8 +562,10 @@ def _csv_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], l
     if not any(columns):
         return [], [f"{name}: is empty (expected a header row with a 'path' column, then one row per clip)"]
     if "path" not in columns and "video" not in columns:
+        other = next((f" (the header is separated by {sep!r}: save the file with commas)" for sep in (";", "\t", "|")
+                      if len(columns) == 1 and sep in columns[0]), "")  # fmt: skip
         return [], [
-            f"{name}: no 'path' column naming the clip files (or 'video'); its columns are {', '.join(columns)}"
+            f"{name}: no 'path' column naming the clip files (or 'video'); its columns are {', '.join(columns)}{other}"
         ]
     dups = sorted({c for c in columns if columns.count(c) > 1})
     if dups:
@@ -566,10 +614,9 @@ def _csv_reason(exc: csv.Error) -> str:
 def _manifest_rows(path: Path, name: str) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
     """``(where, fields)`` per clip of a manifest, the aliases mapped to sidecar fields
     (:data:`_ALIASES`) and empty cells None, and the problems of its form."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        return [], [f"{name}: cannot be read ({exc})"]
+    text, problem = _read_text(path, name, "a manifest file")
+    if text is None:
+        return [], [problem]
     raw, problems = (_jsonl_rows if path.suffix.lower() == ".jsonl" else _csv_rows)(text, name)
     rows = []
     for where, row in raw:
@@ -598,11 +645,8 @@ def _manifest_field_problems(where: str, fields: dict[str, Any]) -> list[str]:
         elif value is not None and not isinstance(value, str):
             problems.append(f"{where}: {key} must be text, got {value!r}")
     cid = fields.get("clip_id")
-    if isinstance(cid, str) and not _CLIP_ID.match(cid):
-        problems.append(
-            f"{where}: clip_id {cid!r} must be letters, digits and . _ + = - (it names the result folder), or empty "
-            "for one made from the file name"
-        )
+    if isinstance(cid, str) and not _CLIP_ID.fullmatch(cid):
+        problems.append(f"{where}: clip_id {cid!r} {_ID_RULE}, or be empty for one made from the file name")
     cat = fields.get("category")
     if isinstance(cat, str) and cat not in CATEGORIES:
         problems.append(
@@ -806,11 +850,16 @@ def _file_problems(
     if outside is not None:
         mine.append(outside)
     elif not row.video.exists():
-        mine.append(f"{row.where}: clip file {row.fields.get('video')} does not exist")
+        mine.append(_missing(row.where, "clip file", row.fields.get("video")))
     else:
         st = row.video.stat()
         first = seen.setdefault((st.st_dev, st.st_ino), row.where)
-        if first != row.where:
+        if first != row.where and not row.fields:  # a plain folder: two names of one file
+            mine.append(
+                f"{row.where}: is the same file as {first} (a hard link or a link to it); one clip, one file: "
+                "remove one name (a clip scored twice would count twice in every table)"
+            )
+        elif first != row.where:
             mine.append(
                 f"{row.where}: names the same clip file as {first} ({row.video.name}); one clip, one row (a clip "
                 "scored twice would count twice in every table)"
@@ -911,12 +960,21 @@ def _fill(
         if mine or not row.valid:
             continue
         at = Path(os.path.abspath(row.video))
-        sidecar = at.parent / f"{at.stem}.meta.json"
+        sidecar = at.parent / _sidecar_name(at.stem)
         if sidecar in sidecars:  # x.mp4 and x.gif side by side
-            sidecar = at.parent / f"{at.name}.meta.json"
+            sidecar = at.parent / _sidecar_name(at.name)
         sidecars.add(sidecar)
         entries.append(_entry(row, (cid, prompt, name_prompt, scene), facts, masks, sidecar, source))
     return entries, problems, notes
+
+
+def _sidecar_name(stem: str) -> str:
+    """``<stem>.meta.json``; for a stem too long for that to be a file name (a legal 250-byte clip
+    name) its start and a hash of the whole (the sidecar's ``video`` field names the clip)."""
+    from ..files import short_name
+
+    name = f"{stem}.meta.json"
+    return name if len(os.fsencode(name)) <= NAME_MAX else f"{short_name(stem)}.meta.json"
 
 
 def _defaults_notes(entries: list[ClipEntry]) -> list[str]:
@@ -1004,9 +1062,15 @@ def scan_dataset(
     ``roots`` folders. Raises :class:`DatasetError` with every problem found.
     ``progress(checked, total)`` hears each clip checked."""
     base, roots = Path(root), tuple(roots)
+    bad_roots = [f"--root {r} is not a folder" for r in roots if not Path(r).is_dir()]
+    if bad_roots:
+        raise DatasetError(base, [f"{bad_roots[0]}; name a folder the dataset's clips lie in"])
     if base.is_file():
         if base.suffix.lower() in (".csv", ".jsonl"):
             return _from_manifest(base, check_clips, progress, roots)
+        if base.suffix.lower() in VIDEO_SUFFIXES:
+            one = f"{base}: is one clip, not a dataset: score it with `geocon score {base}`, or give its folder"
+            raise DatasetError(base, [one])
         raise DatasetError(base, [f"{base}: not a folder, nor a manifest (.csv or .jsonl)"])
     if not base.is_dir():
         raise DatasetError(base, [f"{base}: not a folder"])
@@ -1044,16 +1108,34 @@ class SidecarsWritten:
 
 
 def write_sidecars(dataset: Dataset, *, force: bool = False) -> SidecarsWritten:
-    """Write each entry's metadata as its sidecar (``<stem>.meta.json`` beside the clip file, each
-    file whole or not at all); an existing sidecar is kept unless ``force``. Reading the dataset
-    again then gives the same entries, now from their sidecars."""
-    written, kept = [], []
+    """Write each entry's metadata as its sidecar (``<stem>.meta.json`` beside the clip file); an
+    existing sidecar is kept unless ``force``. All are written or none: each is written beside its
+    place first, and they are renamed into place only when every one is complete (a full disk or a
+    read-only folder halfway would leave a dataset of some sidecars, which reads as a sidecar
+    dataset without the other clips). Reading the dataset again then gives the same entries, now
+    from their sidecars."""
+    from ..files import deferred_signals, part_path, replace_file
+
+    todo: list[Path] = []
+    kept: list[Path] = []
     for e in dataset.entries:
-        if e.sidecar.exists() and not force:
-            kept.append(e.sidecar)
-            continue
-        tmp = e.sidecar.with_name(f".{e.sidecar.name}.part")
-        tmp.write_text(json.dumps(e.meta, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
-        tmp.replace(e.sidecar)
-        written.append(e.sidecar)
-    return SidecarsWritten(tuple(written), tuple(kept))
+        (kept if e.sidecar.exists() and not force else todo).append(e.sidecar)
+    staged: list[tuple[Path, Path]] = []
+    try:
+        for e in dataset.entries:
+            if e.sidecar in todo:
+                staged.append((part_path(e.sidecar), e.sidecar))
+                text = json.dumps(e.meta, indent=1, ensure_ascii=False, allow_nan=False) + "\n"
+                try:
+                    staged[-1][0].write_text(text, encoding="utf-8")
+                except OSError as exc:  # named by the sidecar, not its temporary name
+                    raise OSError(exc.errno, exc.strerror, str(e.sidecar)) from None
+        with deferred_signals():
+            for tmp, target in staged:
+                replace_file(tmp, target)
+    except BaseException:
+        for tmp, _ in staged:
+            with suppress(OSError):  # a read-only folder has none to remove
+                tmp.unlink(missing_ok=True)
+        raise
+    return SidecarsWritten(tuple(todo), tuple(kept))

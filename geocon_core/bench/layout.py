@@ -35,6 +35,7 @@ __all__ = [
     "read_status",
     "write_status",
     "read_manifest",
+    "checked_manifest",
     "write_manifest",
     "write_json",
     "RECORD_NAME",
@@ -131,22 +132,37 @@ def lock_path(results: Path) -> Path:
 
 
 def write_json(path: Path, payload: dict[str, Any]) -> None:
-    """Write ``payload`` as indented JSON, atomically (a temporary file, then a rename)."""
+    """Write ``payload`` as indented JSON, atomically (a temporary file, then a rename); a failed
+    write (a full disk) leaves no temporary file."""
+    text = json.dumps(payload, indent=1, allow_nan=False) + "\n"
     tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(json.dumps(payload, indent=1, allow_nan=False) + "\n")
-    tmp.replace(path)
+    try:
+        tmp.write_text(text)
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def read_status(folder: Path) -> dict[str, Any] | None:
-    """The ``status.json`` of a clip folder, or None when the clip is not finished."""
+    """The ``status.json`` of a clip folder, or None when the clip is not finished: none, or one
+    that is damaged (not UTF-8 JSON, not an object of :data:`STATUS_FORMAT` saying ``ok`` or
+    ``failed``) or another clip's (its ``clip_id`` is not its folder's name)."""
     path = folder / STATUS_NAME
     if not path.is_file():
         return None
     try:
-        status = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
+        status = json.loads(path.read_bytes())
+    except (OSError, ValueError):  # not JSON, not UTF-8
         return None
-    return status if status.get("format") == STATUS_FORMAT else None
+    whole = (
+        isinstance(status, dict)
+        and status.get("format") == STATUS_FORMAT
+        and status.get("clip_id") == folder.name
+        and status.get("status") in ("ok", "failed")
+        and isinstance(status.get("meta") or {}, dict)
+    )
+    return status if whole else None
 
 
 def write_status(folder: Path, status: dict[str, Any]) -> None:
@@ -160,6 +176,28 @@ def read_manifest(results: Path) -> dict[str, Any]:
     ``FileNotFoundError`` when it is missing; the caller checks ``"format"``."""
     parsed: dict[str, Any] = json.loads(manifest_path(results).read_text())
     return parsed
+
+
+def checked_manifest(results: Path) -> dict[str, Any]:
+    """The ``bench.json`` of a results folder, checked. Raises ``FileNotFoundError`` when it is
+    missing and ``ValueError`` (one sentence naming it, for the caller to add what to do) when it is
+    not a GeoCon benchmark manifest: not UTF-8 JSON, not an object, or of another format."""
+    path = manifest_path(results)
+    try:
+        parsed = json.loads(path.read_bytes())
+    except UnicodeDecodeError:
+        why = "not UTF-8 text"
+    except json.JSONDecodeError as exc:
+        why = f"invalid JSON: {exc.msg} at line {exc.lineno}"
+    else:
+        if not isinstance(parsed, dict):
+            kind = {list: "an array", str: "a string", bool: "true or false", type(None): "null"}.get(type(parsed))
+            why = f"{kind or 'a number'}, not a JSON object"
+        elif parsed.get("format") != BENCH_FORMAT:
+            why = f"its format is {parsed.get('format')!r}, not {BENCH_FORMAT}"
+        else:
+            return parsed
+    raise ValueError(f"{path} is not the manifest of GeoCon benchmark results ({why})")
 
 
 def write_manifest(results: Path, manifest: dict[str, Any]) -> None:

@@ -7,25 +7,28 @@ fails (unreadable, a crash in scoring, a worker process that dies) is recorded a
 reason and counted, never dropped; ``retry_failed`` scores failed clips again. A finished clip
 whose metadata changed since (a category set, a prompt fixed in its sidecar) takes the new
 metadata without being scored again, as long as its clip file and masks are the same. A finished
-clip whose file was replaced since (same name, other bytes: its fingerprint changed) is scored
-again, and said so.
+clip whose file was replaced since (same name, other bytes: its fingerprint changed), or whose
+status or record was damaged since, is scored again, and said so. The tables hold the dataset's
+clips only (a folder of a clip it no longer has is left out, with a note). A full disk or a
+read-only folder stops the run instead of failing the clips in flight, and Ctrl-C leaves nothing
+of those clips behind.
 """
 
 from __future__ import annotations
 
-import json
 import multiprocessing
 import os
 import socket
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from ..config import ScoreConfig, config_hash
-from ..files import FolderLock, LockHeld, check_out_dir, die_with_parent, quiet_resource_tracker
+from ..files import FolderLock, LockHeld, check_out_dir, clear_stale_parts, die_with_parent, quiet_resource_tracker
 from ..media import clip_fingerprint
 from .clip import (
     MAX_CRASHES,
@@ -36,15 +39,17 @@ from .clip import (
     score_one,
     score_to_folder,
 )
-from .dataset import ClipEntry, scan_dataset
+from .dataset import MANIFEST_NAMES, ClipEntry, scan_dataset
 from .layout import (
     BENCH_FORMAT,
     CLIPS_DIR,
+    STATUS_NAME,
     check_output_kind,
+    checked_manifest,
     clip_dir,
+    clip_folders,
     lock_path,
     manifest_path,
-    read_manifest,
     read_status,
     write_manifest,
     write_status,
@@ -81,18 +86,45 @@ class BenchSummary:
     tables: tuple[Path, ...] = field(default_factory=tuple)
 
 
-def _prepare_results(results: Path, dataset: Path, cfg: ScoreConfig) -> None:
+def _same_dataset(scored: object, dataset: Path, found: Path) -> bool:
+    """Whether ``scored`` (the dataset a results folder's ``bench.json`` names) is the dataset given
+    now as ``dataset`` (read from ``found``: the folder, or the manifest in it or given), by
+    resolved path: a folder and the ``manifest.csv`` in it are one dataset."""
+    if not isinstance(scored, str):
+        return True  # results that do not say which dataset they hold
+    same = {dataset.resolve(), found.resolve()}
+    if found.is_file() and found.name in MANIFEST_NAMES:
+        same.add(found.resolve().parent)
+    return Path(scored) in same
+
+
+def _prepare_results(
+    results: Path,
+    dataset: Path,
+    cfg: ScoreConfig,
+    found: Path | None = None,
+    note: Callable[[str], None] = lambda _msg: None,
+) -> None:
+    """Start the results folder (its ``bench.json``), or check that the one there was scored with
+    ``cfg``, so that this run resumes it. Results of another dataset path (one that moved, was
+    copied, or another dataset: ``found`` is where ``dataset`` was read from) name this one from now
+    on, and ``note`` says so: a clip is resumed only where its id and file are the same, and the
+    tables hold this dataset's clips only."""
     from ..scoring import software_versions
 
     manifest = manifest_path(results)
     digest = config_hash(cfg)
     if manifest.is_file():
         try:
-            old = read_manifest(results)
-        except json.JSONDecodeError:
-            raise BenchError(f"{manifest} is not valid JSON; remove it or choose another --out") from None
-        if old.get("format") != BENCH_FORMAT:
-            raise BenchError(f"{results} holds something other than GeoCon benchmark results; choose another --out")
+            old = checked_manifest(results)
+        except ValueError as exc:
+            raise BenchError(f"{exc}; choose another --out") from None
+        if old.get("config_hash") == digest and not _same_dataset(old.get("dataset"), dataset, found or dataset):
+            note(
+                f"{results} held the results of the dataset {old['dataset']}; it holds those of {dataset} from now on "
+                "(a clip is kept where its id and its file's bytes are the same, the others are scored)"
+            )
+            write_manifest(results, {**old, "dataset": str(dataset.resolve())})
         if old.get("config_hash") != digest:
             raise BenchError(
                 f"{results} was scored with another configuration (hash {old.get('config_hash')}, preset "
@@ -155,11 +187,7 @@ def run_bench(
         raise BenchError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     note = on_note or (lambda _msg: None)
     data, out = Path(dataset), Path(results)
-    try:
-        check_out_dir(out)
-        check_output_kind(out, "results")
-    except ValueError as exc:
-        raise BenchError(str(exc)) from None
+    _check_out(out)
     dataset_read = scan_dataset(data, roots=roots)
     entries = list(dataset_read.entries)
     for sentence in dataset_read.notes:
@@ -169,6 +197,7 @@ def run_bench(
 
         ray = ray or RayOptions(local_cpus=workers)
         preflight(ray)  # Ray installed, the cluster answers: refused before the results folder is made
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -178,8 +207,11 @@ def run_bench(
         lock.acquire()
     except LockHeld as held:
         raise BenchError(_busy(out, held)) from None
+    except BaseException:
+        _remove_if_empty(out, created)
+        raise
     try:
-        _prepare_results(out, data, cfg)
+        _prepare_results(out, data, cfg, dataset_read.root, note)
         start = time.perf_counter()
         todo, failed_before = _unfinished(entries, out, retry_failed, note)
         skipped = len(entries) - len(todo)
@@ -203,9 +235,10 @@ def run_bench(
             _score_all(todo, out, cfg, workers, rrd_renderer, finished, note)
         paths: tuple[Path, ...] = ()
         if tables:
-            paths = write_tables(out)
+            paths = _write_tables(out, entries, note)
     finally:
         lock.release()
+        _remove_if_empty(out, created)
     return BenchSummary(
         results=out,
         total=len(entries),
@@ -215,6 +248,55 @@ def run_bench(
         seconds=time.perf_counter() - start,
         tables=paths,
     )
+
+
+def _write_tables(out: Path, entries: list[ClipEntry], note: Callable[[str], None]) -> tuple[Path, ...]:
+    """The tables of the dataset's clips (:func:`~geocon_core.bench.tables.write_tables`); clip
+    folders of clips the dataset no longer has (removed, or renamed: their id changed) are left
+    out, and ``note`` says so. A record that cannot be read is one sentence (:class:`BenchError`)."""
+    from ..record import RecordError
+
+    ids = {e.clip_id for e in entries}
+    gone = [f.name for f in clip_folders(out) if f.name not in ids and read_status(f) is not None]
+    if gone:
+        note(
+            f"{len(gone)} clip folder(s) in {out / CLIPS_DIR} hold clips the dataset no longer has (removed or renamed "
+            f"since they were scored: {_named(gone)}); they are left out of the tables, and their folders are kept"
+        )
+    try:
+        return write_tables(out, clip_ids=ids)
+    except RecordError as exc:
+        said = str(exc).removesuffix(": score the clip again")
+        raise BenchError(
+            f"the tables cannot be written: {said}; remove that clip's folder and run the same command again, which "
+            "scores it anew"
+        ) from None
+
+
+def _check_out(out: Path) -> None:
+    """Refuse, before the dataset is read, a results folder that cannot be one
+    (:func:`~geocon_core.files.paths.check_out_dir`), is a record folder or lies in one, or holds
+    a ``bench.json`` that is damaged or of another format (:class:`BenchError`)."""
+    try:
+        check_out_dir(out)
+        check_output_kind(out, "results")
+    except ValueError as exc:
+        raise BenchError(str(exc)) from None
+    if manifest_path(out).is_file():
+        try:
+            checked_manifest(out)
+        except ValueError as exc:
+            raise BenchError(f"{exc}; choose another --out") from None
+
+
+def _remove_if_empty(out: Path, created: bool) -> None:
+    """Remove the results folder this run ``created`` when it stopped before writing anything in
+    it (a full disk at its first file): an empty ``clips/`` and the folder itself."""
+    if not created or manifest_path(out).exists():
+        return
+    for folder in (out / CLIPS_DIR, out):
+        with suppress(OSError):
+            folder.rmdir()  # only when empty
 
 
 def _busy(out: Path, held: LockHeld) -> str:
@@ -234,12 +316,18 @@ def _unfinished(
     rewritten) when its clip file and ``masks_path`` are those it was scored from; otherwise it
     keeps its earlier metadata and scores, and ``note`` says so."""
     todo, failed_before = [], 0
-    refreshed, stale, replaced = 0, [], []
+    refreshed, stale, replaced, damaged = 0, [], [], []
     for entry in entries:
         folder = clip_dir(out, entry.clip_id)
         status = read_status(folder)
+        if status is None and (folder / STATUS_NAME).exists():
+            damaged.append(entry.clip_id)
         if status is None or (retry_failed and status["status"] == "failed"):
             todo.append(entry)
+            continue
+        if status["status"] == "ok" and not _record_whole(folder):
+            todo.append(entry)
+            damaged.append(entry.clip_id)
             continue
         scored_on = _scored_fingerprint(folder, status)
         if scored_on is not None and clip_fingerprint(entry.video) != scored_on:
@@ -270,7 +358,27 @@ def _unfinished(
             f"{len(replaced)} clip file(s) changed since they were scored (other bytes under the same name) and are "
             f"scored again: {shown}"
         )
+    if damaged:
+        note(
+            f"{len(damaged)} finished clip(s) have a damaged status.json, or a record.json or matches.npz that is "
+            f"missing or damaged, and are scored again: {_named(damaged, REPLACED_NAMED)}"
+        )
     return todo, failed_before
+
+
+def _record_whole(folder: Path) -> bool:
+    """Whether the record of a finished clip is there to be read: its ``record.json`` parses as a
+    record and its ``matches.npz`` is a whole zip archive (its directory at its end: not cut short);
+    the tables read both."""
+    import zipfile
+
+    from ..record import RecordError, read_record_json
+
+    try:
+        read_record_json(folder)
+    except RecordError:
+        return False
+    return (folder / "matches.npz").is_file() and zipfile.is_zipfile(folder / "matches.npz")
 
 
 REPLACED_NAMED = 10
@@ -353,13 +461,33 @@ def _score_all(
                 if broken and not inflight:
                     break
         except BaseException:  # Ctrl-C: finished clips are kept, clips in flight are scored again on resume
-            for proc in list(getattr(pool, "_processes", {}).values()):
+            procs = list(getattr(pool, "_processes", {}).values())
+            for proc in procs:
                 proc.terminate()
+            for proc in procs:
+                proc.join(timeout=TERMINATE_WAIT_S)
+            for entry in inflight.values():  # what the killed workers were writing
+                _clear_unfinished(clip_dir(out, entry.clip_id))
             _tracker_checked(note)
             pool.shutdown(wait=False, cancel_futures=True)
             raise
         _tracker_checked(note)  # before the pool's semaphores are forgotten by a tracker started anew
         pool.shutdown(wait=True)
+
+
+TERMINATE_WAIT_S = 5.0
+"""After Ctrl-C or ``kill``, seconds to wait for each worker process to end before its unfinished
+clip folder is removed."""
+
+
+def _clear_unfinished(folder: Path) -> None:
+    """Remove what a killed worker left of a clip: its staging folder (``.<clip_id>.part-<pid>``,
+    its process gone) and the clip folder when it holds no ``status.json`` (scored again on resume)."""
+    import shutil
+
+    clear_stale_parts(folder)
+    if folder.is_dir() and not (folder / STATUS_NAME).exists():
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _died(fut: Future[dict[str, Any]]) -> bool:

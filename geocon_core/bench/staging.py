@@ -17,7 +17,7 @@ import contextlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from ..files import clear_stale_parts, deferred_signals, part_path, refuse_special, remove_path
+from ..files import clear_stale_parts, deferred_signals, parents_made, part_path, refuse_special, remove_path
 from ..record import OVERLAYS_DIR
 from .layout import RRD_NAME
 
@@ -51,16 +51,16 @@ def staged_record(out_dir: str | Path, then: Sequence[Callable[[], object]] = ()
     commits is held until all of them are done (:func:`~geocon_core.files.paths.deferred_signals`), so
     a signal leaves either the old record with its old recording or the new pair."""
     out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    clear_stale_parts(out_dir)
-    stage = part_path(out_dir)
-    remove_path(stage)
-    stage.mkdir()
-    try:
-        yield stage
-        with deferred_signals():
-            _commit(stage, out_dir)
-            for commit in then:
-                commit()
-    finally:
+    with parents_made(out_dir.parent):  # a failed run leaves no empty parent behind
+        clear_stale_parts(out_dir)
+        stage = part_path(out_dir)
         remove_path(stage)
+        stage.mkdir()
+        try:
+            yield stage
+            with deferred_signals():
+                _commit(stage, out_dir)
+                for commit in then:
+                    commit()
+        finally:
+            remove_path(stage)

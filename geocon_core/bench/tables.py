@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Collection
 
 from ..record import ClipRecord, read_record
 from ..scoring import sensitivity_scan, timeline_rows, window_t_inf
@@ -123,13 +123,14 @@ def _fit_cols(prefix: str, fit) -> dict[str, Any]:
     }
 
 
-def collect_rows(results: str | Path) -> dict[str, list[dict[str, Any]]]:
-    """The rows of every table, from the finished clips of a results folder."""
+def collect_rows(results: str | Path, clip_ids: Collection[str] | None = None) -> dict[str, list[dict[str, Any]]]:
+    """The rows of every table, from the finished clips of a results folder (of those in
+    ``clip_ids`` only, when given: the clips of the dataset scored)."""
     base = Path(results)
     rows: dict[str, list[dict[str, Any]]] = {name: [] for name in TABLES}
     for folder in clip_folders(base):
         status = read_status(folder)
-        if status is None:
+        if status is None or (clip_ids is not None and folder.name not in clip_ids):
             continue
         rel = f"{CLIPS_DIR}/{folder.name}"
         record = read_record(folder) if status["status"] == "ok" else None
@@ -332,8 +333,9 @@ def _frame(name: str, rows: list[dict[str, Any]]):
     return df
 
 
-def write_tables(results: str | Path) -> tuple[Path, ...]:
-    """Write ``RESULTS/tables/<name>.parquet`` for every table (each atomically)."""
+def write_tables(results: str | Path, clip_ids: Collection[str] | None = None) -> tuple[Path, ...]:
+    """Write ``RESULTS/tables/<name>.parquet`` for every table (each atomically; a failed write,
+    a full disk, leaves no temporary file), of the clips ``clip_ids`` when given (:func:`collect_rows`)."""
     try:
         import pyarrow  # noqa: F401
     except ImportError:
@@ -345,11 +347,15 @@ def write_tables(results: str | Path) -> tuple[Path, ...]:
     folder = tables_dir(base)
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
-    for name, rows in collect_rows(base).items():
+    for name, rows in collect_rows(base, clip_ids).items():
         path = folder / f"{name}.parquet"
         tmp = folder / f".{name}.parquet.part"
-        _frame(name, rows).to_parquet(tmp, index=False)
-        tmp.replace(path)
+        try:
+            _frame(name, rows).to_parquet(tmp, index=False)
+            tmp.replace(path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
         paths.append(path)
     return tuple(paths)
 
@@ -364,4 +370,15 @@ def read_tables(results: str | Path) -> dict[str, Any]:
         raise FileNotFoundError(
             f"{folder}: missing {', '.join(f'{n}.parquet' for n in missing)}; run `geocon bench` first"
         )
-    return {name: pd.read_parquet(folder / f"{name}.parquet") for name in TABLES}
+    tables = {}
+    for name in TABLES:
+        path = folder / f"{name}.parquet"
+        try:
+            tables[name] = pd.read_parquet(path)
+        except (OSError, ValueError) as exc:  # pyarrow's errors of a damaged file are both
+            why = str(exc).split(". ")[0].split(":")[-1].strip()
+            raise ValueError(
+                f"{path} cannot be read as a Parquet table ({why}); run the same `geocon bench` command again, "
+                "which writes the tables anew"
+            ) from None
+    return tables

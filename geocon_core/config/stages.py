@@ -244,6 +244,11 @@ class MotionConfig:
             )
 
 
+MAX_SAM2_SIZE = 4096
+"""The largest side SAM-2 may see the frames at (four times its training size; a larger square
+image would not fit a machine's memory)."""
+
+
 @dataclass(frozen=True)
 class Sam2Config:
     """SAM-2 masks (:class:`~geocon_core.masks.sam2.Sam2Masks`): the model, the size it sees and
@@ -268,8 +273,11 @@ class Sam2Config:
     def __post_init__(self) -> None:
         if not self.model.strip():
             raise ValueError("sam2.model must name a SAM-2 model configuration, e.g. sam2.1_hiera_t")
-        if self.image_size < 64 or self.image_size % 32:
-            raise ValueError(f"sam2.image_size must be a multiple of 32 of at least 64 px, got {self.image_size}")
+        if not 64 <= self.image_size <= MAX_SAM2_SIZE or self.image_size % 32:
+            raise ValueError(
+                f"sam2.image_size must be a multiple of 32 from 64 to {MAX_SAM2_SIZE} px (--sam2-size), "
+                f"got {self.image_size}"
+            )
         if self.box_margin < 0 or not 0.0 < self.prompt_cover <= 1.0:
             raise ValueError("sam2.box_margin must be >= 0 and sam2.prompt_cover in (0, 1]")
 

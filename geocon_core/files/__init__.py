@@ -19,6 +19,7 @@ from .jsonin import (
 from .lockfile import (
     FolderLock,
     LockHeld,
+    lock_holder,
 )
 from .npz import (
     NPZ_ERRORS,
@@ -32,6 +33,7 @@ from .paths import (
     check_out_file,
     clear_stale_parts,
     deferred_signals,
+    parents_made,
     part_path,
     part_prefix,
     record_parts,
@@ -39,6 +41,7 @@ from .paths import (
     remove_path,
     replace_dir,
     replace_file,
+    short_name,
     special_file,
 )
 from .procs import (
@@ -64,6 +67,7 @@ __all__ = [
     "check_out_file",
     "clear_stale_parts",
     "deferred_signals",
+    "parents_made",
     "part_path",
     "part_prefix",
     "record_parts",
@@ -71,9 +75,11 @@ __all__ = [
     "refuse_special",
     "replace_dir",
     "replace_file",
+    "short_name",
     "special_file",
     "FolderLock",
     "LockHeld",
+    "lock_holder",
     "MAX_NUMBER_CHARS",
     "strict_json",
     "NPZ_ERRORS",

@@ -35,9 +35,14 @@ def _number(text: str, where: str, kind: type) -> Any:
     return kind(text)
 
 
-def strict_json(text: str, where: str) -> Any:
+def _constant(name: str, where: str) -> Any:
+    raise ValueError(f"{where}: {name} is not a JSON number (JSON has no NaN or Infinity); write a number or null")
+
+
+def strict_json(text: str, where: str, *, constants: bool = True) -> Any:
     """Parse ``text`` (the contents of ``where``); ``ValueError`` naming ``where`` for a repeated
-    key, an absurdly long number or arrays and objects nested deeper than the parser can follow,
+    key, an absurdly long number, arrays and objects nested deeper than the parser can follow and,
+    without ``constants``, ``NaN`` or ``Infinity`` (which Python's parser accepts and JSON has not);
     ``json.JSONDecodeError`` for text that is not JSON."""
     try:
         return json.loads(
@@ -45,6 +50,7 @@ def strict_json(text: str, where: str) -> Any:
             object_pairs_hook=lambda pairs: _object(pairs, where),
             parse_int=lambda s: _number(s, where, int),
             parse_float=lambda s: _number(s, where, float),
+            parse_constant=None if constants else lambda name: _constant(name, where),
         )
     except RecursionError:
         raise ValueError(

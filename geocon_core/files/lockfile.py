@@ -20,7 +20,7 @@ from types import TracebackType
 
 from .procs import pid_alive
 
-__all__ = ["FolderLock", "LockHeld"]
+__all__ = ["FolderLock", "LockHeld", "lock_holder"]
 
 
 class LockHeld(Exception):
@@ -109,3 +109,27 @@ class FolderLock:
             return
         os.close(fd)
         raise LockHeld(self.path, pid, host)
+
+
+def lock_holder(path: Path) -> LockHeld | None:
+    """Who holds the lock file ``path`` now (a :class:`LockHeld` naming the PID and host), or None
+    when no process does (no file, or one its dead holder left), without taking the lock: a shared
+    ``flock`` is tried and dropped at once. On a file system without ``flock`` the file's PID
+    decides, as in :meth:`FolderLock.acquire`."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return LockHeld(path, *FolderLock(path)._holder(wait_s=1.0))
+    except OSError:
+        pid, host = FolderLock(path)._holder()
+        mine = pid is None or pid == os.getpid() or (host == socket.gethostname() and not pid_alive(pid))
+        return None if mine else LockHeld(path, pid, host)
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)

@@ -33,12 +33,14 @@ __all__ = [
     "check_out_dir",
     "check_out_file",
     "clear_stale_parts",
+    "parents_made",
     "part_path",
     "part_prefix",
     "remove_path",
     "replace_dir",
     "refuse_special",
     "replace_file",
+    "short_name",
     "special_file",
 ]
 
@@ -132,16 +134,17 @@ def check_out_dir(path: Path, option: str = "--out") -> Path:
     return path
 
 
-def check_out_file(path: Path, option: str) -> Path:
+def check_out_file(path: Path, option: str, example: str = "audit.rrd") -> Path:
     """Check that a file can be written at ``path`` (``geocon score --rrd``): not a folder, and its
     folder can be (or is) a writable folder (:func:`check_out_dir`). Raises :class:`OutPathError`
-    with one sentence naming ``option``; returns ``path`` unchanged.
+    with one sentence naming ``option`` (a folder is answered with ``path / example`` as the name to
+    give); returns ``path`` unchanged.
 
     A device, a FIFO or a socket (the null device too, found by its device numbers) is refused:
     outputs are written beside their place and renamed into it, which would replace the node."""
     refuse_special(path, option)
     if path.is_dir():
-        raise OutPathError(f"{option} {path} is a folder; give a file name (e.g. {path / 'audit.rrd'})")
+        raise OutPathError(f"{option} {path} is a folder; give a file name (e.g. {path / example})")
     try:
         check_out_dir(path.parent, option)
     except OutPathError as exc:
@@ -311,6 +314,28 @@ def replace_file(tmp: Path, target: Path) -> None:
 
 
 @contextmanager
+def parents_made(folder: Path) -> Iterator[None]:
+    """Create ``folder`` and its missing parents for the length of the block; when the block
+    fails (or is interrupted), the folders it created are removed again where they hold no file
+    (nor do the folders made inside them during the block), so a failed run leaves no empty
+    output folder behind (``geocon-out/`` of a clip that is missing)."""
+    made = []
+    probe = Path(os.path.abspath(folder))
+    while not probe.exists() and not probe.is_symlink():
+        made.append(probe)
+        probe = probe.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        yield
+    except BaseException:
+        inside = [Path(root) for root, _, _ in os.walk(made[0], topdown=False)] if made else []
+        for path in inside + made[1:]:  # the deepest first
+            with suppress(OSError):
+                path.rmdir()
+        raise
+
+
+@contextmanager
 def replace_dir(target: Path) -> Iterator[Path]:
     """Yield a new, empty temporary sibling of ``target`` to write into. When the block ends without
     an error, it replaces ``target`` (a previous ``target`` is removed only then); on an error it is
@@ -324,23 +349,23 @@ def replace_dir(target: Path) -> Iterator[Path]:
     if target.exists() and not target.is_dir():  # only a folder is replaced, never a file or a device
         raise OutPathError(f"{target} exists and is not a folder; choose a folder (it is created if missing)")
     parent = target.parent
-    parent.mkdir(parents=True, exist_ok=True)
-    clear_stale_parts(target)
-    tmp = parent / f"{part_prefix(target)}{os.getpid()}-{secrets.token_hex(4)}"
-    tmp.mkdir()  # honours the umask, unlike tempfile.mkdtemp (0700)
-    try:
-        yield tmp
-        if target.exists() or target.is_symlink():
-            old = parent / f".{short_name(target.name)}.old-{os.getpid()}-{secrets.token_hex(4)}"
-            target.rename(old)
-            try:
+    with parents_made(parent):
+        clear_stale_parts(target)
+        tmp = parent / f"{part_prefix(target)}{os.getpid()}-{secrets.token_hex(4)}"
+        tmp.mkdir()  # honours the umask, unlike tempfile.mkdtemp (0700)
+        try:
+            yield tmp
+            if target.exists() or target.is_symlink():
+                old = parent / f".{short_name(target.name)}.old-{os.getpid()}-{secrets.token_hex(4)}"
+                target.rename(old)
+                try:
+                    tmp.rename(target)
+                except BaseException:
+                    old.rename(target)
+                    raise
+                shutil.rmtree(old, ignore_errors=True)
+            else:
                 tmp.rename(target)
-            except BaseException:
-                old.rename(target)
-                raise
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise

@@ -37,6 +37,7 @@ __all__ = [
     "ClipError",
     "ClipKind",
     "DEFAULT_FPS",
+    "MAX_FPS",
     "FrameCount",
     "GifCut",
     "IMAGE_SUFFIXES",
@@ -48,6 +49,7 @@ __all__ = [
     "timing_note",
     "video_tracks",
     "gif_cut",
+    "hidden_frames_note",
     "image_frames",
     "imread_any",
     "imwrite_any",
@@ -57,6 +59,7 @@ __all__ = [
     "native_path",
     "native_safe",
     "open_video",
+    "quiet_decoder_logs",
     "resolve_clip",
 ]
 
@@ -78,9 +81,12 @@ def native_safe(name: str) -> bool:
 def native_path(name: str) -> Iterator[str]:
     """``name`` in a form native libraries accept: itself when it is :func:`native_safe`, else a
     link with a plain name in a private temporary folder, removed when the block ends (a decoder
-    that opened the file keeps it open)."""
+    that opened the file keeps it open). A relative name holding a colon is given as ``./name``:
+    FFmpeg reads the text before a colon as a protocol, so ``2024-05-01T12:30:00.mp4`` would name
+    the protocol ``2024-05-01T12``, ``file:b.mp4`` the file ``b.mp4`` and ``pipe:0.mp4`` the
+    standard input."""
     if native_safe(name):
-        yield name
+        yield name if ":" not in name or os.path.isabs(name) else os.path.join(".", name)
         return
     folder = tempfile.mkdtemp(prefix="geocon-link-")
     link = os.path.join(
@@ -93,11 +99,19 @@ def native_path(name: str) -> Iterator[str]:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_END = b"IEND\xaeB`\x82"
+"""The type and CRC of the ``IEND`` chunk that ends every whole PNG file."""
+
+
 def imread_any(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None:
     """``cv2.imread`` for any file name (the bytes are read by Python, decoded by OpenCV); None
-    when the file cannot be read or decoded."""
+    when the file cannot be read or decoded. A PNG cut short (no ``IEND`` chunk at its end) is None
+    without being handed to libpng, which would print its own error on the terminal."""
     try:
         data = np.fromfile(os.fspath(path), dtype=np.uint8)
+        if data[:8].tobytes() == _PNG_SIGNATURE and data[-12:].tobytes()[4:] != _PNG_END:
+            return None
         return cv2.imdecode(data, flags) if data.size else None
     except (cv2.error, OSError, ValueError):
         return None
@@ -114,10 +128,22 @@ def imwrite_any(path: str | Path, image: np.ndarray, params: Sequence[int] = ())
     return True
 
 
+def quiet_decoder_logs() -> None:
+    """Keep the decoders' own lines off the terminal: FFmpeg's per-packet errors inside OpenCV (a
+    damaged stream prints dozens) and OpenCV's warnings (``can't be used to capture by name`` before
+    each refusal), unless ``OPENCV_FFMPEG_LOGLEVEL`` / ``OPENCV_LOG_LEVEL`` say otherwise. What damage
+    cost is said once, in GeoCon's own sentence (a refusal, or a warning in the record). The command
+    line calls this at start; it changes the process environment and OpenCV's log level."""
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when FFmpeg is first used
+    if "OPENCV_LOG_LEVEL" not in os.environ:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
 IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg"})
 """File suffixes (lower case) read as frames of an image folder."""
-ANIMATED_SUFFIXES: frozenset[str] = frozenset({".png", ".apng", ".webp"})
-"""Single files that may hold an animation (read as a clip when they hold 2 frames or more)."""
+ANIMATED_SUFFIXES: frozenset[str] = frozenset({".png", ".apng", ".webp", ".tif", ".tiff"})
+"""Single files that may hold an animation, or pages (a multi-page TIFF): read as a clip by Pillow when
+they hold 2 frames or more."""
 
 DEFAULT_FPS = 24.0
 """Frame rate for image folders and for containers that report none."""
@@ -192,7 +218,10 @@ def resolve_clip(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
             raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
         return "images", files
     if not path.is_file():
-        raise ClipError(f"{name}: not a regular file")
+        raise ClipError(
+            f"{name}: is {_entry_kind(path)}, not a clip file; GeoCon reads a clip twice (a probe, then the frames), "
+            "so it needs a file: save the clip to one first"
+        )
     if is_rerun_recording(path):
         raise ClipError(rerun_refusal(name))
     if path.suffix.lower() in ANIMATED_SUFFIXES and _animated_frames(path) >= 2:
@@ -212,13 +241,14 @@ def resolve_clip(path: Path, name: str) -> tuple[ClipKind, list[Path] | None]:
 
 def _frame_files(folder: Path, name: str) -> list[Path]:
     """The frames of the image folder ``folder`` (given as ``name``): its entries with an image
-    suffix, in natural order. An entry with an image suffix that is not a regular file (a folder,
-    a device, a FIFO, a socket, a link to one of them or to nothing) raises :class:`ClipError`:
-    read, a device never ends and a FIFO blocks; left out, it would silently join its neighbours."""
+    suffix, in natural order, less hidden ones (:func:`hidden_frames_note`). An entry with an image
+    suffix that is not a regular file (a folder, a device, a FIFO, a socket, a link to one of them
+    or to nothing) raises :class:`ClipError`: read, a device never ends and a FIFO blocks; left
+    out, it would silently join its neighbours. So does one frame stored twice (:func:`_twice`)."""
     files: list[Path] = []
     odd: list[Path] = []
     for p in folder.iterdir():
-        if p.suffix.lower() in IMAGE_SUFFIXES:
+        if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."):
             (files if p.is_file() else odd).append(p)
     if odd:
         bad = min(odd, key=_natural_key)
@@ -226,7 +256,57 @@ def _frame_files(folder: Path, name: str) -> list[Path]:
             f"{bad}: is {_entry_kind(bad)}, not an image file, among the frames of {name}; a folder of frames must "
             "hold image files only, so move it out"
         )
-    return sorted(files, key=_natural_key)
+    files.sort(key=_natural_key)
+    twice = _twice(files)
+    if twice is not None:
+        a, b = twice
+        raise ClipError(
+            f"{a.name} and {b.name} in {name} look like one frame stored twice (the same name with another suffix, or "
+            "a file manager's copy): a folder of frames holds one file per frame, so move one of them out"
+        )
+    return files
+
+
+_COPY_NAME = re.compile(r"(.+?)(?: \(\d+\)| copy(?: \d+)?| - copy(?: \(\d+\))?)", re.IGNORECASE)
+"""A file manager's name for a copy of ``NAME``: ``NAME (1)``, ``NAME copy``, ``NAME copy 2``,
+``NAME - Copy``, ``NAME - Copy (2)``."""
+
+
+def _twice(files: Sequence[Path]) -> tuple[Path, Path] | None:
+    """Two frame files of one folder that hold one frame: the same name with another suffix
+    (``00003.png`` and ``00003.jpg``, ``00003.PNG``), or a copy's name beside its original
+    (``frame_0003 (1).png`` beside ``frame_0003.png``). Either would be scored as a frame of its own,
+    sorted next to the original: a pair that does not move, or one that goes back in time."""
+    stems: dict[str, Path] = {}
+    for f in files:
+        seen = stems.setdefault(f.stem.lower(), f)
+        if seen is not f:
+            return seen, f
+    for f in files:
+        m = _COPY_NAME.fullmatch(f.stem)
+        if m is not None and m[1].lower() in stems:
+            return stems[m[1].lower()], f
+    return None
+
+
+def hidden_frames_note(path: Path, name: str) -> tuple[str, ...]:
+    """The note, if any, that the image folder ``path`` holds hidden files with an image suffix
+    (``._00000.png``: the metadata macOS writes beside each file it copies to a foreign disk,
+    ``.thumb.jpg``), which are not read as frames."""
+    try:
+        hidden = sorted(
+            (p.name for p in path.iterdir() if p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES),
+            key=lambda n: _natural_key(Path(n)),
+        )
+    except OSError:
+        return ()
+    if not hidden:
+        return ()
+    shown = ", ".join(hidden[:3]) + (f" and {len(hidden) - 3} more" if len(hidden) > 3 else "")
+    return (
+        f"left out {len(hidden)} hidden file{'s' if len(hidden) > 1 else ''} of {name} ({shown}): names that start "
+        "with a dot are not frames (macOS writes ._ files beside the files it copies)",
+    )
 
 
 def _entry_kind(path: Path) -> str:
@@ -368,8 +448,14 @@ def _open_capture(name: str) -> cv2.VideoCapture:
     return cap
 
 
+MAX_FPS = 1000.0
+"""Stated frame rates from this many frames/s up are not taken as the clip's (a time base, such
+as Matroska's 1000 or MPEG-TS's 90000, stated as a rate): :data:`DEFAULT_FPS` is used, and
+:func:`timing_note` says so."""
+
+
 def _fps(value: float | None) -> float:
-    return value if value is not None and math.isfinite(value) and 0.0 < value < 1000.0 else DEFAULT_FPS
+    return value if value is not None and math.isfinite(value) and 0.0 < value < MAX_FPS else DEFAULT_FPS
 
 
 def open_video(name: str) -> tuple[float, "Frames"]:
@@ -665,7 +751,8 @@ def timing_note(name: str, fps: float) -> str | None:
     """One sentence when the container's timestamps disagree with a steady ``fps``: a variable
     frame rate (intervals that differ from their median by more than :data:`TIMING_TOLERANCE`), or
     a stated rate the timestamps do not keep. Reads packet timestamps only (no decoding); None when
-    they agree or cannot be read."""
+    they agree or cannot be read. A stated rate that ``fps`` replaced (one of :data:`MAX_FPS` or
+    more) is named as such, whatever the timestamps say."""
     import av
 
     try:
@@ -674,9 +761,23 @@ def timing_note(name: str, fps: float) -> str | None:
                 return None
             stream = container.streams.video[0]
             base = stream.time_base
-            pts = sorted(p.pts for p in itertools.islice(container.demux(stream), TIMING_PACKETS) if p.pts is not None)
+            rate = stream.average_rate or stream.guessed_rate
+            codec = stream.codec_context.name
+            stamps = [p.pts for p in itertools.islice(container.demux(stream), TIMING_PACKETS)]
     except (av.FFmpegError, OSError, ValueError, UnicodeError):
         return None
+    pts = sorted(t for t in stamps if t is not None)
+    if len(stamps) >= 2 and not pts:
+        return (
+            f"the file stores no timestamps (a bare {codec} stream, outside any container such as MP4), so no frame "
+            f"rate: durations in the record use {fps:g} frames/s"
+        )
+    stated = float(rate) if rate else 0.0
+    if stated >= MAX_FPS and fps < MAX_FPS:
+        return (
+            f"the container states {stated:g} frames/s, which GeoCon does not take as a frame rate (it reads rates "
+            f"below {MAX_FPS:g} frames/s); durations in the record use {fps:g} frames/s"
+        )
     if base is None or len(pts) < 3:
         return None
     gaps = np.diff(np.asarray(pts, dtype=np.float64)) * float(base)

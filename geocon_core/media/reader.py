@@ -61,7 +61,9 @@ from .decode import (
     container_frame_count,
     frame_number_gaps,
     gif_cut,
+    hidden_frames_note,
     image_frames,
+    imread_any,
     open_video,
     resolve_clip,
     timing_note,
@@ -296,7 +298,14 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
             size = (w, h)
         elif (w, h) != size:
             which = f"frame {n}" if files is None else f"frame {n} ({files[n].name})"
-            raise ClipError(f"{name}: {which} is {w}x{h} but frame 0 is {size[0]}x{size[1]}")
+            turned = ""
+            if files is not None and (h, w) == size:  # as stored, before its EXIF orientation is applied?
+                stored = imread_any(files[n], cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+                if stored is not None and (stored.shape[1], stored.shape[0]) == size:
+                    turned = (
+                        " once its EXIF orientation tag turns it (frame 0's does not); give every frame one orientation"
+                    )
+            raise ClipError(f"{name}: {which} is {w}x{h} but frame 0 is {size[0]}x{size[1]}{turned}")
         rows = cv2.reduce(gray, 1, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
         cols = cv2.reduce(gray, 0, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
         row_max = rows if row_max is None else np.maximum(row_max, rows)
@@ -352,7 +361,8 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         + _decoder_note(video)
         + _track_notes(name, kind, video)
         + _timing_notes(name, kind, fps, video)
-        + frame_number_gaps(files, name),
+        + frame_number_gaps(files, name)
+        + (hidden_frames_note(Path(path), name) if files is not None else ()),
     )
 
 
@@ -360,7 +370,7 @@ DECODER_NOTES = {
     "pyav": "decoded with PyAV (a stream OpenCV cannot read, e.g. AV1)",
     "pyav (deinterlaced: yadif)": "an interlaced stream: deinterlaced with FFmpeg's yadif (one frame per frame) "
     "before scoring; its geometry is that of the deinterlaced frames",
-    "pillow": "an animated image: decoded with Pillow",
+    "pillow": "an animated or multi-page image: decoded with Pillow",
 }
 """What the record says when a clip was not decoded by OpenCV (:func:`~geocon_core.media.decode.open_video`)."""
 

@@ -28,8 +28,13 @@ few tracks cannot judge the clip (``MultiViewResult.reason``); it never flags on
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import math
+import signal
+import sys
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -544,6 +549,43 @@ def _directions(
 # ---------------------------------------------------------------------------------------------
 # bundle adjustment (pycolmap)
 
+_GLOG_SIGNALS = ("SIGSEGV", "SIGILL", "SIGFPE", "SIGABRT", "SIGBUS", "SIGTERM")
+"""The signals whose handlers glog's failure handler takes over."""
+
+
+@contextlib.contextmanager
+def _signal_handlers_kept() -> Iterator[None]:
+    """The process's handlers of :data:`_GLOG_SIGNALS` as they were before the block, whatever it
+    installed: saved and restored with the C library's ``sigaction`` (opaque bytes, from any thread;
+    nothing where ctypes cannot reach it)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        sigaction = libc.sigaction
+    except (OSError, AttributeError):
+        yield
+        return
+    numbers = [int(getattr(signal, name)) for name in _GLOG_SIGNALS if hasattr(signal, name)]
+    saved = {}
+    for num in numbers:
+        buf = ctypes.create_string_buffer(512)  # larger than any platform's struct sigaction
+        if sigaction(num, None, buf) == 0:
+            saved[num] = buf
+    try:
+        yield
+    finally:
+        for num, buf in saved.items():
+            sigaction(num, buf, None)
+
+
+def _pycolmap() -> Any:
+    """pycolmap, imported with the process's signal handlers kept: importing it installs glog's
+    failure handler, which answers ``kill`` (SIGTERM) with a native stack trace and the process's end,
+    past GeoCon's own handler (which stops a run cleanly, keeping records and recordings whole)."""
+    if "pycolmap" not in sys.modules:
+        with _signal_handlers_kept():
+            import pycolmap  # noqa: F401
+    return sys.modules["pycolmap"]
+
 
 def _adjust(
     table: _Table,
@@ -565,8 +607,7 @@ def _adjust(
     per keyframe, its focal refined. ``fixed_points`` holds the points (the rotation-only model,
     whose points lie so far that a camera's position cannot move them). Returns the refined
     poses, points and each keyframe's camera parameters."""
-    import pycolmap
-
+    pycolmap = _pycolmap()
     pycolmap.logging.minloglevel = 2  # Ceres' and COLMAP's warnings are not the user's
     rec = pycolmap.Reconstruction()
     W, H = size

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import os
 import zipfile
 from dataclasses import asdict, dataclass, field
@@ -24,9 +25,10 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
+from .._version import __version__
 from ..config import ScoreConfig
 from ..files import NPZ_ERRORS
-from ..media import ClipInfo
+from ..media import MAX_FPS, ClipInfo
 from ..reconstruction import ARRAY_NAMES as MV_ARRAYS
 from ..reconstruction import DenseCloud, MultiViewResult, WindowCloud
 from . import parts as record_parts
@@ -462,6 +464,13 @@ def read_record_json(path: str | Path) -> tuple[Path, dict[str, Any]]:
     except RecursionError:
         raise RecordError(f"{file} is not a readable GeoCon record (JSON nested too deeply): {_CORRUPT}") from None
     fmt = d.get("format") if isinstance(d, dict) else None
+    if isinstance(fmt, str) and fmt.startswith("geocon-record/") and fmt != RECORD_FORMAT:
+        wrote = d.get("versions", {}).get("geocon") if isinstance(d.get("versions"), dict) else None
+        by = f"GeoCon {wrote}" if isinstance(wrote, str) else "another GeoCon version"
+        raise RecordError(
+            f"{file} was written by {by} in the record format {fmt}, and this GeoCon ({__version__}) reads "
+            f"{RECORD_FORMAT}: open it with the GeoCon that wrote it, or score the clip again"
+        )
     if fmt != RECORD_FORMAT:
         raise RecordError(f"{file}: not a GeoCon record (format {fmt!r}, expected {RECORD_FORMAT!r})")
     return folder, d
@@ -581,6 +590,9 @@ def _check_counts(d: dict[str, Any], z: dict[str, np.ndarray], file: Path) -> No
     n = video["num_frames"]
     if not isinstance(n, int) or isinstance(n, bool) or n < 2:
         raise refuse(f"video.num_frames is {n!r}, not a frame count")
+    fps = video["fps"]
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not (math.isfinite(fps) and 0 < fps < MAX_FPS):
+        raise refuse(f"video.fps is {fps!r}, not a frame rate (above 0 and below {MAX_FPS:g} frames/s)")
     gaps = [int(g) for g in d["config"]["gaps"]]
     t1s = [int(p["t1"]) for p in pairs]
     if pairs and n != max(t1s) + 1:

@@ -1,17 +1,19 @@
 """Statistics of the translation gate over a benchmark (SPEC section 6; re-exported by
-:mod:`geocon_core.report.stats`): Wilson intervals, calibration of P(F | t_inf) in equal-count bins, the
-net benefit ``(TP - c * FP) / N`` of "predict F iff t_inf >= tau", and the bootstrap of balanced
-accuracy over a tau grid. Pure, seeded functions.
+:mod:`geocon_core.report.stats`): Wilson intervals (defined in :mod:`geocon_core.intervals`),
+calibration of P(F | t_inf) in equal-count bins, the net benefit ``(TP - c * FP) / N`` of
+"predict F iff t_inf >= tau", and the bootstrap of balanced accuracy over a tau grid. Pure,
+seeded functions.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
+
+from ..intervals import Interval, wilson_interval
 
 __all__ = [
     "TAU_GRID",
@@ -27,32 +29,6 @@ __all__ = [
 TAU_GRID = (0.02, 0.03, 0.04, 0.06, 0.08)
 """The tau_t values the bootstrap compares."""
 _NAN = float("nan")
-
-
-@dataclass(frozen=True)
-class Interval:
-    """An estimate with its (95%) interval and the number of units (clips or scenes) behind it."""
-
-    estimate: float
-    low: float
-    high: float
-    n: int
-
-
-def wilson_interval(successes: int, n: int, *, confidence: float = 0.95) -> Interval:
-    """Wilson score interval for ``successes`` out of ``n``; all NaN when ``n == 0``."""
-    if n == 0:
-        return Interval(_NAN, _NAN, _NAN, 0)
-    if not 0 <= successes <= n:
-        raise ValueError(f"successes must be in [0, n], got {successes} of {n}")
-    from scipy.stats import norm
-
-    z = float(norm.ppf(0.5 + confidence / 2))
-    p = successes / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return Interval(p, max(0.0, centre - half), min(1.0, centre + half), n)
 
 
 def _finite(t_inf, is_f) -> tuple[np.ndarray, np.ndarray]:

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import os
 import re
 from dataclasses import dataclass, field
@@ -37,9 +36,9 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from ..bench import read_tables
+from ..bench import checked_manifest, lock_path, read_tables
 from ..config import ScoreConfig
-from ..files import check_out_dir, replace_dir
+from ..files import check_out_dir, lock_holder, replace_dir
 from ..results import ClipThumbs, many_clip_thumbs, thumbs_html
 from ..scoring import flag_reasons
 from . import stats
@@ -291,9 +290,16 @@ def _read_results(base: Path, target: Path, option: str) -> tuple[dict[str, Any]
                 f"{', ...' if len(other) > 3 else ''}), so it is not replaced; choose a new or empty folder"
             )
     try:
-        bench = json.loads(manifest.read_text())
+        bench = checked_manifest(base)
     except (OSError, ValueError) as exc:
-        raise ReportError(f"{manifest} cannot be read ({exc}); run `geocon bench` again") from None
+        raise ReportError(f"{exc}: the results folder is damaged; score the dataset into a new one") from None
+    running = lock_holder(lock_path(base))
+    if running is not None:
+        who = "" if running.pid is None else f" (PID {running.pid})"
+        raise ReportError(
+            f"{base} is being written by a running `geocon bench`{who}, which writes its tables when it ends; "
+            "run `geocon report` once it has finished"
+        )
     try:
         tables = read_tables(base)
     except FileNotFoundError as exc:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -175,6 +176,11 @@ class ResultsIndex:
             )
         if root.is_file() and root.name == "record.json":
             root = root.parent
+        elif not root.is_dir():
+            raise ResultsError(
+                f"{root} is a file, not a folder: give a results folder from `geocon bench` or a record folder from "
+                f"`geocon score --out` (a clip opens with `geocon view {shlex.quote(str(root))}`)"
+            )
         if (root / MANIFEST_NAME).is_file():
             return cls._open_bench(root)
         if (root / "record.json").is_file():

@@ -6,7 +6,7 @@
 """
 
 from .benchmark import plan_benchmark, write_benchmark
-from .failures import FAILURES, Failure, FailureSpec, make_failure
+from .failures import FAILURES, Failure, FailureSpec, make_failure, plane_wave_field, plane_waves
 from .families import FAMILIES, Family, build_scene, family_info
 from .render import RenderedFrame, render_frame
 from .scene import ObjectTrack, Scene, SurfaceView, TexturedPlane, pose_from_center
@@ -18,6 +18,8 @@ __all__ = [
     "Failure",
     "FailureSpec",
     "make_failure",
+    "plane_waves",
+    "plane_wave_field",
     "FAMILIES",
     "Family",
     "build_scene",

@@ -38,7 +38,7 @@ from .render import RenderedFrame, render_frame
 from .scene import Scene, SurfaceView, plane_view
 from .textures import procedural_texture
 
-__all__ = ["Failure", "FailureSpec", "FAILURES", "make_failure"]
+__all__ = ["Failure", "FailureSpec", "FAILURES", "make_failure", "plane_waves", "plane_wave_field"]
 
 
 class Failure:
@@ -76,28 +76,45 @@ def _with_offset(view: SurfaceView, displacement: np.ndarray) -> SurfaceView:
     return replace(view, query_offset=offset)
 
 
+def plane_waves(
+    rng: np.random.Generator, cycles: tuple[float, float] = (0.6, 2.0)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The random parameters of a smooth 2-component field of three plane waves per component:
+    ``freqs`` (2, 3, 2) in cycles per unit of each coordinate (``cycles`` apart, either sign),
+    ``phases`` (2, 3) and ``amps`` (2, 3) in 0.5..1 (:func:`plane_wave_field` evaluates it)."""
+    freqs = rng.uniform(*cycles, (2, 3, 2)) * rng.choice([-1, 1], (2, 3, 2))
+    phases = rng.uniform(0, 2 * math.pi, (2, 3))
+    amps = rng.uniform(0.5, 1.0, (2, 3))
+    return freqs, phases, amps
+
+
+def plane_wave_field(
+    freqs: np.ndarray, phases: np.ndarray, amps: np.ndarray, u: np.ndarray, v: np.ndarray
+) -> np.ndarray:
+    """``phi_c(u, v) = sum_k amps[c][k] * sin(2 pi (fx u + fy v) + phases[c][k])`` (c = 0: x, 1: y)
+    at the points (u, v) (arrays of one shape), stacked on a last axis of 2; not normalised."""
+    field = np.zeros((*np.shape(u), 2))
+    for c in range(2):
+        for k in range(3):
+            fx, fy = freqs[c][k]
+            field[..., c] += amps[c][k] * np.sin(2 * math.pi * (fx * u + fy * v) + phases[c][k])
+    return field
+
+
 class Breathing(Failure):
     """Rubber-sheet warp of the background: content near pixel x is displaced by
     ``d_t(x) = severity * sin(2 pi t / period) * phi(x)``, where ``phi`` is a smooth random
-    field (three plane waves per component, 0.6-2 cycles per image size) normalised so
-    that ``max_x |phi(x)| = 1``. Frame 0 is unwarped."""
+    field (three plane waves per component, 0.6-2 cycles per image size; :func:`plane_waves`)
+    normalised so that ``max_x |phi(x)| = 1``. Frame 0 is unwarped."""
 
     kind = "breathing"
     period = 24
 
     def __init__(self, scene: Scene, severity: float) -> None:
         super().__init__(scene, severity)
-        rng = np.random.default_rng([scene.seed, 7001])
-        self.freqs = rng.uniform(0.6, 2.0, (2, 3, 2)) * rng.choice([-1, 1], (2, 3, 2))
-        self.phases = rng.uniform(0, 2 * math.pi, (2, 3))
-        self.amps = rng.uniform(0.5, 1.0, (2, 3))
+        self.freqs, self.phases, self.amps = plane_waves(np.random.default_rng([scene.seed, 7001]))
         gy, gx = np.mgrid[0 : scene.height, 0 : scene.width].astype(np.float64)
-        u, v = gx / scene.width, gy / scene.height
-        field = np.zeros((scene.height, scene.width, 2))
-        for c in range(2):
-            for k in range(3):
-                fx, fy = self.freqs[c, k]
-                field[..., c] += self.amps[c, k] * np.sin(2 * math.pi * (fx * u + fy * v) + self.phases[c, k])
+        field = plane_wave_field(self.freqs, self.phases, self.amps, gx / scene.width, gy / scene.height)
         self.field = field / np.linalg.norm(field, axis=2).max()
 
     def amplitude(self, t: int) -> float:

@@ -9,8 +9,9 @@ annotation (``assets/validation/annotations.csv``), and summarises them in one t
 
 Modules: :mod:`.cases` (what to run), :mod:`.prepare` (rendering and cutting clips, cached),
 :mod:`.runner` (scoring, resumable), :mod:`.results` (one row per case from its record),
-:mod:`.metrics` (the table), :mod:`.report` (the run and its written report), :mod:`.footage`
-(the cache of annotated clips taken from public repositories).
+:mod:`.metrics` (the table, with its intervals from :mod:`geocon_core.intervals`),
+:mod:`.report` (the run and its written report), :mod:`.footage` (the cache of annotated clips
+taken from public repositories).
 """
 
 from .cases import (
@@ -32,7 +33,16 @@ from .cases import (
 from .footage import DEFAULT_FOOTAGE, fill_footage, footage_status
 from .metrics import MetricRow, compute_metrics, detected
 from .peer import PEER_NAME, peer_keep_rate
-from .report import REPORT_JSON, REPORT_MD, ValidationReport, format_value, metric_cells, run_validation, write_report
+from .report import (
+    INTERVALS_NOTE,
+    REPORT_JSON,
+    REPORT_MD,
+    ValidationReport,
+    format_value,
+    metric_cells,
+    run_validation,
+    write_report,
+)
 from .results import CaseResult, case_result
 
 __all__ = [
@@ -55,6 +65,7 @@ __all__ = [
     "detected",
     "REPORT_JSON",
     "REPORT_MD",
+    "INTERVALS_NOTE",
     "ValidationReport",
     "format_value",
     "metric_cells",

@@ -92,6 +92,10 @@ tracked once the segmentation has seen it for several frames and AdaDFRC scores 
 for most of its frames)."""
 
 
+MAX_HEIGHT = 4608
+"""The tallest synthetic height: a 16:9 frame 8192 px wide (8K), as large as ``geocon synth`` renders."""
+
+
 def width_for(height: int) -> int:
     """The even 16:9 width for ``height`` (px)."""
     return int(round(height * 16 / 9 / 2)) * 2
@@ -242,8 +246,18 @@ class ValidationPlan:
             bad = [v for v in values if v not in valid]
             if bad:
                 raise ValueError(f"unknown {name} {bad[0]!r}; valid: {', '.join(valid)}")
-        if any(h < 16 or h % 2 for h in self.heights):
-            raise ValueError(f"heights must be even and at least 16 px, got {list(self.heights)}")
+        if any(h < 16 or h > MAX_HEIGHT or h % 2 for h in self.heights):
+            raise ValueError(
+                f"--heights must be even, at least 16 px and at most {MAX_HEIGHT} px (16:9 frames "
+                f"{width_for(MAX_HEIGHT)} px wide, 8K), got {','.join(map(str, self.heights))}"
+            )
+        lists: tuple[tuple[str, tuple[object, ...], str], ...] = (
+            ("--heights", self.heights, "at least one height"),
+            ("--codecs", self.codecs, f"at least one of {', '.join(CODECS)}"),
+        )
+        for option, listed, some in lists:
+            if self.synthetic and not listed:
+                raise ValueError(f"{option} lists none, so no synthetic clip is made; give {some} (or --no-synthetic)")
         if self.frames < 2 or self.max_frames < 2:
             raise ValueError("a clip needs at least 2 frames")
         if self.split not in ("all", *SPLITS):
@@ -380,15 +394,48 @@ _TEXT_COLUMNS = (
 )  # fmt: skip
 
 
+ANNOTATION_COLUMNS = (
+    "clip", "regime", "gate", "movers", "static_camera", "source", "stable_scene", "category", "artifacts", "note",
+)  # fmt: skip
+"""The columns every annotation file has; the others (``root``, ``cut``, ...) take defaults."""
+
+
+def _annotation_text(p: Path) -> str:
+    """The text of the annotation file ``p``; ``ValueError`` with one sentence naming it when it is
+    missing, a folder, unreadable or not UTF-8."""
+    try:
+        return p.read_bytes().decode("utf-8-sig")
+    except IsADirectoryError:
+        raise ValueError(f"annotation file {p} is a folder; give the annotation CSV") from None
+    except FileNotFoundError:
+        raise ValueError(f"annotation file {p} does not exist") from None
+    except OSError as exc:
+        raise ValueError(f"annotation file {p} cannot be read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"annotation file {p} is not UTF-8 text (byte at offset {exc.start}); save it as UTF-8"
+        ) from None
+
+
 def read_annotations(path: str | Path = ANNOTATIONS_PATH) -> dict[str, Annotation]:
     """The annotation file (CSV; lines starting with ``#`` are its header notes), by
     :attr:`Annotation.key` (``root:clip``). Columns the file lacks take their defaults (an older
     file: every clip in ``data``)."""
     p = Path(path)
-    text = "".join(line for line in p.read_text().splitlines(keepends=True) if not line.startswith("#"))
+    text = "".join(line for line in _annotation_text(p).splitlines(keepends=True) if not line.startswith("#"))
+    reader = csv.DictReader(io.StringIO(text))
+    missing = [c for c in ANNOTATION_COLUMNS if c not in (reader.fieldnames or ())]
+    if missing:
+        raise ValueError(
+            f"annotation file {p} has no column{'s' if len(missing) > 1 else ''} {', '.join(missing)}: it is not an "
+            "annotation CSV"
+        )
     out: dict[str, Annotation] = {}
-    for i, row in enumerate(csv.DictReader(io.StringIO(text)), 2):
+    for i, cells in enumerate(reader, 2):
+        row = {k: v or "" for k, v in cells.items() if k is not None}  # a short row's missing cells are blank
         where = f"{p.name} row {i} ({row.get('clip')})"
+        if row["movers"].strip() and not row["movers"].strip().isdigit():
+            raise ValueError(f"{where}: movers must be a whole number or blank, got {row['movers']!r}")
         gate = row["gate"].strip().upper() or None
         if gate not in (None, "H", "F"):
             raise ValueError(f"{where}: gate must be H, F or blank, got {row['gate']!r}")

@@ -24,7 +24,26 @@ from .cases import Annotation
 
 __all__ = ["DEFAULT_FOOTAGE", "FootageState", "FootageItem", "footage_status", "fill_footage", "clone_for"]
 
-DEFAULT_FOOTAGE = Path(os.environ.get("GEOCON_FOOTAGE", "~/.cache/geocon/footage")).expanduser()
+
+def _home() -> Path:
+    """The user's home folder: ``$HOME`` when it is an absolute path, else (unset, empty or
+    relative, where ``~`` would mean ``/`` or the current folder) the user database's entry."""
+    home = os.environ.get("HOME", "")
+    if os.path.isabs(home):
+        return Path(home)
+    try:
+        import pwd
+
+        return Path(pwd.getpwuid(os.getuid()).pw_dir)
+    except (ImportError, KeyError):  # no user database entry: as Python's own lookup
+        return Path.home()
+
+
+DEFAULT_FOOTAGE = (
+    Path(os.environ["GEOCON_FOOTAGE"]).expanduser()
+    if os.environ.get("GEOCON_FOOTAGE")  # an empty value is no folder (it would mean the current one)
+    else _home() / ".cache" / "geocon" / "footage"
+)
 """The footage cache unless ``--footage`` (or ``GEOCON_FOOTAGE``) names another folder."""
 
 FootageState = Literal["present", "missing", "wrong bytes", "filled", "no clone", "not in clone"]

@@ -27,6 +27,11 @@ pose coverage           share of clips whose gate had a pose (generated clips an
 
 Where a target is met at every height matters (detection, false flags), the detail column
 breaks the row down by height.
+
+Every share carries its 95% Wilson interval and every AUC a 95% interval from a seeded,
+stratified bootstrap over clips (:mod:`geocon_core.intervals`); a comparison with the peer is
+paired: the difference on the same clips, with the interval of the difference over the same
+resamples, and the detail says whether that interval includes 0.
 """
 
 from __future__ import annotations
@@ -37,6 +42,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..intervals import (
+    Interval,
+    bootstrap_aucs,
+    mann_whitney_auc,
+    paired_rate_difference,
+    percentile_interval,
+    wilson_interval,
+)
 from .cases import FAILURE_FAMILY, LEVELS, SEVERITIES
 from .results import CaseResult
 
@@ -47,8 +60,12 @@ __all__ = [
     "OBJECT_RATIO",
     "IR_TOLERANCE",
     "TRACK_COVERAGE",
+    "MIN_COMPARE",
     "compute_metrics",
     "detected",
+    "share_text",
+    "auc_text",
+    "difference_text",
 ]
 
 OBJECT_RATIO = 5.0
@@ -72,6 +89,55 @@ class MetricRow:
     target: str
     ok: bool | None
     detail: str = ""
+    interval: Interval | None = None
+    """The 95% interval of ``value``: Wilson for a share, the bootstrap over clips for an AUC;
+    None for an IR difference or a median share, and without a value."""
+    peer: Interval | None = None
+    """The peer's value on the same clips, with its interval (AUC and matched flag-rate rows)."""
+    difference: Interval | None = None
+    """GeoCon's value minus the peer's on the same clips, with its paired bootstrap interval."""
+
+
+def share_text(hits: int, n: int) -> str:
+    """A share as the report prints it: ``86% [72%, 94%] (24/28)``, with its Wilson interval."""
+    if not n:
+        return "-"
+    w = wilson_interval(hits, n)
+    return f"{100 * w.estimate:.0f}% [{100 * w.low:.0f}%, {100 * w.high:.0f}%] ({hits}/{n})"
+
+
+def auc_text(iv: Interval) -> str:
+    """An AUC with its interval: ``0.53 [0.35, 0.71]``."""
+    return f"{iv.estimate:.2f} [{iv.low:.2f}, {iv.high:.2f}]"
+
+
+def _signed(v: float, points: bool) -> str:
+    return f"{int(round(100 * v)):+d}" if points else f"{round(v, 2) + 0.0:+.2f}"
+
+
+MIN_COMPARE = 5
+"""A difference with the peer is judged only with at least this many clips on each side (the
+positives and the negatives of an AUC; the clips of a rate): resamples of fewer clips vary too
+little for their interval to be trusted."""
+
+
+def difference_text(diff: Interval, *, points: bool, more: str, few: str | None = None) -> str:
+    """GeoCon minus the peer in words: ``GeoCon - peer +0.04 [-0.12, +0.19]: the interval
+    includes 0, so the two cannot be told apart on these clips``; ``points`` prints a difference
+    of shares in percentage points; ``more`` says what a positive difference means ("separates
+    these clips better", "flags more of these clips"); ``few`` (the clips, in words) when there are
+    fewer than :data:`MIN_COMPARE` on a side, and then no side is called better."""
+    unit = " points" if points else ""
+    head = (
+        f"GeoCon - peer {_signed(diff.estimate, points)}{unit} "
+        f"[{_signed(diff.low, points)}, {_signed(diff.high, points)}]"
+    )
+    if few is not None:
+        return f"{head}: too few clips ({few}) to tell the two apart"
+    if diff.low <= 0.0 <= diff.high:
+        return f"{head}: the interval includes 0, so the two cannot be told apart on these clips"
+    who = "GeoCon" if diff.low > 0.0 else "the peer"
+    return f"{head}: the interval excludes 0, {who} {more}"
 
 
 def _share(
@@ -86,9 +152,12 @@ def _share(
     hits = sum(1 for r in rows if hit(r))
     value = hits / len(rows) if rows else None
     detail = _by_height(rows, hit) if by_height else ""
-    return MetricRow(
-        metric, subset, value, hits, len(rows), target, None if value is None or ok is None else ok(value), detail
-    )
+    ok_ = None if value is None or ok is None else ok(value)
+    return MetricRow(metric, subset, value, hits, len(rows), target, ok_, detail, _wilson(hits, len(rows)))
+
+
+def _wilson(hits: int, n: int) -> Interval | None:
+    return wilson_interval(hits, n) if n else None
 
 
 def _by_height(rows: list[CaseResult], hit: Callable[[CaseResult], bool]) -> str:
@@ -203,17 +272,21 @@ def _generated_rows(rows: list[CaseResult]) -> list[MetricRow]:
     return out
 
 
+def _scores(values: Iterable[float | None]) -> np.ndarray:
+    """Scores for an AUC: a missing score (a clip that cannot be judged) counts as 0.5, no
+    evidence either way."""
+    return np.array([0.5 if v is None else v for v in values], float)
+
+
 def auc(pos: Iterable[float | None], neg: Iterable[float | None]) -> float | None:
     """Area under the ROC curve of a score (higher = more broken) separating ``pos`` from ``neg``:
-    the chance that a random positive scores above a random negative, ties counting half. A
-    missing score (a clip that cannot be judged) counts as 0.5, no evidence either way. None when
+    the chance that a random positive scores above a random negative, ties counting half
+    (:func:`~geocon_core.intervals.mann_whitney_auc`). A missing score counts as 0.5. None when
     either side is empty."""
-    p = np.array([0.5 if v is None else v for v in pos], float)
-    n = np.array([0.5 if v is None else v for v in neg], float)
+    p, n = _scores(pos), _scores(neg)
     if not len(p) or not len(n):
         return None
-    above = (p[:, None] > n[None, :]).sum() + 0.5 * (p[:, None] == n[None, :]).sum()
-    return float(above / (len(p) * len(n)))
+    return mann_whitney_auc(p, n)
 
 
 AUC_SETS: tuple[tuple[str, Callable[[CaseResult], bool], Callable[[CaseResult], bool]], ...] = (
@@ -234,6 +307,41 @@ AUC_GEOMETRIC = 0.80
 """On the check half, the clip score's AUC for geometric artifacts against clean-looking clips."""
 
 
+def _auc_row(label: str, group: str, name: str, pos: list[CaseResult], neg: list[CaseResult]) -> MetricRow:
+    """One AUC row: the clip score's AUC with its bootstrap interval, the peer's on the same
+    clips and the paired difference, all from the same resamples of the clips."""
+    n = len(pos) + len(neg)
+    metric = f"AUC, clip score ({label})"
+    if not pos or not neg:
+        return MetricRow(metric, name, None, len(pos), n, "reported", None)
+    with_peer = any(r.peer_score is not None for r in pos + neg)
+    fields = ("clip_score", "peer_score") if with_peer else ("clip_score",)
+    sample, boot = bootstrap_aucs(
+        np.column_stack([_scores(getattr(r, f) for r in pos) for f in fields]),
+        np.column_stack([_scores(getattr(r, f) for r in neg) for f in fields]),
+    )
+    ours = percentile_interval(sample[0], boot[:, 0], n)
+    peer = percentile_interval(sample[1], boot[:, 1], n) if with_peer else None
+    diff = percentile_interval(sample[0] - sample[1], boot[:, 0] - boot[:, 1], n) if with_peer else None
+    target, ok = "reported", None
+    if group == "check" and peer is not None and label.startswith("visible artifact vs c"):
+        target, ok = f">= peer + {AUC_MARGIN:.2f}", ours.estimate >= peer.estimate + AUC_MARGIN
+    elif group == "check" and label.startswith("geometric"):
+        target, ok = f">= {AUC_GEOMETRIC:.2f}", ours.estimate >= AUC_GEOMETRIC
+    notes = []
+    if peer is not None and diff is not None:
+        notes.append(f"peer {auc_text(peer)}")
+        few = f"{len(pos)} vs {len(neg)}" if min(len(pos), len(neg)) < MIN_COMPARE else None
+        notes.append(difference_text(diff, points=False, more="separates these clips better", few=few))
+        missing = sum(r.peer_score is None for r in pos + neg)
+        notes += [f"{missing} clips without a peer score counted at 0.5"] if missing else []
+    else:
+        notes.append("no peer score")
+    judged = sum(r.clip_score is None for r in pos + neg)
+    notes += [f"{judged} not judged counted at 0.5"] if judged else []
+    return MetricRow(metric, name, ours.estimate, len(pos), n, target, ok, "; ".join(notes), ours, peer, diff)
+
+
 def _auc_rows(rows: list[CaseResult]) -> list[MetricRow]:
     """GeoCon's clip score against the peer (1 - GVGC keep rate) on the same annotated clips, per
     set: AUC of each separation in :data:`AUC_SETS`, and the flag rates when the peer's threshold
@@ -246,22 +354,7 @@ def _auc_rows(rows: list[CaseResult]) -> list[MetricRow]:
         for label, is_pos, is_neg in AUC_SETS:
             pos = [r for r in annotated if r.generated and is_pos(r)]
             neg = [r for r in annotated if is_neg(r)]
-            ours = auc([r.clip_score for r in pos], [r.clip_score for r in neg])
-            peer = auc([r.peer_score for r in pos], [r.peer_score for r in neg])
-            missing = sum(r.peer_score is None for r in pos + neg)
-            target, ok = "reported", None
-            if group == "check" and ours is not None and peer is not None and label.startswith("visible artifact vs c"):
-                target, ok = f">= peer + {AUC_MARGIN:.2f}", ours >= peer + AUC_MARGIN
-            elif group == "check" and ours is not None and label.startswith("geometric"):
-                target, ok = f">= {AUC_GEOMETRIC:.2f}", ours >= AUC_GEOMETRIC
-            judged = sum(r.clip_score is None for r in pos + neg)
-            detail = f"peer {'-' if peer is None else f'{peer:.2f}'}" + (
-                f" ({missing} clips without a peer score)" if missing else ""
-            )
-            detail += f"; {judged} not judged counted at 0.5" if judged else ""
-            out.append(
-                MetricRow(f"AUC, clip score ({label})", name, ours, len(pos), len(pos) + len(neg), target, ok, detail)
-            )
+            out.append(_auc_row(label, group, name, pos, neg))
         out += _matched_flag_rows(annotated, name)
     return out + _f_test_rows(rows)
 
@@ -312,16 +405,18 @@ def _matched_flag_rows(annotated: list[CaseResult], name: str) -> list[MetricRow
         ("real cameras", lambda r: r.source == "real"),
     ):
         group_rows = [r for r in annotated if pick(r)]
-        peer_hits = sum(r.peer_score is not None and r.peer_score >= cut for r in group_rows)
-        row = _share(
-            "flagged inconsistent, GeoCon",
-            f"{subset}, {name}",
-            group_rows,
-            lambda r: r.verdict == "inconsistent",
-            "reported",
-            None,
+        if not group_rows:
+            continue
+        ours = [r.verdict == "inconsistent" for r in group_rows]
+        theirs = [r.peer_score is not None and r.peer_score >= cut for r in group_rows]
+        flags = "flagged inconsistent, GeoCon"
+        row = _share(flags, f"{subset}, {name}", group_rows, lambda r: r.verdict == "inconsistent", "reported", None)
+        diff = paired_rate_difference(ours, theirs)
+        few = str(len(ours)) if len(ours) < MIN_COMPARE else None
+        detail = f"peer at the same clean-looking rate: {share_text(sum(theirs), len(theirs))}; " + difference_text(
+            diff, points=True, more="flags more of these clips", few=few
         )
-        out.append(replace(row, detail=f"peer at the same clean-looking rate: {peer_hits}/{len(group_rows)}"))
+        out.append(replace(row, detail=detail, peer=wilson_interval(sum(theirs), len(theirs)), difference=diff))
     return out
 
 
@@ -345,6 +440,7 @@ def _cut_rows(rows: list[CaseResult]) -> list[MetricRow]:
                 "all",
                 found == total,
                 f"{spurious} cuts found where none is annotated (over {len(annotated)} clips)",
+                _wilson(found, total),
             )
         )
     real_cut = [r for r in with_cut if r.source == "real"]
@@ -518,8 +614,9 @@ def compute_metrics(rows: list[CaseResult]) -> list[MetricRow]:
             len(rows) - len(failed),
             len(rows),
             "all",
-            not failed,
+            not failed if rows else None,  # no case scored: nothing met
             ", ".join(r.case_id for r in failed[:5]) + (" ..." if len(failed) > 5 else ""),
+            _wilson(len(rows) - len(failed), len(rows)),
         )
     ]
     for part in (

@@ -11,12 +11,14 @@ from pathlib import Path
 from typing import Any
 
 from ..config import ScoreConfig, config_hash
+from ..intervals import RESAMPLES, SEED
 from .cases import Annotation, ValidationPlan, plan_cases
-from .metrics import MetricRow, compute_metrics
+from .metrics import MetricRow, auc_text, compute_metrics, share_text
 from .results import CaseResult, case_result
 from .runner import Progress, case_folder, run_cases
 
 __all__ = [
+    "INTERVALS_NOTE",
     "ValidationReport",
     "run_validation",
     "write_report",
@@ -30,6 +32,14 @@ REPORT_MD = "validation.md"
 """The validation report's Markdown file in the output folder."""
 REPORT_JSON = "validation.json"
 """The validation report's JSON file (every metric row) in the output folder."""
+INTERVALS_NOTE = (
+    f"Brackets hold 95% intervals: for a share, the Wilson score interval; for an AUC, the percentile "
+    f"interval of {RESAMPLES} bootstrap resamples of the clips (positives and negatives each drawn with "
+    f"replacement, seed {SEED}). Beside the peer, GeoCon - peer is the difference on the same clips, its "
+    "interval from the same resamples (paired); where that interval includes 0 the two cannot be told apart "
+    "on these clips."
+)
+"""The sentence under the report's heading that says how its intervals are computed."""
 
 
 @dataclass(frozen=True)
@@ -50,7 +60,8 @@ class ValidationReport:
 
 
 def format_value(row: MetricRow) -> str:
-    """The value cell: a share as a percentage with its count, an IR difference as a number."""
+    """The value cell: a share as a percentage with its 95% Wilson interval and its count, an AUC
+    with its 95% bootstrap interval and the clips on each side, an IR difference as a number."""
     if row.value is None:
         return "-"
     if row.metric.startswith("clean IR"):
@@ -58,8 +69,9 @@ def format_value(row: MetricRow) -> str:
     if row.metric.startswith("F keeps"):
         return f"{row.value:.2f} ({row.n} clips)"
     if row.metric.startswith("AUC"):
-        return f"{row.value:.2f} ({row.hits} vs {row.n - row.hits})"
-    return f"{100 * row.value:.0f}% ({row.hits}/{row.n})"
+        value = f"{row.value:.2f}" if row.interval is None else auc_text(row.interval)
+        return f"{value} ({row.hits} vs {row.n - row.hits})"
+    return share_text(row.hits, row.n)
 
 
 def run_validation(
@@ -215,6 +227,8 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         f"{list(p.codecs)}, {p.frames} frames per clip, scene seed {p.seed}; real clips cut to {p.max_frames} frames. "
         f"{len(report.cases)} of {report.planned} planned cases in {report.seconds:.0f} s "
         f"(scoring {report.score_seconds:.0f} s summed over the cases).",
+        "",
+        INTERVALS_NOTE,
         "",
         *_md_table(["measure", "set", "value", "target", "met", "detail"], [metric_cells(m) for m in report.metrics]),
         "",

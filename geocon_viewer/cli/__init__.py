@@ -18,6 +18,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``validate``        the validation report: synthetic grid and annotated real clips (:mod:`.commands_validate`)
 ``footage``         the footage cache of the validation: status, fill from local clones
 ``pose-log``        a pose log from a COLMAP model or a DUSt3R scene (:mod:`.commands_pose`)
+``plant``           a failure planted into a real clip, with its clean twin (:mod:`.commands_plant`)
 ``doctor``          which backends, viewers and extras are usable here (:mod:`.commands_doctor`)
 ==================  ============================================================================
 """
@@ -27,20 +28,34 @@ from __future__ import annotations
 import codecs
 import contextlib
 import errno
+import io
 import os
 import signal
 import sys
 from typing import Annotated
 
-import typer
 
-from geocon_core import __version__
+def _interrupted_while_loading(_signum: int, _frame: object) -> None:
+    """Ctrl-C while the command's libraries load (the first half second): nothing has started,
+    so the command ends at once (130), without the traceback of the import it cut short."""
+    raise SystemExit(130)
 
-from . import (
+
+try:
+    _SIGINT_BEFORE_LOADING = signal.signal(signal.SIGINT, _interrupted_while_loading)
+except ValueError:  # imported outside the main thread: no handler can be set there
+    _SIGINT_BEFORE_LOADING = None
+
+import typer  # noqa: E402
+
+from geocon_core import __version__  # noqa: E402
+
+from . import (  # noqa: E402
     commands_bench,
     commands_dataset,
     commands_demo,
     commands_doctor,
+    commands_plant,
     commands_pose,
     commands_score,
     commands_synth,
@@ -48,7 +63,7 @@ from . import (
     commands_validate,
     commands_view,
 )
-from .console import PathsChecked, out
+from .console import PathsChecked, out  # noqa: E402
 
 __all__ = ["app", "main"]
 
@@ -92,7 +107,11 @@ app.command("teach", cls=PathsChecked)(commands_teach.teach)
 app.command("validate", cls=PathsChecked)(commands_validate.validate)
 app.command("footage", cls=PathsChecked)(commands_validate.footage)
 app.command("pose-log", cls=PathsChecked)(commands_pose.pose_log)
+app.command("plant", cls=PathsChecked)(commands_plant.plant)
 app.command("doctor", cls=PathsChecked)(commands_doctor.doctor)
+
+if _SIGINT_BEFORE_LOADING is not None:  # loaded: Ctrl-C is handled as before (main() sets its own)
+    signal.signal(signal.SIGINT, _SIGINT_BEFORE_LOADING)
 
 
 RESOURCE_ERRORS = {
@@ -118,6 +137,7 @@ MEMORY_ADVICE = {
     "validate": "give fewer --jobs, or --quick",
     "view": "view the record of a shorter clip, or use --headless (no viewer is opened)",
     "teach": "give fewer --frames",
+    "plant": "give fewer --frames",
 }
 """What each command can do with less memory, naming only its own options (the advice of the
 one-sentence out-of-memory error; other commands are told to close other programs)."""
@@ -227,16 +247,31 @@ def main() -> None:
     """The ``geocon`` console script. A full disk, a read-only folder or a closed output ends the
     command with one sentence (exit 1) instead of a traceback; nothing half-written is left. An
     address-space or open-files limit too small for the native libraries is refused before any
-    work. Text the terminal's encoding cannot show prints as ASCII stand-ins."""
+    work. Text the terminal's encoding cannot show prints as ASCII stand-ins, and the decoders' own
+    lines are kept off it. Ctrl-C, ``kill``, a closed terminal and a used-up CPU time limit stop the
+    run cleanly (:func:`_stop`)."""
+    _closed_streams()
     _plain_output()
+    from geocon_core.media import quiet_decoder_logs
+
+    quiet_decoder_logs()
     if not {"--help", "--version"} & set(sys.argv[1:]):
         small = _address_space_sentence() or _open_files_sentence()
         if small is not None:
             _say_and_exit(small, 1)
-    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # `kill` stops as cleanly as Ctrl-C: no partial files
-        signal.signal(signal.SIGTERM, _terminated)
+    _stop_on_signals()
     try:
         app(standalone_mode=True)
+    except SystemExit:
+        if _STOPPED_BY == [signal.SIGXCPU]:
+            _say_and_exit(_cpu_time_sentence(), 1)
+        raise
+    except ClosedOutputError:
+        _say_and_exit(
+            "error: the standard output is closed (>&-), so the command's output has nowhere to go; give it a "
+            "file or a pipe (> out.txt)",
+            1,
+        )
     except OSError as exc:
         if exc.errno not in RESOURCE_ERRORS:
             raise
@@ -245,28 +280,91 @@ def main() -> None:
         _say_and_exit(_memory_sentence(_command()), 1)
 
 
+class ClosedOutputError(OSError):
+    """Writing to a standard output the caller closed (``>&-``)."""
+
+
+class _ClosedOutput(io.TextIOBase):
+    """Stands in for ``sys.stdout`` when the caller closed it: printing to it raises
+    :class:`ClosedOutputError` (Python leaves ``sys.stdout`` None, where a write is a traceback)."""
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        raise ClosedOutputError(errno.EBADF, "the standard output is closed", "<stdout>")
+
+
+def _closed_streams() -> None:
+    """Standard streams the caller closed (``<&-``, ``>&-``, ``2>&-``): their descriptors are
+    opened on the null device, so that no file the command opens takes one of them (a native
+    library's message on stderr would land in it); a closed stdout is refused where the command
+    prints (:class:`_ClosedOutput`), a closed stderr swallows what is said."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            os.open(os.devnull, os.O_RDWR)  # the lowest free descriptor: this one
+    if sys.stdout is None:
+        sys.stdout = _ClosedOutput()
+    if sys.stderr is None:
+        sys.stderr = open(2, "w", closefd=False)  # the process's stderr, open until it ends
+
+
 TERM_GRACE_S = 10.0
 """After ``kill`` (SIGTERM), seconds the run may take to clean up before it exits regardless."""
 
+_STOPPED_BY: list[int] = []
+"""The signals that stopped this run (:func:`_stop`), the first first."""
 
-def _terminated(_signum: int, _frame: object) -> None:
-    """``kill``: stop as Ctrl-C does (staging folders removed, nothing half-moved), and exit
-    anyway after :data:`TERM_GRACE_S` should the clean-up wait on worker threads."""
+
+def _stop_on_signals() -> None:
+    """Ctrl-C (SIGINT), ``kill`` (SIGTERM), a closed terminal (SIGHUP) and the CPU time limit of
+    ``ulimit -t`` (SIGXCPU) stop the run through :func:`_stop`; a signal the caller ignores (Ctrl-C
+    of a background job) stays ignored."""
+    for signum, default in (
+        (signal.SIGINT, signal.default_int_handler),
+        (signal.SIGTERM, signal.SIG_DFL),
+        (signal.SIGHUP, signal.SIG_DFL),
+        (signal.SIGXCPU, signal.SIG_DFL),
+    ):
+        if signal.getsignal(signum) is default:
+            signal.signal(signum, _stop)
+
+
+def _stop(signum: int, _frame: object) -> None:
+    """Stop the run as Ctrl-C does (staging folders removed, nothing half-moved; exit 130), and
+    exit anyway after :data:`TERM_GRACE_S` should the clean-up wait on worker threads. Signals
+    that follow (a second Ctrl-C, SIGXCPU repeated every second past the soft limit) leave the
+    clean-up to finish: cut short, it left temporary folders behind, and the interpreter aborted
+    in native threads (``terminate called without an active exception``)."""
     import threading
 
+    if _STOPPED_BY:
+        return
+    _STOPPED_BY.append(signum)
     timer = threading.Timer(TERM_GRACE_S, os._exit, args=(130,))
     timer.daemon = True
     timer.start()
     raise KeyboardInterrupt
 
 
+def _cpu_time_sentence() -> str:
+    # no number: the kernel raised the soft limit by a second when it sent SIGXCPU
+    return (
+        "error: the CPU time limit of this process (ulimit -t) ran out; GeoCon stopped there (records, "
+        "recordings and reports are written whole or not at all: what was there before is unchanged); raise "
+        "the limit or give it less work"
+    )
+
+
 def _say_and_exit(sentence: str, code: int) -> None:
     """Write ``sentence`` to stderr even when stdout is what failed, then exit with ``code``
     without flushing a broken stdout again."""
-    with contextlib.suppress(OSError):
+    with contextlib.suppress(OSError, AttributeError):
         sys.stderr.write(sentence + "\n")
         sys.stderr.flush()
-    with contextlib.suppress(OSError):
+    with contextlib.suppress(OSError, AttributeError):
         devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())  # the interpreter's final flush must not fail again
+        os.dup2(devnull, 1)  # the interpreter's final flush must not fail again
     os._exit(code)

@@ -104,7 +104,7 @@ def bench(
     try:
         cfg = preset(preset_name)
         if working_size is not None:
-            cfg = cfg.with_(working_size=parse_size(working_size))
+            cfg = cfg.with_(working_size=parse_size(working_size, "--working-size"))
         ray_options = _ray_options(executor, ray_address, workers, ray_cpus, ray_gpus)
         _check_bench_out(dataset, out_dir)
     except ValueError as exc:
@@ -261,10 +261,14 @@ def report(
         )
     except ValueError as exc:
         raise fail(str(exc)) from None
-    except OSError as exc:  # the disk filled up, a folder vanished: the previous report is kept
-        raise fail(
-            f"the report could not be written ({exc.strerror or exc}: {exc.filename}); a previous report is unchanged"
-        ) from None
+    except OSError as exc:  # a folder vanished: the previous report is kept
+        from . import RESOURCE_ERRORS
+
+        if exc.errno in RESOURCE_ERRORS:  # the machine's (a full disk): one sentence, exit 1
+            raise
+        where = f": {exc.filename}" if exc.filename else ""
+        why = f"{exc.strerror or exc}{where}"
+        raise fail(f"the report could not be written ({why}); a previous report is unchanged") from None
     for warning in result.warnings:
         err.print(f"note: {warning}", soft_wrap=True, highlight=False)
     out.print(f"report: {result.html} ({len(result.figures)} figure files in {result.out})", soft_wrap=True)

@@ -93,6 +93,10 @@ def dataset(
     try:
         done = write_sidecars(found, force=force)
     except OSError as exc:
+        from . import RESOURCE_ERRORS
+
+        if exc.errno in RESOURCE_ERRORS:  # the machine's (a full disk, a read-only folder): one sentence, exit 1
+            raise
         raise fail(f"a sidecar could not be written ({exc.strerror or exc}: {exc.filename})") from None
     if done.written:
         out.print(

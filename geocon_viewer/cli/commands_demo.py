@@ -11,14 +11,14 @@ from rich.table import Table
 from ..style import fmt
 from .commands_score import print_record, score_with_progress
 from .commands_synth import check_render_out, render_plans
-from .console import fail, has_viewer_extra, out, rerun_version
+from .console import MAX_SEED, fail, has_viewer_extra, out, rerun_version
 
 __all__ = ["demo"]
 
 
 def demo(
     out_dir: Annotated[Path, typer.Option("--out", help="Output folder.")] = Path("geocon-demo"),
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, max=MAX_SEED, help="Random seed (0 or more).")] = 0,
 ) -> None:
     """Run the built-in demo: render a static-camera scene with two moving objects, one of
     which deforms non-rigidly, print what the clip contains, then score it."""

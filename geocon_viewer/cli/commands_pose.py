@@ -37,7 +37,7 @@ def pose_log(
 
     try:
         check_apart([("--out", out_file)], [("COLMAP model" if source.is_dir() else "DUSt3R scene", source)])
-        check_out_file(out_file, "--out")
+        check_out_file(out_file, "--out", "pose.json")
         if source.is_dir():
             log = from_colmap(source, first, last)
         else:

@@ -177,12 +177,32 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
     if record.category is not None:
         table.add_row("category", f"{record.category.label}: {record.category.rule}")
     _object_rows(table, record)
-    table.add_row("config", f"{cfg.preset} preset, hash {record.config_hash}")
+    table.add_row("config", f"{cfg.preset} preset{_changed_settings(cfg)}, hash {record.config_hash}")
     for w in record.warnings:
         table.add_row("[yellow]warning[/]", w)
     if out_dir is not None:
         table.add_row("record", f"{out_dir}/record.json (+ matches.npz)")
     out.print(table)
+
+
+def _changed_settings(cfg: ScoreConfig) -> str:
+    """``" changed by options (matcher orb, ...)"``: the settings of ``cfg`` that differ from those
+    of the preset it names (``--preset paper --matcher orb`` is no longer the paper's protocol),
+    or ``""``. Masks the clip brings (``--masks DIR``) are an input, not a change of setting."""
+    from dataclasses import fields, is_dataclass
+
+    from geocon_core.config import PRESETS
+
+    if cfg.preset not in PRESETS:
+        return ""
+    own = PRESETS[cfg.preset][1]
+    changed = []
+    for f in fields(cfg):
+        value = getattr(cfg, f.name)
+        if value == getattr(own, f.name) or (f.name == "masks" and value == "external"):
+            continue
+        changed.append(f.name if is_dataclass(value) else f"{f.name} {value}")
+    return f" changed by options ({', '.join(changed)})" if changed else ""
 
 
 def _config(
@@ -382,6 +402,11 @@ def score(
     (GE) per frame pair and scale, the report verdict; writes the audit record."""
     target = out_dir or default_out(clip)
     sam2 = masks is not None and masks.strip().lower() == "sam2"
+    if masks is not None and sam2 and sam2_checkpoint is None and Path(masks).exists():
+        raise fail(
+            f"--masks {masks} asks for SAM-2 masks, which need --sam2-checkpoint PATH; to read the masks in the "
+            f"folder {masks} instead, give it as ./{masks}"
+        )
     mask_path = None if masks is None or sam2 else Path(masks)
     try:
         cfg = _config(

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 import typer
 from rich.table import Table
 
-from .console import fail, out, parse_size, progress_bar
+from .console import MAX_FRAMES, MAX_SCENES, MAX_SEED, fail, out, parse_size, progress_bar
 
 if TYPE_CHECKING:
     from geocon_core.synth import ClipPlan, GroundTruth
@@ -40,10 +40,14 @@ def render_plans(
     quiet: bool,
     noise: float = 2.0,
 ) -> list[GroundTruth]:
+    from geocon_core.files import parents_made
     from geocon_core.synth import write_clip
 
     results = []
-    with progress_bar("{task.description}", "frames", disable=quiet, transient=False) as progress:
+    with (
+        parents_made(out_dir),
+        progress_bar("{task.description}", "frames", disable=quiet, transient=False) as progress,
+    ):
         task = progress.add_task("rendering", total=len(plans) * frames)
         for i, plan in enumerate(plans, 1):
             progress.update(task, description=f"[{i}/{len(plans)}] {plan.clip_id}")
@@ -117,11 +121,11 @@ def synth(
         ),
     ],
     out_dir: Annotated[Path, typer.Option("--out", help="Output folder (created if missing).")],
-    frames: Annotated[int, typer.Option(min=2, help="Frames per clip.")] = 48,
+    frames: Annotated[int, typer.Option(min=2, max=MAX_FRAMES, help="Frames per clip.")] = 48,
     size: Annotated[str, typer.Option(help="Frame size WxH (even numbers).")] = "640x360",
     fps: Annotated[float, typer.Option(min=0.1, max=1000.0, help="Frames per second (0.1 to 1000).")] = 24.0,
     seed: Annotated[
-        int, typer.Option(min=0, max=2**32 - 1, help="Random seed (0 or more); the same seed gives identical files.")
+        int, typer.Option(min=0, max=MAX_SEED, help="Random seed (0 or more); the same seed gives identical files.")
     ] = 0,
     failure: Annotated[
         Optional[str],
@@ -170,13 +174,16 @@ def synth_failures() -> None:
 
 def synth_bench(
     out_dir: Annotated[Path, typer.Option("--out", help="Dataset folder (created).")],
-    scenes: Annotated[int, typer.Option(min=1, help="Scenes (seeds) per family; every platform renders each.")] = 3,
+    scenes: Annotated[
+        int, typer.Option(min=1, max=MAX_SCENES, help="Scenes (seeds) per family; every platform renders each.")
+    ] = 3,
     families: Annotated[str, typer.Option(help="Comma-separated families.")] = "C1,C2,C3,C4,C5",
-    frames: Annotated[int, typer.Option(min=2, help="Frames per clip.")] = 24,
+    frames: Annotated[int, typer.Option(min=2, max=MAX_FRAMES, help="Frames per clip.")] = 24,
     size: Annotated[str, typer.Option(help="Frame size WxH (even numbers).")] = "320x180",
 ) -> None:
     """Render a synthetic benchmark dataset for `geocon bench`: the same scenes from three
     "platforms" (clean, breathing background, elastic objects), with sidecar metadata."""
+    from geocon_core.files import parents_made
     from geocon_core.synth import plan_benchmark, write_benchmark
 
     width, height = parse_size(size)
@@ -188,7 +195,7 @@ def synth_bench(
         clips = plan_benchmark(families=names, scenes=scenes)
     except ValueError as exc:
         raise fail(str(exc)) from None
-    with progress_bar("rendering", "frames", eta=False) as bar:
+    with parents_made(out_dir), progress_bar("rendering", "frames", eta=False) as bar:
         task = bar.add_task("render", total=len(clips) * frames)
         written = write_benchmark(
             out_dir, clips, width=width, height=height, num_frames=frames, on_frame=lambda _t: bar.advance(task)

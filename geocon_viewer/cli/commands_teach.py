@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from .console import VIEWER_EXTRA, err, fail, has_viewer_extra, out, reach, serve_until_stopped
+from .console import MAX_SEED, VIEWER_EXTRA, err, fail, has_viewer_extra, out, reach, serve_until_stopped
 
 __all__ = ["teach"]
 
@@ -27,8 +27,10 @@ def teach(
             help="Address to bind. The default serves this machine only; 0.0.0.0 exposes the app to your network.",
         ),
     ] = "127.0.0.1",
-    frames: Annotated[int, typer.Option("--frames", help="Frames per rendered clip (4 to 120).")] = 16,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the scene's layout, textures and noise.")] = 0,
+    frames: Annotated[int, typer.Option("--frames", min=4, max=120, help="Frames per rendered clip (4 to 120).")] = 16,
+    seed: Annotated[
+        int, typer.Option("--seed", min=0, max=MAX_SEED, help="Seed of the scene's layout, textures and noise.")
+    ] = 0,
     screenshot: Annotated[
         Optional[Path],
         typer.Option(
@@ -52,6 +54,13 @@ def teach(
         raise fail(str(exc)) from None
     if not has_viewer_extra("viser"):
         raise fail(f"geocon teach needs the viewer extra: {VIEWER_EXTRA}")
+    if screenshot is not None:
+        from geocon_core.files import OutPathError, check_out_file
+
+        try:
+            check_out_file(screenshot, "--screenshot", "screenshot.png")  # before the server starts
+        except OutPathError as exc:
+            raise fail(str(exc)) from None
     from ..teach_app import TeachApp, TeachParams, TeachUpdate
 
     try:

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 import typer
 from rich.table import Table
 
-from .console import fail, out, progress_bar
+from .console import MAX_FRAMES, fail, out, progress_bar
 
 if TYPE_CHECKING:
     from geocon_core.config import ScoreConfig
@@ -51,13 +51,15 @@ def _once(values: tuple[Any, ...], name: str) -> tuple[Any, ...]:
 
 def print_report(report: ValidationReport) -> None:
     """The validation table on the terminal."""
-    from geocon_core.validation import metric_cells
+    from geocon_core.validation import INTERVALS_NOTE, metric_cells
 
     p = report.plan
     table = Table(
         title=f"GeoCon validation: preset {report.preset}, heights {','.join(map(str, p.heights))}, codecs "
         f"{','.join(p.codecs)}, {len(report.cases)} of {report.planned} cases, {report.seconds:.0f} s",
         title_justify="left",
+        caption=INTERVALS_NOTE,
+        caption_justify="left",
     )
     for col in ("measure", "set", "value", "target", "met", "detail"):
         table.add_column(col, justify="right" if col == "value" else "left", overflow="fold")
@@ -95,9 +97,12 @@ def validate(
         Optional[str], typer.Option(help="Comma-separated failures: breathing, slide, elastic (or none).")
     ] = None,
     levels: Annotated[Optional[str], typer.Option(help="Comma-separated severities: low, middle, high.")] = None,
-    frames: Annotated[Optional[int], typer.Option(min=2, help="Frames per synthetic clip (default 24).")] = None,
+    frames: Annotated[
+        Optional[int], typer.Option(min=2, max=MAX_FRAMES, help="Frames per synthetic clip (default 24).")
+    ] = None,
     max_frames: Annotated[
-        Optional[int], typer.Option(min=2, help="Real clips are cut to their first frames (default 48).")
+        Optional[int],
+        typer.Option(min=2, max=MAX_FRAMES, help="Real clips are cut to their first frames (default 48)."),
     ] = None,
     seed: Annotated[
         int,
@@ -159,7 +164,7 @@ def validate(
     try:
         cfg = preset(preset_name or DEFAULT_PRESET)  # the validation measures the default
         given = {
-            "heights": _ints(heights, "heights") or (QUICK.heights if quick else None),
+            "heights": _ints(heights, "heights") if heights is not None else (QUICK.heights if quick else None),
             "codecs": _names(codecs, "codecs") if codecs is not None else (QUICK.codecs if quick else None),
             "families": _names(families, "families"),
             "failures": _names(failures, "failures"),
@@ -231,11 +236,12 @@ def _say_missing(plan: ValidationPlan, notes: dict[str, Annotation]) -> None:
         )
 
 
-def _fill(notes: dict[str, Annotation], cache: Path, sources: Path) -> None:
+def _fill(notes: dict[str, Annotation], cache: Path, sources: Path, option: str = "--footage-from") -> None:
     from geocon_core.validation import fill_footage
 
     if not sources.is_dir():
-        raise fail(f"{sources}: no such folder of repository clones (--footage-from)")
+        kind = "is a file, not a folder" if sources.exists() else "does not exist"
+        raise fail(f"{option} {sources} {kind}; give the folder that holds the clones of the annotated repositories")
     items = fill_footage(notes, cache, sources)
     filled = sum(i.state == "filled" for i in items)
     bad = [i for i in items if i.state not in ("present", "filled")]
@@ -285,8 +291,10 @@ def footage(
             check_out_dir(cache_dir, "--footage")
         except ValueError as exc:
             raise fail(str(exc)) from None
-        _fill(notes, cache_dir, sources)
+        _fill(notes, cache_dir, sources, "--from")
         return
+    if cache_dir.exists() and not cache_dir.is_dir():
+        raise fail(f"--footage {cache_dir} is a file, not a folder; give the footage cache folder")
     items = footage_status(notes, cache_dir)
     present = sum(i.state == "present" for i in items)
     out.print(f"footage cache {cache_dir}: {present} of {len(items)} annotated clips present")

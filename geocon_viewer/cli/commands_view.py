@@ -46,6 +46,15 @@ def _resolve_record(target: Path, preset_name: str) -> Path:
 
     if target.is_file() and is_rerun_recording(target):
         raise fail(rerun_refusal(str(target)))
+    owner = target.parent.parent if target.parent.name == "overlays" else target.parent
+    if (
+        target.is_file()
+        and (target.name == "matches.npz" or owner != target.parent)
+        and (owner / "record.json").is_file()
+    ):
+        raise fail(
+            f"{target} is a part of the record {owner}, not a clip: give the record folder (geocon view {owner})"
+        )
     folder = default_out(target, has_out=False)
     if (folder / "record.json").exists():
         err.print(f"using the saved record {folder} (delete it or run `geocon score` to re-score)")
@@ -92,7 +101,7 @@ def _check_outputs(record: Any, folder: Path, rrd: Path, screenshot: Path | None
     check_apart(outputs, inputs, records=[folder])
     check_out_file(rrd, "--save")
     if screenshot is not None:
-        check_out_file(screenshot, "--screenshot")
+        check_out_file(screenshot, "--screenshot", "screenshot.png")
 
 
 def _check_connect(url: str | None) -> None:
@@ -120,6 +129,26 @@ def _stream_failed(connect: str | None, exc: RuntimeError) -> typer.Exit:
         "is not kept: start the viewer again and rerun the command",
         code=1,
     )
+
+
+def _check_options(
+    at: int | None, preset_name: str, *, serve: bool, headless: bool, connect: str | None, screenshot: Path | None
+) -> None:
+    """The options of ``geocon view`` that are wrong whatever the record: a negative ``--at``,
+    ``--serve`` with an option that opens no viewer or another one, an unknown ``--preset`` (even
+    when the saved record leaves it unused)."""
+    if at is not None and at < 0:
+        raise fail(f"--at must be a frame index (0 or more), got {at}")
+    others = {"--headless": headless, "--connect": connect is not None, "--screenshot": screenshot is not None}
+    clash = next((option for option, given in others.items() if given), None)
+    if serve and clash is not None:
+        raise fail(f"--serve and {clash} exclude each other (--serve serves the web viewer); give one of them")
+    from geocon_core.config import preset
+
+    try:
+        preset(preset_name)
+    except ValueError as exc:
+        raise fail(str(exc)) from None
 
 
 def view(
@@ -159,8 +188,7 @@ def view(
 ) -> None:
     """Re-render the Rerun recording of a saved record without re-scoring, then open it: the
     native viewer when a display is available, otherwise the web viewer served on 127.0.0.1."""
-    if at is not None and at < 0:
-        raise fail(f"--at must be a frame index (0 or more), got {at}")
+    _check_options(at, preset_name, serve=serve, headless=headless, connect=connect, screenshot=screenshot)
     if not has_viewer_extra("rerun"):
         raise fail(f"geocon view needs the viewer extra: {VIEWER_EXTRA}")
     _check_connect(connect)
@@ -268,7 +296,14 @@ def serve(
         raise fail(str(exc)) from None
     if not has_viewer_extra("viser"):
         raise fail(f"geocon serve needs the viewer extra: {VIEWER_EXTRA}")
-    from geocon_core.results import ResultsError
+    if screenshot is not None:
+        from geocon_core.files import OutPathError, check_out_file
+
+        try:
+            check_out_file(screenshot, "--screenshot", "screenshot.png")  # before the server starts
+        except OutPathError as exc:
+            raise fail(str(exc)) from None
+    from geocon_core.results import ResultsError, ResultsIndex
 
     from ..audit_app import AuditApp
     from ..rerun_video import quiet_encoder_logs
@@ -277,15 +312,18 @@ def serve(
 
     start = time.perf_counter()
     try:
-        audit = AuditApp(results, host=host, port=port)
+        index = ResultsIndex.open(results)
+        if clip is not None and clip not in index.by_id:  # before the server starts
+            ids = sorted(index.by_id)
+            named = ", ".join(ids[:5]) + (f" and {len(ids) - 5} more" if len(ids) > 5 else "")
+            raise fail(f"--clip {clip!r} is not a clip of {results}; its clips are {named}")
+        audit = AuditApp(index, host=host, port=port)
     except (ResultsError, ValueError) as exc:
         raise fail(str(exc)) from None
     except OSError as exc:
         raise fail(f"could not serve on {host}:{port}: {exc}") from None
     try:
         if clip is not None:
-            if clip not in audit.index.by_id:
-                raise fail(f"no clip {clip!r} in {results}")
             audit.clip.value = clip  # type: ignore[misc]  # viser setter typing gap
 
         n = len(audit.index.clips)

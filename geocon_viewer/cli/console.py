@@ -22,6 +22,9 @@ __all__ = [
     "out",
     "fail",
     "parse_size",
+    "MAX_FRAMES",
+    "MAX_SCENES",
+    "MAX_SEED",
     "rerun_version",
     "default_out",
     "has_viewer_extra",
@@ -54,14 +57,58 @@ class PathsChecked(TyperCommand):
     """A command that refuses an empty path, ``--out ''`` or ``--out=``, with one sentence before
     anything runs: the command would otherwise see ``Path('')``, which is ``.``, the current folder
     (and write there, or fail with a traceback). Checked on the raw words of the command line,
-    since once converted an empty path and ``.`` are one value."""
+    since once converted an empty path and ``.`` are one value. So are an option whose value is
+    another option (``--out --json`` would write a record folder named ``--json``) and an option
+    given twice with different values (``--frames 8 ... --frames 9``, ``--rrd --no-rrd``), of which
+    the parser would keep the last without a word (:func:`_misused_option`)."""
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         if not ctx.resilient_parsing:
+            misused = _misused_option(self, args)
+            if misused is not None:
+                raise fail(misused)
             empty = _empty_path(self, ctx, args)
             if empty is not None:
                 raise fail(f"{empty} is an empty path; give a file or folder name (`.` for the current folder)")
         return super().parse_args(ctx, args)
+
+
+def _misused_option(command: TyperCommand, args: list[str]) -> str | None:
+    """Why the options in ``args`` cannot mean what they say, or None: an option whose value is
+    one of the command's options (``--out --json``; ``--out=--json`` is taken as written), or a
+    single-valued option given twice with different values (the same value twice is harmless;
+    repeatable options such as ``--root`` may repeat)."""
+    options = {o: p for p in command.params if isinstance(p, TyperOption) for o in (*p.opts, *p.secondary_opts)}
+    names = set(options) | {"--help"}
+    seen: dict[str, tuple[str, object]] = {}
+    words = iter(args)
+    for word in words:
+        if word == "--":
+            break
+        name, has_value, inline = word.partition("=")
+        param = options.get(name)
+        if param is None:
+            continue
+        value: object
+        if param.is_flag:
+            value = name in param.opts
+        elif has_value:
+            value = inline
+        else:
+            value = next(words, None)
+            if value in names:
+                return (
+                    f"{name} has no value: the word after it, {value}, is an option; give {name} its value "
+                    f"(a path that begins with -- as ./{value})"
+                )
+        if param.multiple or param.count:
+            continue
+        first = seen.setdefault(param.name or name, (name, value))
+        if first[1] != value:
+            if param.is_flag:
+                return f"{first[0]} and {name} contradict each other; give one of them"
+            return f"{name} is given twice ({first[1]} and {value}); give it once"
+    return None
 
 
 def _empty_path(command: TyperCommand, ctx: Any, args: list[str]) -> str | None:
@@ -84,18 +131,26 @@ def _empty_path(command: TyperCommand, ctx: Any, args: list[str]) -> str | None:
 
 MAX_SIDE = 8192
 """The largest width or height ``--size`` accepts (8K; H.264 encoders and a laptop's memory stop near it)."""
+MAX_FRAMES = 100_000
+"""The most frames a rendered clip may have (``--frames``; over an hour at 24 fps)."""
+MAX_SCENES = 10_000
+"""The most scenes per family ``geocon synth-bench --scenes`` renders."""
+MAX_SEED = 2**32 - 1
+"""The largest seed of the synthetic scenes (``--seed``; 0 is the smallest)."""
 
 
-def parse_size(size: str) -> tuple[int, int]:
-    """``"640x360"`` -> (640, 360); even sizes of 16 to :data:`MAX_SIDE` px (H.264 4:2:0)."""
+def parse_size(size: str, option: str = "--size") -> tuple[int, int]:
+    """``"640x360"`` -> (640, 360); even sizes of 16 to :data:`MAX_SIDE` px (H.264 4:2:0). A bad
+    size is refused with one sentence naming ``option``."""
     try:
         w, h = (int(v) for v in size.lower().split("x"))
     except ValueError:
-        raise fail(f"--size must look like 640x360, got {size!r}") from None
+        raise fail(f"{option} must look like 640x360, got {size!r}") from None
     if w % 2 or h % 2 or w < 16 or h < 16:
-        raise fail(f"--size needs an even width and height of at least 16 (H.264 4:2:0), got {size!r}")
+        raise fail(f"{option} needs an even width and height of at least 16 (H.264 4:2:0), got {size!r}")
     if w > MAX_SIDE or h > MAX_SIDE:
-        raise fail(f"--size {size} is larger than {MAX_SIDE} px on a side (8K), which no encoder here writes")
+        why = "which no encoder here writes" if option == "--size" else "beyond any clip GeoCon scores"
+        raise fail(f"{option} {size} is larger than {MAX_SIDE} px on a side (8K), {why}")
     return w, h
 
 
