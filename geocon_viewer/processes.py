@@ -79,29 +79,43 @@ PORT_SEARCH = 100
 """How many ports above a busy ``--port`` :func:`check_bind` tries."""
 
 
-def _resolve(host: str) -> list[tuple[int, tuple]]:
-    """(family, socket address) of every address ``host`` binds to, as a server binding ``host``
-    would see them, within :data:`RESOLVE_TIMEOUT_S`."""
+def _lookup(host: str, port: int, timeout_s: float, flags: int = 0) -> list | BaseException | None:
+    """``socket.getaddrinfo`` of ``host`` in a thread of its own, waited for at most ``timeout_s``:
+    its answer, the exception it raised, or None when it did not answer in time (a resolver that
+    hangs must not hang the command)."""
     found: list = []
 
     def lookup() -> None:
         try:
-            found.append(socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE))
+            found.append(socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=flags))
         except (OSError, UnicodeError) as exc:
             found.append(exc)
 
     thread = threading.Thread(target=lookup, name="geocon-resolve", daemon=True)
     thread.start()
-    thread.join(RESOLVE_TIMEOUT_S)
-    if not found:
+    thread.join(timeout_s)
+    return found[0] if found else None
+
+
+def _ip_addresses(answer: list) -> list[tuple[int, tuple]]:
+    """(family, socket address) of every IPv4/IPv6 entry of a ``getaddrinfo`` answer, once each."""
+    addrs = [(fam, sockaddr) for fam, _, _, _, sockaddr in answer if fam in (socket.AF_INET, socket.AF_INET6)]
+    return list(dict.fromkeys(addrs))
+
+
+def _resolve(host: str) -> list[tuple[int, tuple]]:
+    """(family, socket address) of every address ``host`` binds to, as a server binding ``host``
+    would see them, within :data:`RESOLVE_TIMEOUT_S`."""
+    found = _lookup(host, 0, RESOLVE_TIMEOUT_S, socket.AI_PASSIVE)
+    if found is None:
         raise BindError(f"--host {host} did not resolve within {RESOLVE_TIMEOUT_S:g} s: give an IP address")
-    if isinstance(found[0], BaseException):
-        why = getattr(found[0], "strerror", None) or found[0]
+    if isinstance(found, BaseException):
+        why = getattr(found, "strerror", None) or found
         raise BindError(f"--host {host} is neither an IP address nor a name that resolves ({why})")
-    addrs = [(fam, sockaddr) for fam, _, _, _, sockaddr in found[0] if fam in (socket.AF_INET, socket.AF_INET6)]
+    addrs = _ip_addresses(found)
     if not addrs:
         raise BindError(f"--host {host} resolves to no IPv4 or IPv6 address")
-    return list(dict.fromkeys(addrs))
+    return addrs
 
 
 def _try_bind(addrs: list[tuple[int, tuple]], port: int) -> int:
@@ -218,32 +232,22 @@ def _why(exc: OSError | None) -> str:
 
 def _resolve_for_connect(host: str, port: int, url: str, timeout_s: float) -> list[tuple[int, tuple]]:
     """(family, socket address) of every IPv4/IPv6 address of ``host``, within ``timeout_s``."""
-    found: list = []
-
-    def lookup() -> None:
-        try:
-            found.append(socket.getaddrinfo(host, port, type=socket.SOCK_STREAM))
-        except (OSError, UnicodeError) as exc:
-            found.append(exc)
-
-    thread = threading.Thread(target=lookup, name="geocon-resolve", daemon=True)
-    thread.start()
-    thread.join(timeout_s)
-    if not found:
+    found = _lookup(host, port, timeout_s)
+    if found is None:
         raise ViewerUnreachable(
             f"the host of the Rerun viewer at {url} did not resolve within {timeout_s:g} s; give the viewer's IP "
             "address (127.0.0.1 for this machine)"
         )
-    if isinstance(found[0], BaseException):
-        why = getattr(found[0], "strerror", None) or found[0]
+    if isinstance(found, BaseException):
+        why = getattr(found, "strerror", None) or found
         raise ViewerUnreachable(
             f"the host {host} of the Rerun viewer at {url} does not resolve ({str(why).lower()}); check the name or "
             "give the viewer's IP address (127.0.0.1 for this machine)"
         )
-    addrs = [(fam, sockaddr) for fam, _, _, _, sockaddr in found[0] if fam in (socket.AF_INET, socket.AF_INET6)]
+    addrs = _ip_addresses(found)
     if not addrs:
         raise ViewerUnreachable(f"the host {host} of the Rerun viewer at {url} has no IPv4 or IPv6 address")
-    return list(dict.fromkeys(addrs))
+    return addrs
 
 
 def private_env(workdir: Path, **extra: str) -> dict[str, str]:

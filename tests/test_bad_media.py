@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 
 from . import test_bad_input as catalogue
-from .bad_inputs import pan_frames, snapshot
-from .test_bad_input import Case, Ctx, H, N, Outcome, W, build_all_checks, frames_of, judge, record, score
+from .bad_inputs import pan_frames
+from .test_bad_input import Case, Ctx, H, N, Outcome, W, build_all_checks, frames_of, record, run_case, score
 
 assets = catalogue.assets
 """The catalogue's session inputs (a fixture), shared with ``test_bad_input.py``."""
@@ -387,13 +387,7 @@ def test_the_catalogue_is_complete():
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_bad_media(case: Case, ctx: Ctx):
-    for module in case.needs:
-        pytest.importorskip(module)
-    case.build(ctx)
-    before = snapshot(ctx.tmp)
-    res = ctx.invoke(list(case.argv)) if case.runner == "cli" else ctx.spawn(list(case.argv))
-    problems = judge(case, ctx, res, before)
-    assert not problems, f"{case.name}: {res.describe()}\n  - " + "\n  - ".join(problems)
+    run_case(case, ctx)
 
 
 def test_record_ids_round_trip_and_older_records_still_read(assets, tmp_path):
@@ -686,14 +680,8 @@ def test_the_odd_catalogue_is_complete():
 
 @pytest.mark.parametrize("case", ODD, ids=[c.name for c in ODD])
 def test_odd_media(case: Case, ctx: Ctx, monkeypatch: pytest.MonkeyPatch):
-    for module in case.needs:
-        pytest.importorskip(module)
     monkeypatch.setattr(catalogue, "SUBPROCESS_TIMEOUT_S", ODD_SUBPROCESS_LIMIT_S)
-    case.build(ctx)
-    before = snapshot(ctx.tmp)
-    res = ctx.invoke(list(case.argv)) if case.runner == "cli" else ctx.spawn(list(case.argv))
-    problems = judge(case, ctx, res, before)
-    assert not problems, f"{case.name}: {res.describe()}\n  - " + "\n  - ".join(problems)
+    run_case(case, ctx)
 
 
 def test_dis_flow_of_thin_regions_does_not_crash():

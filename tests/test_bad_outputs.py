@@ -26,7 +26,7 @@ import pytest
 from geocon_core.files import OutPathError, replace_dir, replace_file, special_file
 
 from .bad_inputs import snapshot
-from .test_bad_input import FAST, Case, Ctx, Outcome, assets, build_all, ctx, judge, nothing, score  # noqa: F401
+from .test_bad_input import FAST, Case, Ctx, Outcome, assets, build_all, ctx, judge, nothing, run_case, score  # noqa: F401
 from .test_resources import _fill, _mount
 
 NULL = os.makedev(1, 3)
@@ -260,13 +260,7 @@ def test_the_catalogue_is_complete():
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_bad_output(case: Case, ctx: Ctx):  # noqa: F811
-    for module in case.needs:
-        pytest.importorskip(module)
-    case.build(ctx)
-    before = snapshot(ctx.tmp)
-    res = ctx.invoke(list(case.argv)) if case.runner == "cli" else ctx.spawn(list(case.argv))
-    problems = judge(case, ctx, res, before)
-    assert not problems, f"{case.name}: {res.describe()}\n  - " + "\n  - ".join(problems)
+    run_case(case, ctx)
 
 
 # --- the rule's one home --------------------------------------------------------------------------
