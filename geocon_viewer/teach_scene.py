@@ -120,7 +120,7 @@ class TeachParams:
         if self.masks not in ("rendered", "motion"):
             raise ValueError(f"masks must be rendered or motion, got {self.masks!r}")
         if not 4 <= self.num_frames <= 120:
-            raise ValueError(f"frames must be between 4 and 120, got {self.num_frames}")
+            raise ValueError(f"--frames must be between 4 and 120 frames per clip, got {self.num_frames}")
 
     @property
     def width_height(self) -> tuple[int, int]:

@@ -27,7 +27,7 @@ def teach(
             help="Address to bind. The default serves this machine only; 0.0.0.0 exposes the app to your network.",
         ),
     ] = "127.0.0.1",
-    frames: Annotated[int, typer.Option("--frames", min=4, max=120, help="Frames per rendered clip (4 to 120).")] = 16,
+    frames: Annotated[int, typer.Option("--frames", help="Frames per rendered clip (4 to 120).")] = 16,
     seed: Annotated[
         int, typer.Option("--seed", min=0, max=MAX_SEED, help="Seed of the scene's layout, textures and noise.")
     ] = 0,

@@ -275,6 +275,8 @@ def footage(
 
     if action not in ("status", "fill"):
         raise fail(f"unknown action {action!r}; valid: status, fill")
+    if action == "status" and sources is not None:
+        raise fail("--from is used with fill (the clones to copy from); status only reads the cache")
     try:
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
     except (ValueError, OSError) as exc:

@@ -131,6 +131,8 @@ def _empty_path(command: TyperCommand, ctx: Any, args: list[str]) -> str | None:
 
 MAX_SIDE = 8192
 """The largest width or height ``--size`` accepts (8K; H.264 encoders and a laptop's memory stop near it)."""
+MAX_PIXELS = 8192 * 4320
+"""The most pixels a ``--size`` frame may have (an 8K frame; 8192x8192 took minutes a frame)."""
 MAX_FRAMES = 100_000
 """The most frames a rendered clip may have (``--frames``; over an hour at 24 fps)."""
 MAX_SCENES = 10_000
@@ -140,8 +142,8 @@ MAX_SEED = 2**32 - 1
 
 
 def parse_size(size: str, option: str = "--size") -> tuple[int, int]:
-    """``"640x360"`` -> (640, 360); even sizes of 16 to :data:`MAX_SIDE` px (H.264 4:2:0). A bad
-    size is refused with one sentence naming ``option``."""
+    """``"640x360"`` -> (640, 360); even sizes of 16 to :data:`MAX_SIDE` px (H.264 4:2:0) of at
+    most :data:`MAX_PIXELS`. A bad size is refused with one sentence naming ``option``."""
     try:
         w, h = (int(v) for v in size.lower().split("x"))
     except ValueError:
@@ -151,6 +153,11 @@ def parse_size(size: str, option: str = "--size") -> tuple[int, int]:
     if w > MAX_SIDE or h > MAX_SIDE:
         why = "which no encoder here writes" if option == "--size" else "beyond any clip GeoCon scores"
         raise fail(f"{option} {size} is larger than {MAX_SIDE} px on a side (8K), {why}")
+    if w * h > MAX_PIXELS:
+        raise fail(
+            f"{option} {size} has {w * h / 1e6:.0f} million pixels, more than an 8K frame (8192x4320, "
+            f"{MAX_PIXELS / 1e6:.1f} million); give a smaller size"
+        )
     return w, h
 
 
