@@ -354,11 +354,16 @@ class _PipedFile:
             self.error = self.error or exc
         self.check()
 
+    DISCARD_WAIT_S = 5.0
+    """Seconds an abandoned recording waits for Rerun to close the pipe; past them the thread goes
+    on draining it (writes to the closed file are dropped), so Rerun never waits on it."""
+
     def discard(self) -> None:
-        """Close everything and remove the partial file."""
+        """Close everything and remove the partial file, waiting at most :attr:`DISCARD_WAIT_S`
+        for Rerun (a run that failed must not wait on the recording it abandons)."""
         self.attached()
-        self._thread.join(self.CLOSE_TIMEOUT_S)
-        with contextlib.suppress(OSError):
+        self._thread.join(self.DISCARD_WAIT_S)
+        with contextlib.suppress(OSError, ValueError):
             self._file.close()
         self.part.unlink(missing_ok=True)
 
