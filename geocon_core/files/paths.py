@@ -98,6 +98,14 @@ def refuse_special(path: Path, option: str | None = None) -> None:
     )
 
 
+def _read_only(folder: Path) -> bool:
+    """``folder`` lies on a file system mounted read-only (no write for anyone, root included)."""
+    try:
+        return bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
 def check_out_dir(path: Path, option: str = "--out") -> Path:
     """Check that ``path`` can be (or already is) a writable folder, without creating anything.
 
@@ -122,6 +130,8 @@ def check_out_dir(path: Path, option: str = "--out") -> Path:
                 f"{option} {path} exists and is not a folder; choose a folder (it is created if missing)"
             )
         if not os.access(path, os.W_OK | os.X_OK):
+            if _read_only(path):
+                raise OutPathError(f"{option} {path} is on a read-only file system; choose a folder on a writable one")
             raise OutPathError(f"{option} {path} is a folder without write permission; choose another folder")
         return path
     ancestor = full.parent
@@ -130,6 +140,10 @@ def check_out_dir(path: Path, option: str = "--out") -> Path:
     if not ancestor.is_dir():
         raise OutPathError(f"{option} {path} cannot be created: {ancestor} is not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
+        if _read_only(ancestor):
+            raise OutPathError(
+                f"{option} {path} cannot be created: {ancestor} is on a read-only file system; choose a writable folder"
+            )
         raise OutPathError(f"{option} {path} cannot be created: no write permission in {ancestor}")
     return path
 
