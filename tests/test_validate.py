@@ -192,6 +192,44 @@ def test_the_split_is_seeded_balanced_and_fixed():
         assert total >= 60 and min(halves["tune"], halves["check"]) >= 0.4 * total, (source, halves)
 
 
+HELD_OUT = """
+guoyww/AnimateDiff hehao13/CameraCtrl Doubiiu/DynamiCrafter hao-ai-lab/FastVideo hpcaitech/Open-Sora
+PKU-YuanGroup/Open-Sora-Plan THUDM/CogVideo TencentARC/MotionCtrl svg-project/Sparse-VideoGen Vchitect/VBench
+Drexubery/ViewCrafter ByteDance-Seed/Depth-Anything-3 CMU-Perceptual-Computing-Lab/openpose HL-hanlin/Ctrl-Adapter
+Junyi42/monst3r KwaiVGI/LivePortrait KwaiVGI/ReCamMaster NUS-HPC-AI-Lab/VideoSys OpenTalker/SadTalker
+SkyworkAI/SkyReels-V2 TIGER-AI-Lab/AnyV2V Tencent/HunyuanVideo-I2V TencentARC/GeometryCrafter Vchitect/VEnhancer
+Vchitect/Vchitect-2.0 YBYBZhang/ControlVideo ageitgey/face_recognition aigc-apps/VideoX-Fun ali-vilab/VACE
+hkchengrex/MMAudio hohonu-vicml/Trailblazer luxonis/depthai-experiments maxin-cn/Cinemo nv-tlabs/vipe
+nvidia-cosmos/cosmos-predict1 nvidia-cosmos/cosmos-transfer1 open-mmlab/FoleyCrafter rhymes-ai/Allegro
+theAIGuysCode/yolov4-deepsort xingyizhou/CenterTrack
+""".split()
+"""Repositories whose samples are kept for an independent check: no clip is taken from them, except
+the clips of the first eleven that the annotation file held before the list was drawn up."""
+
+
+def test_the_annotated_set_is_large_enough_and_leaves_the_held_out_repositories_alone():
+    from collections import Counter
+
+    notes = [a for a in read_annotations(ANNOTATIONS_PATH).values() if not a.exclude]
+    generated = [a for a in notes if a.source == "generated"]
+    real = [a for a in notes if a.source == "real"]
+    artifact = [a for a in generated if a.geometric_artifact]
+    assert len(generated) >= 200 and len(artifact) >= 80 and len(generated) - len(artifact) >= 80
+    assert len(real) >= 150
+    repos = {a.repo.split()[0] for a in generated if a.repo}
+    assert len(repos) >= 35, sorted(repos)
+    for a in notes:
+        owner_name = a.repo.split()[0].lower() if a.repo else ""
+        held = [r.lower() for r in HELD_OUT]
+        assert owner_name not in held[11:], a.key  # the first eleven keep their earlier clips
+        assert owner_name != "zai-org/cogvideo", a.key  # THUDM/CogVideo under its new owner
+    hashes = Counter(a.sha256 for a in notes if a.sha256)
+    assert not [h for h, n in hashes.items() if n > 1], "the same bytes annotated twice"
+    for source in (generated, real):
+        halves = Counter(a.split for a in source)
+        assert min(halves["tune"], halves["check"]) >= 0.4 * len(source), halves
+
+
 def test_plan_takes_annotated_clips_of_every_root_and_one_half(tmp_path):
     from geocon_core.validation import Annotation, missing_clips
 

@@ -18,7 +18,15 @@ matched re-encoding), :mod:`.writer` (the files and the ground truth).
 from .encode import ENCODERS, FALLBACK_CODEC, MATCH_FRAMES, PLANAR_FORMATS, Encoder, SourceVideo, probe_source
 from .fields import Planting, Region, plan_planting
 from .kinds import LEVELS, PLANT_KINDS, SHAPE, PlantKind, PlantShape, amplitude_of
-from .writer import PLANT_FORMAT, PlantResult, plant_clip, plant_names, planted_displacement, read_plant_truth
+from .writer import (
+    PLANT_FORMAT,
+    PlantResult,
+    plant_clip,
+    plant_names,
+    planted_displacement,
+    read_plant_truth,
+    write_clean_clip,
+)
 
 __all__ = [
     "ENCODERS",
@@ -43,4 +51,5 @@ __all__ = [
     "plant_names",
     "planted_displacement",
     "read_plant_truth",
+    "write_clean_clip",
 ]

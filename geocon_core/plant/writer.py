@@ -38,6 +38,7 @@ __all__ = [
     "plant_names",
     "planted_displacement",
     "read_plant_truth",
+    "write_clean_clip",
 ]
 
 PLANT_FORMAT = "geocon-plant-gt/1"
@@ -134,6 +135,46 @@ def plant_clip(
             for part in parts.values():
                 part.unlink(missing_ok=True)
     return PlantResult(truth, targets["planted"], targets["clean"], targets["truth"], planting)
+
+
+def write_clean_clip(clip: str | Path, target: str | Path, *, frames: int | None = None) -> dict[str, Any]:
+    """Write only the clean clip of :func:`plant_clip` to ``target`` (an ``.mp4`` path): the first
+    ``frames`` frames of ``clip`` (all when None) decoded and encoded exactly as :func:`plant_clip`
+    encodes its clean twin (the same codec, quantiser match and options), so its bytes equal the
+    ``<stem>.clean.mp4`` of any planting of the same clip and frames. Written beside ``target`` and
+    renamed into place. Returns what the ground truth's ``source``, ``clean`` and ``encoding``
+    entries say of it: ``source_sha256``, ``frames``, ``size`` (w, h), ``codec``, ``encoder``,
+    ``quality`` and ``sha256`` and ``bits_per_pixel`` of the clean clip.
+
+    Raises :class:`~geocon_core.media.ClipError` for a clip that is no readable video (a folder of
+    frames included)."""
+    clip, target = Path(clip), Path(target)
+    source = probe_source(clip, frames)
+    sample: list[list[np.ndarray]] = []
+    for planes in decode_planes(clip, source.work_format, min(source.frames, MATCH_FRAMES)):
+        sample.append(planes)
+    quality, _ = match_quality(source, sample)
+    sample.clear()
+    part = part_path(target)
+    try:
+        args = (source.encoder, quality, source.work_format, source.width, source.height, source.rate)
+        with PlaneWriter(part, *args) as clean:
+            for planes in decode_planes(clip, source.work_format, source.frames):
+                clean.write(planes)
+        summary = {
+            "source_sha256": source.sha256,
+            "frames": source.frames,
+            "size": [source.width, source.height],
+            "codec": source.encoder.codec,
+            "encoder": source.encoder.library,
+            "quality": {"option": source.encoder.quality_option, "value": quality},
+            "sha256": file_sha256(part),
+            "bits_per_pixel": round(8.0 * clean.bytes / (source.width * source.height * source.frames), 6),
+        }
+        replace_file(part, target)
+    finally:
+        part.unlink(missing_ok=True)
+    return summary
 
 
 def _write_json(path: Path, data: Mapping[str, Any]) -> None:

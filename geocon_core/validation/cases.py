@@ -2,7 +2,9 @@
 failures, and the real clips of a data folder with a person's annotation of each.
 
 A case names what to score and what is expected of it; :mod:`.prepare` makes its clip and
-:mod:`.runner` scores it.
+:mod:`.runner` scores it. With ``planted``, every annotated real-camera clip also gets failures
+planted into it (:mod:`geocon_core.plant`) at each kind and severity, and one clean re-encode
+made the same way (:func:`planted_cases`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,9 @@ __all__ = [
     "SEVERITIES",
     "ValidationPlan",
     "plan_cases",
+    "planted_cases",
+    "PLANT_LEVELS",
+    "PLANT_KINDS",
     "missing_clips",
     "split_of",
     "ROOTS",
@@ -41,7 +46,7 @@ __all__ = [
 ]
 
 CodecName = Literal["png", "crf18", "crf28"]
-CaseKind = Literal["synthetic", "real"]
+CaseKind = Literal["synthetic", "real", "planted"]
 
 HEIGHTS: tuple[int, ...] = (256, 384, 512, 720, 1080)
 """Synthetic frame heights, px; widths are 16:9 (:func:`width_for`)."""
@@ -51,6 +56,11 @@ CODEC_CRF: dict[str, int] = {"crf18": 18, "crf28": 28}
 CLEAN_FAMILIES: tuple[str, ...] = ("C1", "C2", "C3", "C4", "C5", "C6")
 LEVELS: tuple[str, ...] = ("low", "middle", "high")
 """The severity levels of a failure case (values per failure in :data:`SEVERITIES`)."""
+PLANT_KINDS: tuple[str, ...] = ("morph", "redraw", "breathing", "slide")
+"""The kinds of ``--planted`` cases: every kind of :data:`geocon_core.plant.PLANT_KINDS` (a test
+keeps the two equal; listed here so planning a run imports no planting code)."""
+PLANT_LEVELS: tuple[str, ...] = ("low", "middle", "high")
+"""The severities of ``--planted`` cases (:data:`geocon_core.plant.LEVELS`)."""
 SEVERITIES: dict[str, tuple[float, float, float]] = {
     "breathing": (1.0, 2.0, 4.0),
     "slide": (4.0, 8.0, 16.0),
@@ -194,7 +204,9 @@ class Annotation:
 class CaseSpec:
     """One case. Synthetic: ``family``, ``failure`` / ``level`` / ``severity`` (None when clean),
     ``height`` (px) and ``codec``. Real: ``source`` is the clip's path and ``annotation`` what a
-    person expects (None when the clip is not annotated)."""
+    person expects (None when the clip is not annotated). Planted: ``source`` and ``annotation``
+    are the real clip's, ``failure`` the planted kind, ``level`` its severity and ``severity`` its
+    amplitude (:func:`geocon_core.plant.amplitude_of`); all three None for the clean re-encode."""
 
     case_id: str
     kind: CaseKind
@@ -235,6 +247,15 @@ class ValidationPlan:
     split: str = "all"
     """``all``, ``tune`` or ``check``: the clips of ``real2`` and ``footage`` in that half only
     (:func:`split_of`); synthetic cases and the clips of ``data`` are not split."""
+    real: bool = True
+    """Score the clips of the roots themselves; without it the roots only give the sources of the
+    planted cases."""
+    planted: bool = False
+    """Plant failures into every annotated real-camera clip of the roots (:func:`planted_cases`)."""
+    plant_kinds: tuple[str, ...] = PLANT_KINDS
+    """The planted kinds (:data:`PLANT_KINDS`)."""
+    plant_levels: tuple[str, ...] = PLANT_LEVELS
+    """The planted severities (:data:`PLANT_LEVELS`)."""
 
     def __post_init__(self) -> None:
         for name, values, valid in (
@@ -242,6 +263,8 @@ class ValidationPlan:
             ("family", self.families, CLEAN_FAMILIES),
             ("failure", self.failures, tuple(SEVERITIES)),
             ("level", self.levels, LEVELS),
+            ("planted kind", self.plant_kinds, PLANT_KINDS),
+            ("severity", self.plant_levels, PLANT_LEVELS),
         ):
             bad = [v for v in values if v not in valid]
             if bad:
@@ -258,6 +281,16 @@ class ValidationPlan:
         for option, listed, some in lists:
             if self.synthetic and not listed:
                 raise ValueError(f"{option} lists none, so no synthetic clip is made; give {some} (or --no-synthetic)")
+        planted_lists = (
+            ("--plant-kinds", self.plant_kinds, PLANT_KINDS),
+            ("--severity", self.plant_levels, PLANT_LEVELS),
+        )
+        for option, listed, valid in planted_lists:
+            if self.planted and not listed:
+                raise ValueError(
+                    f"{option} lists none, so no planted clip is made; give at least one of {', '.join(valid)} "
+                    "(or leave out --planted)"
+                )
         if self.frames < 2 or self.max_frames < 2:
             raise ValueError("a clip needs at least 2 frames")
         if self.split not in ("all", *SPLITS):
@@ -312,6 +345,42 @@ def _in_split(plan: ValidationPlan, key: str) -> bool:
     return plan.split == "all" or key.startswith("data:") or split_of(key) == plan.split
 
 
+def _planted_sources(plan: ValidationPlan, annotations: dict[str, Annotation]) -> list[tuple[Annotation, Path]]:
+    """The annotated real-camera clips (``source = real``, not excluded) of the plan's roots that
+    are present and in the plan's half, with their paths, in key order."""
+    roots = _roots(plan)
+    return [
+        (note, roots[note.root] / note.clip)
+        for note in sorted(annotations.values(), key=lambda a: a.key)
+        if note.source == "real"
+        and note.root in roots
+        and not note.exclude
+        and _in_split(plan, note.key)
+        and (roots[note.root] / note.clip).exists()
+    ]
+
+
+def planted_cases(plan: ValidationPlan, annotations: dict[str, Annotation]) -> list[CaseSpec]:
+    """The planted family: for every annotated real-camera clip of the plan's roots that is present
+    and in the plan's half, one clean re-encode (the original's counterpart, encoded as the planted
+    clips are, so only the planted damage differs) and one case per kind of ``plan.plant_kinds``
+    and severity of ``plan.plant_levels``, planted from ``plan.seed`` into the clip's first
+    ``plan.max_frames`` frames. Each carries its source clip's annotation: its scene
+    (:attr:`Annotation.key`) and its half are the source's."""
+    from ..plant import amplitude_of
+
+    cases = []
+    for note, clip in _planted_sources(plan, annotations):
+        base = "planted__" + _case_id(note.root, note.clip)
+        cases.append(CaseSpec(f"{base}__clean", "planted", source=str(clip), annotation=note))
+        for kind in plan.plant_kinds:
+            for level in plan.plant_levels:
+                amplitude = amplitude_of(kind, level)
+                cid = f"{base}__{kind}-{level}-s{plan.seed}"
+                cases.append(CaseSpec(cid, "planted", None, kind, level, amplitude, source=str(clip), annotation=note))
+    return cases
+
+
 def _real_cases(plan: ValidationPlan, annotations: dict[str, Annotation]) -> list[CaseSpec]:
     """Every clip of ``plan.data`` (annotated or not), then the annotated clips of the other roots
     that are present; excluded rows and clips of the other half are left out."""
@@ -345,10 +414,13 @@ def missing_clips(plan: ValidationPlan, annotations: dict[str, Annotation]) -> l
 
 def plan_cases(plan: ValidationPlan, annotations: dict[str, Annotation] | None = None) -> list[CaseSpec]:
     """The cases of ``plan``: the synthetic grid, then the clips of ``plan.data`` and the annotated
-    clips of ``plan.real2`` and ``plan.footage``."""
+    clips of ``plan.real2`` and ``plan.footage`` (with ``plan.real``), then the planted family
+    (with ``plan.planted``, :func:`planted_cases`)."""
     cases = _synthetic_cases(plan) if plan.synthetic else []
-    if _roots(plan):
-        cases += _real_cases(plan, annotations if annotations is not None else read_annotations())
+    if _roots(plan) and (plan.real or plan.planted):
+        notes = annotations if annotations is not None else read_annotations()
+        cases += _real_cases(plan, notes) if plan.real else []
+        cases += planted_cases(plan, notes) if plan.planted else []
     return cases
 
 

@@ -467,7 +467,10 @@ def _detection_rows(rows: list[CaseResult]) -> list[MetricRow]:
                 group = [
                     r
                     for r in rows
-                    if r.failure == failure and r.level == level and (len(families) == 1 or r.family == family)
+                    if r.kind == "synthetic"
+                    and r.failure == failure
+                    and r.level == level
+                    and (len(families) == 1 or r.family == family)
                 ]
                 if not group:
                     continue

@@ -4,13 +4,17 @@ A synthetic scene (family, failure, severity, size, frames, seed) is rendered on
 PNG frames (with its ground truth, :func:`geocon_core.synth.write_clip`) and encoded from those
 frames into H.264 at each CRF it is scored at. A real clip longer than ``max_frames`` is cut to its
 first frames, stored as lossless PNG frames of the decoded video (so its compression artefacts are
-kept as they are). Each entry's folder name carries a digest of its parameters and of the code
-that makes it, so a changed renderer never reuses a stale clip; an entry is complete when its
-``done.json`` exists.
+kept as they are). A planted case is planted once (:func:`geocon_core.plant.plant_clip`, into the
+real clip's first ``max_frames`` frames) and a clean re-encode made once per source clip
+(:func:`geocon_core.plant.write_clean_clip`), keyed by the source's bytes (:func:`source_sha256`),
+the kind, severity, seed and frames, the ground truth's format and :func:`plant_code_digest`. Each
+entry's folder name carries a digest of its parameters and of the code that makes it, so a
+changed renderer never reuses a stale clip; an entry is complete when its ``done.json`` exists.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import shutil
@@ -24,7 +28,15 @@ import numpy as np
 
 from .cases import CODEC_CRF, CaseSpec, ValidationPlan
 
-__all__ = ["PreparedClip", "code_digest", "prepare_key", "prepare_case", "clip_for"]
+__all__ = [
+    "PreparedClip",
+    "code_digest",
+    "plant_code_digest",
+    "source_sha256",
+    "prepare_key",
+    "prepare_case",
+    "clip_for",
+]
 
 _DONE = "done.json"
 _FPS = 24.0
@@ -51,6 +63,50 @@ def code_digest() -> str:
     return h.hexdigest()[:12]
 
 
+@functools.cache
+def plant_code_digest() -> str:
+    """A digest of the source of the code that plants failures and re-encodes clips (the planting
+    package, the synthetic fields and the optical flow it uses to follow its region) and of the
+    PyAV version that encodes them, 12 hex digits."""
+    import av
+
+    import geocon_core
+
+    root = Path(geocon_core.__file__).resolve().parent
+    h = hashlib.sha256(str(av.__version__).encode())
+    for sub in ("plant", "synth", "flow"):
+        for path in sorted(root.joinpath(sub).glob("*.py")):
+            h.update(f"{sub}/{path.name}".encode())
+            h.update(path.read_bytes())
+    h.update((root / "_version.py").read_bytes())
+    return h.hexdigest()[:12]
+
+
+def source_sha256(path: str | Path) -> str:
+    """The SHA-256 (hex) of a source clip's bytes; for a folder of frames, of its image files'
+    names and bytes in sorted order. Remembered per process by path, size and modification time."""
+    p = Path(path).resolve()
+    if p.is_dir():
+        files = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in (".png", ".jpg", ".jpeg"))
+        stamp = tuple((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files)
+    else:
+        stat = p.stat()
+        files, stamp = [p], ((p.name, stat.st_size, stat.st_mtime_ns),)
+    return _sha256_of(str(p), stamp, tuple(str(f) for f in files), p.is_dir())
+
+
+@functools.lru_cache(maxsize=1024)
+def _sha256_of(path: str, stamp: tuple[tuple[str, int, int], ...], files: tuple[str, ...], folder: bool) -> str:
+    h = hashlib.sha256()
+    for name in files:
+        if folder:
+            h.update(Path(name).name.encode() + b"\0")
+        with open(name, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
 def _digest(*parts: object) -> str:
     return hashlib.sha256(json.dumps([str(p) for p in parts]).encode()).hexdigest()[:12]
 
@@ -61,14 +117,38 @@ def prepare_key(case: CaseSpec, plan: ValidationPlan, code: str) -> str:
     if case.kind == "synthetic":
         slug = f"{case.family}-{case.failure or 'clean'}-{case.severity or 0:g}-h{case.height}"
         return f"synth-{slug}-{_digest(slug, case.width, plan.frames, plan.seed, code)}"
+    if case.kind == "planted":
+        return _plant_key(case, plan)
     src = Path(str(case.source))
     stat = src.stat()
     return f"real-{src.stem}-{_digest(src.resolve(), stat.st_size, stat.st_mtime_ns, plan.max_frames, code)}"
 
 
+def _plant_key(case: CaseSpec, plan: ValidationPlan) -> str:
+    """The cache folder name of a planted case (or of its source's clean re-encode, which depends on
+    neither the kind, the severity nor the seed: one per source clip and frames). The ground
+    truth's format (:data:`geocon_core.plant.PLANT_FORMAT`) is part of the key: a new format
+    re-plants."""
+    from ..plant import PLANT_FORMAT
+
+    src = Path(str(case.source))
+    sha, stem = source_sha256(src), src.stem if src.suffix else src.name
+    code = plant_code_digest()
+    if case.failure is None:
+        return f"plant-{stem}-clean-f{plan.max_frames}-{_digest(sha, plan.max_frames, PLANT_FORMAT, code)}"
+    slug = f"{case.failure}-{case.level}-s{plan.seed}-f{plan.max_frames}"
+    digest = _digest(sha, case.failure, case.level, plan.seed, plan.max_frames, PLANT_FORMAT, code)
+    return f"plant-{stem}-{slug}-{digest}"
+
+
 def clip_for(case: CaseSpec, folder: Path) -> PreparedClip:
-    """Where the prepared clip of ``case`` lies in its cache folder (see :func:`prepare_case`)."""
+    """Where the prepared clip of ``case`` lies in its cache folder (see :func:`prepare_case`).
+    ValueError (one sentence) for a planted case whose clip could not be planted."""
     done = json.loads((folder / _DONE).read_text())
+    if case.kind == "planted":
+        if done.get("error"):
+            raise ValueError(f"could not be planted: {done['error']}")
+        return PreparedClip(folder / done["clip"], None if done.get("truth") is None else folder / done["truth"])
     if case.kind == "real":
         return PreparedClip(Path(done["clip"]), None)
     truth = folder / done["truth"]
@@ -86,7 +166,10 @@ def prepare_case(case: CaseSpec, plan: ValidationPlan, cache: Path, code: str, c
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
         start = time.perf_counter()
-        done = _render(case, plan, tmp) if case.kind == "synthetic" else _cut(case, plan, tmp, folder)
+        if case.kind == "synthetic":
+            done = _render(case, plan, tmp)
+        else:
+            done = _plant(case, plan, tmp) if case.kind == "planted" else _cut(case, plan, tmp, folder)
         done["seconds"] = round(time.perf_counter() - start, 3)
         (tmp / _DONE).write_text(json.dumps(done, indent=1) + "\n")
         shutil.rmtree(folder, ignore_errors=True)
@@ -111,6 +194,30 @@ def _render(case: CaseSpec, plan: ValidationPlan, out: Path) -> dict:
         codec="png",
     )
     return {"clip_id": gt.clip_id, "frames": gt.video_path, "truth": f"{gt.clip_id}.gt.json"}
+
+
+def _plant(case: CaseSpec, plan: ValidationPlan, out: Path) -> dict:
+    """Plant ``case``'s failure into the first ``plan.max_frames`` frames of its source clip (the
+    planted clip and its ``.gt.json``; the clean twin :func:`~geocon_core.plant.plant_clip` writes
+    beside it is dropped, the clean re-encode being an entry of its own), or write the clean
+    re-encode. A clip that cannot be planted (no readable video, a folder of frames, too small for
+    the severity) is recorded with the reason, so its cases fail with it instead of stopping the run."""
+    from ..plant import plant_clip, plant_names, write_clean_clip
+
+    src = Path(str(case.source))
+    stem = src.stem if src.suffix else src.name
+    try:
+        if case.failure is None:
+            name = f"{stem}.clean.mp4"
+            summary = write_clean_clip(src, out / name, frames=plan.max_frames)
+            return {"clip": name, "truth": None, "source": str(src), "encoding": summary}
+        result = plant_clip(src, case.failure, str(case.level), plan.seed, out, frames=plan.max_frames)
+    except ValueError as exc:  # ClipError included: the clip, not the machine
+        return {"error": str(exc), "source": str(src)}
+    names = plant_names(src, case.failure, str(case.level), plan.seed)
+    for key in ("clean", "clean_meta"):
+        (out / names[key]).unlink(missing_ok=True)
+    return {"clip": result.planted.name, "truth": result.ground_truth.name, "source": str(src)}
 
 
 def _encode(folder: Path, codecs: tuple[str, ...], fps: float) -> None:

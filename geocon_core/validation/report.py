@@ -14,6 +14,7 @@ from ..config import ScoreConfig, config_hash
 from ..intervals import RESAMPLES, SEED
 from .cases import Annotation, ValidationPlan, plan_cases
 from .metrics import MetricRow, auc_text, compute_metrics, share_text
+from .planted import PlantedSummary, planted_markdown, planted_summary
 from .results import CaseResult, case_result
 from .runner import Progress, case_folder, run_cases
 
@@ -46,8 +47,9 @@ INTERVALS_NOTE = (
 class ValidationReport:
     """A finished run: the table, one row per case, the preset and its configuration hash, the
     seconds the run took (prepare + score; cases resumed from an earlier run cost nothing), the
-    summed scoring seconds of the cases, and how many cases the plan has (more than the rows
-    when a report is made from an interrupted run)."""
+    summed scoring seconds of the cases, how many cases the plan has (more than the rows
+    when a report is made from an interrupted run), and the planted section (None when the run
+    plants nothing, :mod:`.planted`)."""
 
     metrics: tuple[MetricRow, ...]
     cases: tuple[CaseResult, ...]
@@ -57,6 +59,7 @@ class ValidationReport:
     score_seconds: float
     plan: ValidationPlan
     planned: int = 0
+    planted: PlantedSummary | None = None
 
 
 def format_value(row: MetricRow) -> str:
@@ -93,7 +96,10 @@ def run_validation(
     start = time.perf_counter()
     out_dir = Path(out)
     cases = plan_cases(plan, annotations)
-    scored = run_cases(cases, plan, config, out_dir, cache, jobs=jobs, progress=progress, score=score, peer=peer)
+    made: set[str] = set()
+    scored = run_cases(
+        cases, plan, config, out_dir, cache, jobs=jobs, progress=progress, score=score, peer=peer, made=made
+    )
     rows = tuple(case_result(s, case_folder(out_dir, c), c) for c, s in scored)
     report = ValidationReport(
         metrics=tuple(compute_metrics(list(rows))),
@@ -104,6 +110,7 @@ def run_validation(
         score_seconds=sum(r.seconds or 0.0 for r in rows),
         plan=plan,
         planned=len(cases),
+        planted=planted_summary(rows, cases, plan, Path(cache), made),
     )
     write_report(report, out_dir)
     return report
@@ -160,12 +167,19 @@ def _case_cells(r: CaseResult) -> list[str]:
 
 
 def _exceptions(cases: tuple[CaseResult, ...]) -> list[str]:
-    """Sections listing the clips that should pass and did not (clean synthetic, real camera),
-    each with the pair where its background fits worst, so every exception can be explained;
+    """Sections listing the clips that should pass and did not (clean synthetic, real camera, the
+    clean re-encodes of the planted family), each with the pair where its background fits worst,
+    so every exception can be explained;
     then the real-camera clips that could not be judged, with why; then the most confident flags
     of clean-looking generated clips."""
     lines: list[str] = []
-    rows = [r for r in cases if (r.clean and r.flagged) or (r.kind == "real" and r.source == "real" and r.false_flag)]
+    rows = [
+        r
+        for r in cases
+        if (r.clean and r.flagged)
+        or (r.kind == "real" and r.source == "real" and r.false_flag)
+        or (r.reencode and r.false_flag)
+    ]
     if rows:
         lines += ["## Exceptions: clean or real-camera clips called inconsistent", ""]
         lines += _md_table(
@@ -220,18 +234,25 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
     """Write ``validation.md`` and ``validation.json`` into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     p = report.plan
+    planted = (
+        f"Planted into the real-camera clips: {', '.join(p.plant_kinds)} at {', '.join(p.plant_levels)}, "
+        f"seed {p.seed}. "
+        if p.planted
+        else ""
+    )
     lines = [
         "# GeoCon validation report",
         "",
         f"Preset `{report.preset}` (config {report.config_hash}); synthetic heights {list(p.heights)}, codecs "
         f"{list(p.codecs)}, {p.frames} frames per clip, scene seed {p.seed}; real clips cut to {p.max_frames} frames. "
-        f"{len(report.cases)} of {report.planned} planned cases in {report.seconds:.0f} s "
+        f"{planted}{len(report.cases)} of {report.planned} planned cases in {report.seconds:.0f} s "
         f"(scoring {report.score_seconds:.0f} s summed over the cases).",
         "",
         INTERVALS_NOTE,
         "",
         *_md_table(["measure", "set", "value", "target", "met", "detail"], [metric_cells(m) for m in report.metrics]),
         "",
+        *(planted_markdown(report.planted) if report.planted is not None else []),
         *_exceptions(report.cases),
         "## Cases",
         "",
@@ -250,6 +271,7 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         "planned": report.planned,
         "plan": plan,
         "metrics": [asdict(m) for m in report.metrics],
+        "planted": None if report.planted is None else asdict(report.planted),
         "cases": [asdict(r) for r in report.cases],
     }
     js = out / REPORT_JSON

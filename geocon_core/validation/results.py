@@ -118,6 +118,19 @@ class CaseResult:
     posed: bool = False
     """The clip comes with its camera poses (a RealEstate10K walk-through): its expected gate is
     known from them, not only seen."""
+    scene: str | None = None
+    """Annotated clips: the clip's key (``root:clip``, :attr:`~.cases.Annotation.key`), shared by a
+    real clip, the failures planted into it and its clean re-encode."""
+
+    @property
+    def reencode(self) -> bool:
+        """The clean re-encode of a real clip (the planted family's counterpart of the original)."""
+        return self.kind == "planted" and self.failure is None
+
+    @property
+    def planted(self) -> bool:
+        """A failure planted into a real clip (:mod:`geocon_core.plant`)."""
+        return self.kind == "planted" and self.failure is not None
 
     @property
     def flagged(self) -> bool:
@@ -322,6 +335,7 @@ def _expected(case: dict[str, Any], truth_path: str | None) -> dict[str, Any]:
         "dynamic": a.dynamic,
         "artifact_kinds": a.artifact_kinds,
         "posed": bool(a.pose_file),
+        "scene": a.key,
     }
 
 

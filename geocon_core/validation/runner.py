@@ -44,11 +44,16 @@ def case_folder(out: Path, case: CaseSpec) -> Path:
     return out / CASES_DIR / case.case_id
 
 
-def _prepare_one(case: CaseSpec, plan: ValidationPlan, cache: str, code: str) -> str:
+def _prepare_one(case: CaseSpec, plan: ValidationPlan, cache: str, code: str) -> tuple[str, bool]:
+    """Worker: prepare one cache entry; returns its folder and whether this call made it (False:
+    it was in the cache)."""
     import cv2
 
+    from .prepare import prepare_key
+
     cv2.setNumThreads(1)
-    return str(prepare_case(case, plan, Path(cache), code, plan.codecs))
+    made = not (Path(cache) / prepare_key(case, plan, code) / "done.json").is_file()
+    return str(prepare_case(case, plan, Path(cache), code, plan.codecs)), made
 
 
 def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], folder: str, threads: int) -> dict:
@@ -70,7 +75,9 @@ def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], fold
         status.update(clip=str(prepared.clip), truth=None if prepared.truth is None else str(prepared.truth))
         labels: list[np.ndarray | None] = []
         keep = (
-            None if prepared.truth is None else (lambda d: labels.append(None if d.labels is None else d.labels.copy()))
+            None
+            if prepared.truth is None or case.kind != "synthetic"
+            else (lambda d: labels.append(None if d.labels is None else d.labels.copy()))
         )
         record = score_clip(prepared.clip, cfg, workers=threads, on_frame=keep)
         write_record(record, out)
@@ -156,11 +163,12 @@ def _run_peer(
     jobs: int,
     progress: Progress | None,
 ) -> None:
-    """The peer on every scored annotated (real-footage) case that has no current ``peer.json``."""
+    """The peer on every scored annotated (real-footage) case and every planted case that has no
+    current ``peer.json``."""
     todo = [
         (str(s["clip"]), str(case_folder(out_dir, c)), max_frames)
         for c, s in zip(cases, statuses, strict=True)
-        if c.kind == "real"
+        if c.kind in ("real", "planted")
         and s is not None
         and s.get("status") == "ok"
         and s.get("clip")
@@ -199,11 +207,14 @@ def run_cases(
     progress: Progress | None = None,
     score: bool = True,
     peer: bool = True,
+    made: set[str] | None = None,
 ) -> list[tuple[CaseSpec, dict[str, Any]]]:
     """Prepare and score ``cases``; returns each case with its status (``case.json``), in case
     order. With ``score=False`` nothing is prepared or scored: only the cases finished earlier
     are returned (the report of an interrupted run). With ``peer`` (and ``score``), every scored
-    annotated clip also gets the peer's keep rate (``peer.json``, phase ``peer``), once per clip."""
+    annotated clip and planted case also gets the peer's keep rate (``peer.json``, phase
+    ``peer``), once per clip. ``made``, when given, receives the cache keys (:func:`~.prepare.prepare_key`)
+    this call rendered; the others were reused from the cache."""
     out_dir, cache_dir = Path(out), Path(cache)
     code = code_digest()
     from .prepare import prepare_key
@@ -212,8 +223,10 @@ def run_cases(
     keys = list(unique)
     folders: dict[str, str] = {}
 
-    def prepared(i: int, folder: str) -> None:
-        folders[keys[i]] = folder
+    def prepared(i: int, result: tuple[str, bool]) -> None:
+        folders[keys[i]] = result[0]
+        if result[1] and made is not None:
+            made.add(keys[i])
         if progress is not None:
             progress("prepare", len(folders), len(keys))
 
@@ -230,7 +243,11 @@ def run_cases(
     for i, case in enumerate(cases):
         folder = folders.get(prepare_key(case, plan, code))
         if folder is not None:
-            statuses[i] = _finished(case_folder(out_dir, case), digest, clip_for(case, Path(folder)).clip)
+            try:
+                clip = clip_for(case, Path(folder)).clip
+            except ValueError:  # not planted: scored (as failed, with the reason) again
+                clip = None
+            statuses[i] = None if clip is None else _finished(case_folder(out_dir, case), digest, clip)
         elif not score:  # a report of what was scored: the record counts whichever clip cache made it
             statuses[i] = _finished(case_folder(out_dir, case), digest, None)
         if statuses[i] is None and score:

@@ -68,6 +68,25 @@ def print_report(report: ValidationReport) -> None:
         cells[4] = {"yes": "[green]yes[/]", "NO": "[red]NO[/]"}.get(cells[4], cells[4])
         table.add_row(*cells)
     out.print(table)
+    if report.planted is not None:
+        _print_planted(report)
+
+
+def _print_planted(report: ValidationReport) -> None:
+    """The planted failures' table on the terminal, with how its clips were made."""
+    from geocon_core.validation import PLANTED_COLUMNS, PLANTED_NOTE, cache_line, planted_cells
+
+    summary = report.planted
+    assert summary is not None
+    table = Table(title="Planted failures", title_justify="left", caption=PLANTED_NOTE, caption_justify="left")
+    for col in PLANTED_COLUMNS:
+        table.add_column(col, overflow="fold")
+    for row in summary.rows:
+        table.add_row(*planted_cells(row))
+    out.print(table)
+    for line in summary.reencodes:
+        out.print(f"clean re-encodes against the originals, {line.subset}: {line.detail}", soft_wrap=True)
+    out.print(cache_line(summary.cache), soft_wrap=True)
 
 
 def validate(
@@ -138,6 +157,26 @@ def validate(
             "(the clips of --data and the synthetic grid are not split). Rules are chosen on the tune half.",
         ),
     ] = "all",
+    planted: Annotated[
+        bool,
+        typer.Option(
+            "--planted",
+            help="Also plant failures (geocon plant) into every annotated real-camera clip of --data, real2 and the "
+            "footage cache (in --split), cut to --max-frames, from --seed, beside one clean re-encode of each; "
+            "rendered once into --cache. With --no-real the clips themselves are not scored.",
+        ),
+    ] = False,
+    plant_kinds: Annotated[
+        Optional[str],
+        typer.Option(
+            "--plant-kinds",
+            help="With --planted: comma-separated kinds, morph, redraw, breathing, slide (default all).",
+        ),
+    ] = None,
+    plant_severity: Annotated[
+        Optional[str],
+        typer.Option("--severity", help="With --planted: comma-separated severities, low, middle, high (default all)."),
+    ] = None,
     real: Annotated[
         bool, typer.Option("--real/--no-real", help="Score the real clips of --data, real2 and the footage cache.")
     ] = True,
@@ -172,27 +211,36 @@ def validate(
             "frames": frames or (QUICK.frames if quick else None),
             "max_frames": max_frames or (QUICK.max_frames if quick else None),
         }
+        if not planted and (plant_kinds is not None or plant_severity is not None):
+            option = "--plant-kinds" if plant_kinds is not None else "--severity"
+            raise fail(f"{option} chooses the planted cases; add --planted (the synthetic severities are --levels)")
+        given["plant_kinds"] = _names(plant_kinds, "plant-kinds")
+        given["plant_levels"] = _names(plant_severity, "severity")
         chosen: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
         cache_dir = footage_dir or DEFAULT_FOOTAGE
+        roots = real or planted  # the planted cases' sources are the real clips
         plan = replace(
             ValidationPlan(),
             **chosen,
             seed=seed,
-            data=data if real else None,
+            data=data if roots else None,
             synthetic=synthetic,
-            real2=real2 if real and real2.is_dir() else None,
-            footage=cache_dir if real else None,
+            real2=real2 if roots and real2.is_dir() else None,
+            footage=cache_dir if roots else None,
             split=split,
+            real=real,
+            planted=planted,
         )
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
         _check_outputs(out_dir, cache, plan, annotations, footage_from)
     except (ValueError, OSError) as exc:
         raise fail(str(exc)) from None
-    if real and not data.is_dir():
-        raise fail(f"{data}: no such folder of real clips (give --data, or --no-real)")
-    if real and footage_from is not None:
+    if roots and not data.is_dir():
+        leave = "--no-real without --planted" if planted else "--no-real"
+        raise fail(f"{data}: no such folder of real clips (give --data, or {leave})")
+    if roots and footage_from is not None:
         _fill(notes, cache_dir, footage_from)
-    if real:
+    if roots:
         _say_missing(plan, notes)
     report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only, peer)
     if report_only and len(report.cases) < report.planned:
