@@ -253,3 +253,16 @@ def test_the_written_report_explains_and_stores_its_intervals(tmp_path):
     auc_row = next(m for m in doc["metrics"] if m["metric"].startswith("AUC") and m["peer"] is not None)
     assert set(auc_row["interval"]) == {"estimate", "low", "high", "n"}
     assert auc_row["difference"]["low"] <= auc_row["difference"]["estimate"] <= auc_row["difference"]["high"]
+
+
+def test_a_bound_that_excludes_zero_never_reads_zero():
+    from geocon_core.intervals import Interval
+    from geocon_core.validation.metrics import difference_text
+
+    text = difference_text(Interval(-0.14, -0.28, -0.004, 97), points=False, more="separates these clips better")
+    assert "[-0.28, -0.004]" in text and "excludes 0, the peer" in text
+    assert "[+0.0004, +0.20]" in difference_text(Interval(0.1, 0.0004, 0.2, 97), points=False, more="x")
+    assert difference_text(Interval(0.0, 0.0, 0.0, 97), points=True, more="x").startswith(
+        "GeoCon - peer +0 points [+0, +0]"
+    )
+    assert "-0.4 points" in difference_text(Interval(-0.004, -0.1, 0.1, 97), points=True, more="x")

@@ -112,7 +112,12 @@ def auc_text(iv: Interval) -> str:
 
 
 def _signed(v: float, points: bool) -> str:
-    return f"{int(round(100 * v)):+d}" if points else f"{round(v, 2) + 0.0:+.2f}"
+    """``v`` with its sign (percentage points when ``points``); a value that rounds to zero but is
+    not zero gets one more digit, so the bound of an interval that excludes 0 never reads 0."""
+    scaled, digits = (100 * v, 0) if points else (v, 2)
+    while scaled != 0.0 and round(scaled, digits) == 0.0 and digits < 6:
+        digits += 1
+    return f"{round(scaled, digits) + 0.0:+.{digits}f}"
 
 
 MIN_COMPARE = 5
