@@ -647,11 +647,15 @@ def _sentence_after_progress(res: subprocess.CompletedProcess, *words: str) -> N
 
 def _interrupted_synth(cwd: Path, signum: str, *, again: bool) -> subprocess.CompletedProcess:
     """``geocon synth C4`` that gets ``signum`` while it renders frame 3 and, with ``again``, the
-    same signal again while it removes its temporary files."""
+    same signal again while it removes its temporary files. The signal starts at its default, as
+    in a terminal: a test run under ``nohup`` (SIGHUP ignored) or as a background job (SIGINT
+    ignored) passes the ignoring on, and GeoCon rightly keeps an ignored signal ignored."""
     return _run_patched(
         cwd,
         f"""
         import os, signal
+        default = signal.default_int_handler if signal.{signum} == signal.SIGINT else signal.SIG_DFL
+        signal.signal(signal.{signum}, default)
         from geocon_core.synth import writer
         render, remove = writer.render_frame, writer._remove
         def render_frame(scene, t, failure):
