@@ -5,6 +5,7 @@ set against the clean re-encodes (and the peer)."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -207,6 +208,7 @@ def test_planted_run_scores_planted_and_clean_cases_once_and_reports_them(tmp_pa
     assert "Planted clips: 1 rendered in this run, 0 reused from the cache" in md
     assert "- ../shared/data: clean re-encodes " in md
     assert "Planted failures" in res.output
+    assert re.search(r"this run took \d+ (s|min \d\d s) with 1 worker process\n", res.output), res.output[-300:]
     # a second run renders and scores nothing again
     made = {p: p.stat().st_mtime_ns for p in (out / "cache").glob("*/done.json")}
     scored = {p: p.stat().st_mtime_ns for p in (out / "cases").glob("*/case.json")}

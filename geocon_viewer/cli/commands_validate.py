@@ -3,6 +3,7 @@ one table and written as markdown and JSON."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Optional
@@ -242,7 +243,9 @@ def validate(
         _fill(notes, cache_dir, footage_from)
     if roots:
         _say_missing(plan, notes)
+    started = time.monotonic()
     report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only, peer)
+    took = time.monotonic() - started
     if report_only and len(report.cases) < report.planned:
         out.print(
             f"[yellow]{report.planned - len(report.cases)} of {report.planned} planned cases have no record in "
@@ -251,6 +254,13 @@ def validate(
         )
     print_report(report)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
+    out.print(f"this run took {_minutes(took)} with {jobs} worker process{'es' if jobs > 1 else ''}")
+
+
+def _minutes(seconds: float) -> str:
+    """A wall time in words: ``42 s``, ``12 min 03 s``."""
+    whole = int(round(seconds))
+    return f"{whole} s" if whole < 60 else f"{whole // 60} min {whole % 60:02d} s"
 
 
 def _check_outputs(
