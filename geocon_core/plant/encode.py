@@ -26,12 +26,11 @@ import io
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from types import TracebackType
-from typing import Any, BinaryIO, Iterator, Sequence, cast
+from typing import Any, BinaryIO, Iterator, Sequence
 
 import numpy as np
 
-from ..media import DEFAULT_FPS, ClipError, native_path, resolve_clip
+from ..media import DEFAULT_FPS, ClipError, Mp4Writer, native_path, resolve_clip
 
 __all__ = [
     "ENCODERS",
@@ -39,11 +38,11 @@ __all__ = [
     "MATCH_FRAMES",
     "PLANAR_FORMATS",
     "Encoder",
-    "PlaneWriter",
     "SourceVideo",
     "decode_planes",
     "file_sha256",
     "match_quality",
+    "plane_writer",
     "probe_source",
 ]
 
@@ -247,92 +246,15 @@ def _plane_array(plane: Any) -> np.ndarray:
     return rows[:, : plane.width].copy()
 
 
-class PlaneWriter:
-    """Stream frames given as planes into an MP4 with ``encoder`` at quantiser ``quality``, in
-    ``fmt`` at ``rate``, single-threaded (reproducible bytes). ``target`` is a path or a binary file
-    object (an in-memory buffer for :func:`match_quality`). Use as a context manager: a failure removes a
-    partial file."""
-
-    def __init__(
-        self,
-        target: Path | BinaryIO,
-        encoder: Encoder,
-        quality: int,
-        fmt: str,
-        width: int,
-        height: int,
-        rate: Fraction,
-    ) -> None:
-        import av
-
-        self._av = av
-        self.path = target if isinstance(target, Path) else None
-        self._file: Any = open(target, "wb") if isinstance(target, Path) else target  # noqa: SIM115  # closed in close()
-        try:
-            self._container: Any = av.open(self._file, mode="w", format="mp4")
-            self._stream: Any = cast(
-                Any,
-                self._container.add_stream(
-                    encoder.library, rate=rate, options={encoder.quality_option: str(quality), **encoder.options}
-                ),
-            )
-        except BaseException:
-            if self.path is not None:
-                self._file.close()
-            raise
-        self._stream.width, self._stream.height = width, height
-        self._stream.pix_fmt = fmt
-        self._stream.thread_count = 1
-        self._fmt, self.width, self.height = fmt, width, height
-        self.bytes = 0
-        """Bytes of the encoded packets so far."""
-
-    def write(self, planes: Sequence[np.ndarray]) -> None:
-        frame = self._av.VideoFrame(self.width, self.height, self._fmt)
-        for plane, data in zip(frame.planes, planes, strict=True):
-            rows = np.zeros((plane.height, plane.line_size), np.uint8)
-            rows[:, : plane.width] = data
-            plane.update(rows.tobytes())
-        self._mux(self._stream.encode(frame))
-
-    def _mux(self, packets: Sequence[Any]) -> None:
-        for packet in packets:
-            self.bytes += packet.size
-            self._container.mux(packet)
-
-    def close(self) -> None:
-        if self._container is None:
-            return
-        try:
-            self._mux(self._stream.encode())
-            self._container.close()
-        finally:
-            self._container = None
-            if self.path is not None:
-                self._file.close()
-
-    def abort(self) -> None:
-        """Stop without flushing and remove a partial file."""
-        container, self._container = self._container, None
-        if container is not None:
-            try:
-                container.close()
-            except Exception:  # noqa: BLE001  # the first error is the one raised
-                pass
-        if self.path is not None:
-            self._file.close()
-            self.path.unlink(missing_ok=True)
-
-    def __enter__(self) -> PlaneWriter:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
+def plane_writer(
+    target: Path | BinaryIO, encoder: Encoder, quality: int, fmt: str, width: int, height: int, rate: Fraction
+) -> Mp4Writer:
+    """A writer of frames given as planes (:meth:`~geocon_core.media.video.Mp4Writer.write_planes`)
+    with ``encoder`` at quantiser ``quality``, in ``fmt`` at ``rate``, single-threaded (reproducible
+    bytes). ``target`` is a path or a binary file object (an in-memory buffer for
+    :func:`match_quality`)."""
+    options = {encoder.quality_option: str(quality), **encoder.options}
+    return Mp4Writer(target, width, height, rate, library=encoder.library, options=options, pix_fmt=fmt)
 
 
 def match_quality(source: SourceVideo, sample: Sequence[Sequence[np.ndarray]]) -> tuple[int, float]:
@@ -344,11 +266,11 @@ def match_quality(source: SourceVideo, sample: Sequence[Sequence[np.ndarray]]) -
     def rate(quality: int) -> float:
         if quality not in rates:
             buffer = io.BytesIO()
-            with PlaneWriter(
+            with plane_writer(
                 buffer, source.encoder, quality, source.work_format, source.width, source.height, source.rate
             ) as writer:
                 for planes in sample:
-                    writer.write(planes)
+                    writer.write_planes(planes)
             rates[quality] = 8.0 * writer.bytes / (source.width * source.height * len(sample))
         return rates[quality]
 

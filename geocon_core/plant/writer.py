@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterator, Mapping
 import numpy as np
 
 from ..files import check_apart, check_out_dir, deferred_signals, parents_made, part_path, replace_file
-from .encode import MATCH_FRAMES, PlaneWriter, decode_planes, file_sha256, match_quality, probe_source
+from .encode import MATCH_FRAMES, decode_planes, file_sha256, match_quality, plane_writer, probe_source
 from .fields import Planting, plan_planting
 from .kinds import amplitude_of
 
@@ -115,10 +115,10 @@ def plant_clip(
     with parents_made(out_dir):
         try:
             args = (source.encoder, quality, source.work_format, source.width, source.height, source.rate)
-            with PlaneWriter(parts["clean"], *args) as clean, PlaneWriter(parts["planted"], *args) as planted:
+            with plane_writer(parts["clean"], *args) as clean, plane_writer(parts["planted"], *args) as planted:
                 for t, planes in enumerate(decode_planes(clip, source.work_format, source.frames)):
-                    clean.write(planes)
-                    planted.write(planting.apply(t, planes, source.subsampling))
+                    clean.write_planes(planes)
+                    planted.write_planes(planting.apply(t, planes, source.subsampling))
                     if on_frame is not None:
                         on_frame(t)
             pixels = source.width * source.height * source.frames
@@ -158,9 +158,9 @@ def write_clean_clip(clip: str | Path, target: str | Path, *, frames: int | None
     part = part_path(target)
     try:
         args = (source.encoder, quality, source.work_format, source.width, source.height, source.rate)
-        with PlaneWriter(part, *args) as clean:
+        with plane_writer(part, *args) as clean:
             for planes in decode_planes(clip, source.work_format, source.frames):
-                clean.write(planes)
+                clean.write_planes(planes)
         summary = {
             "source_sha256": source.sha256,
             "frames": source.frames,
