@@ -22,6 +22,7 @@ from geocon_core.results import ResultClip
 from geocon_core.scoring import ClipVerdict, Thresholds, regate_pairs
 
 from .clouds import dense_points
+from .rerun_card import why_lines
 from .style import EMPTY, dense_legend, fmt, object_color, track_colors
 
 INLIER = (60, 200, 90)
@@ -434,12 +435,17 @@ def clip_card(view: ClipView, v: ClipVerdict, clip: ResultClip, th: Thresholds, 
         note=bg.choice_note,
         shots=len(rec.shots),
     )
+    why: list[str] = []
+    if rec.readings is not None and rec.config.signals.enabled:
+        # the clip model reads the record as scored; moving the thresholds re-gates the background only
+        finding, why = rec.finding(), why_lines(rec)
     lines = [
         f"### {view.clip_id}",
         f"platform **{clip.platform}** · category **{clip.category or EMPTY}** (expects {clip.expected_model or EMPTY})"
         + (f" · {clip.prompt}" if clip.prompt else ""),
         "",
         f"**{finding.verdict}** (clip score {fmt(finding.clip_score, '.2f')}, 0 sound .. 1 broken): {finding.reason}",
+        *why,
         "",
         f"**Background {state}** the report gate: model **{v.model}**, IR **{fmt(v.ir)}** "
         f"(gate ≥ {th.ir_gate:g}), "

@@ -30,6 +30,26 @@ def worst_frame(record: ClipRecord) -> int:
     return worst
 
 
+def why_lines(record: ClipRecord) -> list[str]:
+    """The "why this score" table: the clip model's contributions in markdown (empty when the score
+    is the background's own)."""
+    from geocon_core.signals import READING_LABELS
+
+    finding = record.finding()
+    if not finding.parts:
+        return []
+    values = record.reading_values()
+    return [
+        "",
+        "| why this score: reading | value | contribution to the log-odds |",
+        "|---|---|---|",
+        *[
+            f"| {READING_LABELS.get(name, name)} | {fmt(values.get(name), '.3g')} | {part:+.2f} |"
+            for name, part in finding.parts
+        ],
+    ]
+
+
 def audit_card(record: ClipRecord) -> str:
     """The clip's audit card in markdown: verdict, gate rationale with its inputs, thresholds,
     coverage, objects, configuration and versions."""
@@ -45,6 +65,7 @@ def audit_card(record: ClipRecord) -> str:
         "",
         f"**Finding: {finding.verdict}** (clip score {fmt(finding.clip_score, '.2f')}, 0 sound .. 1 broken): "
         f"{finding.reason}",
+        *why_lines(record),
         "",
         f"**Verdict: background {verdict}** — model {bg.model}, IR {fmt(bg.ir, '.3f')} (gate >= {cfg.ir_gate:g}), "
         f"GE {fmt(bg.ge, '.2f', ' px')} (gate <= {cfg.ge_gate:g} px); category **{category}**.",

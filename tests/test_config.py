@@ -21,7 +21,6 @@ from geocon_core.config.presets import (
     CutConfig,
     FlowConfig,
     MotionConfig,
-    MultiViewConfig,
     PoseConfig,
     ScanConfig,
     ScoreConfig,
@@ -44,6 +43,7 @@ _STRINGS = {
     "aggregation": "worst",
     "flow_params.preset": "fast",
     "object_scales": "top",
+    "signals.flow_preset": "fast",
 }
 
 
@@ -99,7 +99,7 @@ def _first_valid(name: str, value: Any, build: Callable[[Any], ScoreConfig]) -> 
 
 
 VARIANTS = _variants()
-AUDIT_HASH = "4e0e1d790869465e"
+AUDIT_HASH = "2ca85d68b4fd5123"
 """The hash of ``audit`` (renewed whenever a setting of it changes)."""
 
 
@@ -121,13 +121,12 @@ def test_every_field_changes_the_hash(name: str, config: ScoreConfig) -> None:
         assert config_hash(config) == config_hash(ScoreConfig()), name
         assert config_hash(config.with_(**{field: value})) != config_hash(ScoreConfig().with_(**{field: value}))
         return
-    if top == "multiview" and name != "multiview.enabled":
-        # the multi-view check's settings count once it is on (audit), and only then
+    if top in ("multiview", "signals") and name != f"{top}.enabled":
+        # the multi-view check's and the readings' settings count once they are on (audit), and only then
         assert config_hash(config) == config_hash(ScoreConfig()), name
-        on = dataclasses.replace(config.multiview, enabled=True)
-        assert config_hash(config.with_(multiview=on)) != config_hash(
-            ScoreConfig(multiview=MultiViewConfig(enabled=True))
-        )
+        on = dataclasses.replace(getattr(config, top), enabled=True)
+        base_on = dataclasses.replace(getattr(ScoreConfig(), top), enabled=True)
+        assert config_hash(config.with_(**{top: on})) != config_hash(ScoreConfig().with_(**{top: base_on}))
         return
     assert config_hash(config) != config_hash(ScoreConfig()), name
 

@@ -31,6 +31,7 @@ from .stages import (
     PoseConfig,
     Sam2Config,
     ScanConfig,
+    SignalsConfig,
 )
 
 __all__ = [
@@ -46,6 +47,7 @@ __all__ = [
     "PoseConfig",
     "Sam2Config",
     "ScanConfig",
+    "SignalsConfig",
     "DEFAULT_PRESET",
     "FOV_RANGE_DEG",
     "PRESETS",

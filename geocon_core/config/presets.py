@@ -25,6 +25,7 @@ from .stages import (
     PoseConfig,
     Sam2Config,
     ScanConfig,
+    SignalsConfig,
 )
 
 SUB_CONFIGS: dict[str, type] = {
@@ -39,6 +40,7 @@ SUB_CONFIGS: dict[str, type] = {
     "category": CategoryConfig,
     "scans": ScanConfig,
     "multiview": MultiViewConfig,
+    "signals": SignalsConfig,
 }
 """The nested sub-configurations of :class:`ScoreConfig` by field name."""
 
@@ -254,6 +256,8 @@ class ScoreConfig:
     multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
     """One reconstruction per clip and the layers that drift against it (:mod:`geocon_core.reconstruction.multiview`;
     beyond the paper, on in ``audit``)."""
+    signals: SignalsConfig = field(default_factory=SignalsConfig)
+    """The clip's appearance readings (:mod:`geocon_core.signals`; beyond the paper)."""
 
     def __post_init__(self) -> None:
         if not self.scales or any(not 0 < s <= 1 for s in self.scales):
@@ -382,6 +386,7 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             untrusted_share=0.5,
             cuts=CutConfig(fade_frames=30),
             multiview=MultiViewConfig(enabled=True),
+            signals=SignalsConfig(enabled=True),
         ),
     ),
     "fast": (
@@ -467,6 +472,8 @@ def config_hash(config: ScoreConfig) -> str:
             d.pop(key, None)
     if not config.multiview.enabled:  # off: its settings cannot change a number
         d.pop("multiview", None)
+    if not config.signals.enabled:  # off: likewise
+        d.pop("signals", None)
     for name, default in LATER_DEFAULTS.items():  # at the earlier behaviour: the earlier hash
         if d.get(name) == default:
             d.pop(name, None)

@@ -25,7 +25,11 @@ __all__ = [
     "CategoryConfig",
     "ScanConfig",
     "MultiViewConfig",
+    "SignalsConfig",
 ]
+
+SHIPPED_MODEL_DIGEST = "a2ef81b8baab"
+"""The digest of the clip model shipped in the package (``geocon_core/signals/clip_model.json``)."""
 
 DIS_PRESET_NAMES = ("ultrafast", "fast", "medium")
 """The OpenCV DIS presets :class:`FlowConfig` accepts."""
@@ -496,3 +500,65 @@ class MultiViewConfig:
             raise ValueError("multiview: max_views >= 3, min_views >= 2, max_tracks >= 16 and track_side >= 64")
         if not (self.tau_px > 0 and self.loss_px > 0 and self.drift_px >= 0 and 0 < self.max_outlier_share <= 1):
             raise ValueError("multiview: tau_px and loss_px positive, drift_px >= 0, max_outlier_share in (0, 1]")
+
+
+@dataclass(frozen=True)
+class SignalsConfig:
+    """The clip's appearance readings (:mod:`geocon_core.signals`): dense flow on a small canvas at a
+    few pairs spread over the clip. Off in ``paper`` and ``strict`` (beyond the paper's protocol)."""
+
+    enabled: bool = False
+    """Read them (they feed the clip score where a clip model is on)."""
+    long_side: int = 384
+    """Long side of the canvas the readings are made on, px (a smaller clip at its own size)."""
+    gap: int = 4
+    """Frames between the two frames of a pair the flow failures are read on."""
+    max_pairs: int = 24
+    """Pairs read at most, of each kind (``gap`` apart, neighbours), spread evenly over the clip."""
+    flow_preset: str = "medium"
+    """OpenCV DIS preset of the readings' flow."""
+    fb_abs: float = 1.0
+    """Constant part (px) of the forward-backward threshold ``fb_abs + fb_rel * |F|``."""
+    fb_rel: float = 0.05
+    """Share of the flow length added to the forward-backward threshold."""
+    boundary_gradient: float = 0.3
+    """A pixel is on a motion boundary where the flow's gradient exceeds this, px per px ..."""
+    boundary_px: int = 3
+    """... widened by this many px on every side."""
+    texture_gradient: float = 8.0
+    """Census distances are read on pixels whose mean gradient (5x5) is at least this, grey levels per px."""
+    census_radius: int = 2
+    """Half the side of the census window (2: 5x5, 24 comparisons)."""
+    mover_px: float = 2.0
+    """A pixel moves on its own when its flow departs from the frame's homography by more than this, px."""
+    keep_px: float = 1.0
+    """The keep reading: a background match is kept when its distance to its pair's fundamental
+    matrix is at most this many px of a frame ``keep_width`` px wide (the GVGC study's 1 px at 854 px) ..."""
+    keep_width: int = 854
+    """... (the threshold scales with the pair's image width)."""
+    keep_min_matches: int = 20
+    """Pairs with fewer background matches are not read."""
+    model: str = "clip_model.json"
+    """The clip model (:mod:`geocon_core.signals.model`) whose score and threshold decide the verdict:
+    a file of the package or a path ..."""
+    decisive_shortfall: float = 6.0
+    """A background that fails its report gate by more than this many times the gate's range (the
+    reading ``shortfall``: IR below 0.79 or GE above 4.2 px at audit's gates) fails the clip whatever
+    the model says; chosen on the tune half (docs: Scoring)."""
+    model_sha256: str = SHIPPED_MODEL_DIGEST
+    """... whose digest (:meth:`~geocon_core.signals.ClipModel.digest`) must be this one, so the
+    configuration hash covers the model (empty: any model, for trying one out)."""
+
+    def __post_init__(self) -> None:
+        if self.flow_preset not in DIS_PRESET_NAMES:
+            raise ValueError(f"unknown DIS preset {self.flow_preset!r}; valid: {', '.join(DIS_PRESET_NAMES)}")
+        if self.long_side < 32 or self.gap < 1 or self.max_pairs < 1 or self.census_radius < 1:
+            raise ValueError(
+                "signals need long_side >= 32, gap >= 1, max_pairs >= 1 and census_radius >= 1, got "
+                f"{self.long_side}, {self.gap}, {self.max_pairs}, {self.census_radius}"
+            )
+        if (
+            min(self.fb_abs, self.fb_rel, self.boundary_gradient, self.texture_gradient, self.mover_px) < 0
+            or self.boundary_px < 0
+        ):
+            raise ValueError("signals thresholds must be non-negative")

@@ -31,8 +31,9 @@ from ..files import NPZ_ERRORS
 from ..media import MAX_FPS, ClipInfo
 from ..reconstruction import ARRAY_NAMES as MV_ARRAYS
 from ..reconstruction import DenseCloud, MultiViewResult, WindowCloud
+from ..signals import ClipReadings, load_clip_model
 from . import parts as record_parts
-from .finding import ClipFinding, clip_finding, report_margin
+from .finding import ClipFinding, clip_finding, model_finding, report_margin
 from .parts import (
     BackgroundSummary,
     Category,
@@ -149,13 +150,39 @@ class ClipRecord:
     shots: tuple[ShotRecord, ...] = ()
     dynamic_share: tuple[float, ...] = ()
     multiview: MultiViewResult | None = None
+    readings: ClipReadings | None = None
+    """The readings beside the background fit (:mod:`geocon_core.signals`), when ``config.signals`` is on."""
     record_id: str | None = None
     """The id that ties ``record.json`` to its ``matches.npz`` and ``overlays/index.json``
     (:func:`record_id`), as read from ``record.json``; None for a record not yet written, or
     written before records had ids."""
 
     def finding(self) -> ClipFinding:
-        """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.record.finding`)."""
+        """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.record.finding`):
+        the clip model's (``config.signals``) over :meth:`reading_values` where the record has readings,
+        else the background verdict's."""
+        background = self.background_finding()
+        if not self.config.signals.enabled or self.readings is None:
+            return background
+        signals = self.config.signals
+        model = load_clip_model(signals.model, signals.model_sha256)
+        return model_finding(background, self.reading_values(), model, signals.decisive_shortfall)
+
+    def reading_values(self) -> dict[str, float | None]:
+        """Every reading a clip model can use, by name (:data:`~geocon_core.signals.READING_LABELS`)."""
+        bg, cfg = self.background, self.config
+        margin = report_margin(bg.ir, bg.ge, cfg.ir_gate, cfg.ge_gate)
+        rigidity = [o.adadfrc_w2 for o in self.objects if o.adadfrc_w2 is not None and math.isfinite(o.adadfrc_w2)]
+        mv = self.multiview
+        return {
+            "shortfall": None if margin is None else -margin,
+            **(self.readings.values() if self.readings is not None else {}),
+            "mv_residual": None if mv is None or mv.mv_ge is None else float(mv.mv_ge),
+            "object_rigidity": max(rigidity) if rigidity else None,
+        }
+
+    def background_finding(self) -> ClipFinding:
+        """The background verdict's finding (:func:`~geocon_core.record.finding.clip_finding`)."""
         bg, cfg = self.background, self.config
         return clip_finding(
             model=bg.model,
@@ -186,6 +213,8 @@ class ClipRecord:
             "clip": self.clip,
             "verdict": finding.to_dict(),
             "clip_score": finding.clip_score,
+            **({"why": dict(finding.parts)} if finding.parts else {}),
+            **({"readings": self.reading_values()} if self.readings is not None else {}),
             "gate": {
                 "label": gate.label,
                 "model": gate.model,
@@ -286,6 +315,7 @@ class ClipRecord:
             **({"shots": [asdict(s) for s in self.shots]} if self.shots else {}),
             **({"dynamic_share": list(self.dynamic_share)} if self.dynamic_share else {}),
             **({"multiview": self.multiview.to_json_dict()} if self.multiview is not None else {}),
+            **({"readings": self.readings.to_json_dict()} if self.readings is not None else {}),
         }
 
 
@@ -689,5 +719,6 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         shots=tuple(ShotRecord(**s) for s in d.get("shots", [])),
         dynamic_share=tuple(float(v) for v in d.get("dynamic_share", [])),
         multiview=None if d.get("multiview") is None else MultiViewResult.from_parts(d["multiview"], z),
+        readings=None if d.get("readings") is None else ClipReadings.from_json_dict(d["readings"]),
         record_id=d.get("record_id"),
     )

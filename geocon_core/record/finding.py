@@ -15,8 +15,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Mapping
 
-__all__ = ["CLIP_SCORE_SLOPE", "VERDICT_WORDS", "ClipFinding", "clip_score", "clip_finding", "report_margin"]
+from ..signals import ClipModel
+
+__all__ = [
+    "CLIP_SCORE_SLOPE",
+    "VERDICT_WORDS",
+    "ClipFinding",
+    "clip_score",
+    "clip_finding",
+    "model_finding",
+    "report_margin",
+]
 
 CLIP_SCORE_SLOPE = 4.0
 """The slope of the logistic ``clip_score`` over the report margin (:func:`clip_score`)."""
@@ -35,6 +46,9 @@ class ClipFinding:
     verdict: str
     reason: str
     clip_score: float | None
+    parts: tuple[tuple[str, float], ...] = ()
+    """Where a clip model made the score: each reading's contribution to its log-odds (name,
+    value), largest first ("why this score"); empty for the background's own score."""
 
     def to_dict(self) -> dict[str, object]:
         return {"verdict": self.verdict, "reason": self.reason}
@@ -101,3 +115,35 @@ def clip_finding(
         f"the background{where} breaks its {model} model: " + " and ".join(fails or [values]),
         clip_score(margin),
     )
+
+
+def model_finding(
+    background: ClipFinding,
+    values: Mapping[str, float | None],
+    model: ClipModel,
+    decisive_shortfall: float = math.inf,
+) -> ClipFinding:
+    """The finding of a clip model (:mod:`geocon_core.signals.model`) over the readings ``values``:
+    ``inconsistent`` when the model's score reaches its threshold, else ``consistent``, the reason
+    naming the readings that pushed the score up most. A background that fails its report gate by
+    more than ``decisive_shortfall`` (the reading ``shortfall``) fails the clip whatever the model
+    says, and the clip score is then the background's own (above any the model gives). A clip whose
+    background cannot be judged (``background.verdict == "cannot judge"``) stays so."""
+    if background.verdict == "cannot judge":
+        return background
+    score = model.score(values)
+    parts = tuple(sorted(model.contributions(values).items(), key=lambda kv: -kv[1]))
+    shortfall = values.get("shortfall")
+    if shortfall is not None and shortfall > decisive_shortfall:
+        head = f"the background fails decisively ({shortfall:.1f} gate ranges short, beyond {decisive_shortfall:g})"
+        return ClipFinding(
+            "inconsistent", f"{head}; {background.reason}", max(score, background.clip_score or score), parts
+        )
+    labels = {t.name: t.label for t in model.terms}
+    up = [f"{labels[name]} {value:+.2f}" for name, value in parts if value > 0.005][:3]
+    why = f"; it rises with {', '.join(up)}" if up else ""
+    if score >= model.threshold:
+        verdict, head = "inconsistent", f"clip score {score:.2f} reaches the model's {model.threshold:.2f}"
+    else:
+        verdict, head = "consistent", f"clip score {score:.2f} stays under the model's {model.threshold:.2f}"
+    return ClipFinding(verdict, f"{head}{why}; {background.reason}", score, parts)

@@ -56,6 +56,7 @@ from .schedule import (
     gate_windows,
 )
 from .scorer import (
+    read_readings,
     score_clip,
 )
 from .verdict import (
@@ -87,6 +88,7 @@ from .verdict import (
 )
 
 __all__ = [
+    "read_readings",
     "ClipVerdict",
     "Family",
     "FamilyScores",

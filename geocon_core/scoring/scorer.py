@@ -65,11 +65,12 @@ from ..pose import (
 from ..pose import failure as pose_failure
 from ..reconstruction import DenseCloudBuilder, DenseCloudConfig, LongTracks, TrackObservations, reconstruct
 from ..record import ClipRecord, FrameDiagnostics, ObjectFlow, PointCloud, PointMaps
+from ..signals import ClipReadings, appearance_reading, plan_pairs, reduce_gray, unkept_share
 from .assemble import add_objects, assemble_record, software_versions
 from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, quiet_pot_backends, refine_object_mask
 from .schedule import StreamSchedule, gate_windows
 
-__all__ = ["score_clip", "software_versions"]
+__all__ = ["score_clip", "software_versions", "read_readings"]
 
 
 def _pair_seed(seed: int, t0: int, t1: int, scale_index: int) -> int:
@@ -198,6 +199,12 @@ class _Pipeline:
             LongTracks(config.multiview, info.num_frames, info.working_size) if config.multiview.enabled else None
         )
         """The multi-view check's long tracks (:mod:`geocon_core.reconstruction.multiview`), when it is on."""
+        self.reading_frames: dict[int, np.ndarray] = {}
+        """The frames the appearance readings use, on their canvas (:mod:`geocon_core.signals`)."""
+        self.reading_needed: frozenset[int] = frozenset()
+        if config.signals.enabled:
+            far, near = plan_pairs(info.num_frames, config.signals)
+            self.reading_needed = frozenset(t for pair in (*far, *near) for t in pair)
         self.shared = _SharedMatches(set())
         """Matches two stages need alike (set by :func:`score_clip` once the pose windows are known)."""
         self.object_scales = (self.s_max,) if config.object_scales == "top" else tuple(config.scales)
@@ -245,6 +252,9 @@ class _Pipeline:
             self.anchor_rgb[frame.index] = frame.rgb
         if frame.index in self.still_frames:
             self.still[frame.index] = _reduced(frame.gray, labels, self.info, self.config.motion.analysis_size)
+        if frame.index in self.reading_needed:
+            x0, y0, x1, y1 = self.info.content_box
+            self.reading_frames[frame.index] = reduce_gray(frame.gray[y0:y1, x0:x1], self.config.signals)
         if self.tracks is not None:
             start = time.perf_counter()
             self.tracks.observe(
@@ -769,6 +779,7 @@ def score_clip(
         start = time.perf_counter()
         record = _with_multiview(record, stages.tracks.observations, K, cfg)
         timer.add("multiview", start)
+    record = _with_readings(record, stages.reading_frames, cfg, timer)
     return add_objects(
         replace(record, cloud=cloud, pointmaps=stages.pointmaps),
         objects,
@@ -778,3 +789,42 @@ def score_clip(
         mask_source=mask_source,
         masks_path=masks,
     )
+
+
+def read_readings(record: ClipRecord, record_dir: str | Path, config: ScoreConfig) -> ClipRecord:
+    """``record`` with the readings ``config.signals`` makes (:mod:`geocon_core.signals`), read from its
+    clip again (found as :func:`~geocon_core.media.locate_clip` finds it) and its stored matches:
+    the numbers :func:`score_clip` would have recorded beside the same background fit. Raises
+    :class:`~geocon_core.media.ClipError` when the clip is gone."""
+    from ..media import locate_clip
+
+    cfg = replace(record.config, signals=replace(config.signals, enabled=True))
+    info = locate_clip(record.video, record_dir)
+    far, near = plan_pairs(info.num_frames, cfg.signals)
+    needed = {t for pair in (*far, *near) for t in pair}
+    frames: dict[int, np.ndarray] = {}
+    x0, y0, x1, y1 = info.content_box
+    for frame in iter_frames(info):
+        if frame.index in needed:
+            frames[frame.index] = reduce_gray(frame.gray[y0:y1, x0:x1], cfg.signals)
+        if len(frames) == len(needed):
+            break
+    return _with_readings(record, frames, cfg, _Timer(None))
+
+
+def _with_readings(record: ClipRecord, frames: dict[int, np.ndarray], cfg: ScoreConfig, timer: _Timer) -> ClipRecord:
+    """The record with its readings beside the background fit (:mod:`geocon_core.signals`), when
+    ``cfg.signals`` is on: the appearance readings of the frames kept for them and the keep reading
+    of the record's background matches."""
+    if not cfg.signals.enabled:
+        return record
+    start = time.perf_counter()
+    n = record.video.num_frames
+    far, near = plan_pairs(n, cfg.signals)
+    readable = all(t in frames for pair in (*far, *near) for t in pair) and bool(far or near)
+    appearance = appearance_reading(frames, n, cfg.signals) if readable else None
+    offsets = record.matches.offsets
+    rows = [(p.gap, p.scale, int(offsets[p.index]), int(offsets[p.index + 1])) for p in record.pairs if p.skip is None]
+    unkept = unkept_share(rows, record.matches.f_res_px, record.video.working_size[0], cfg.signals)
+    timer.add("signals", start)
+    return replace(record, readings=ClipReadings(appearance, unkept))

@@ -35,6 +35,7 @@ from .cases import (
     real_clips,
     split_of,
 )
+from .fit import FIT_TERMS, READINGS_FILE, FitCase, FitReport, FitRow, fit_cases, fit_markdown, fit_model, model_json
 from .footage import DEFAULT_FOOTAGE, fill_footage, footage_status
 from .metrics import MetricRow, compute_metrics, detected
 from .peer import PEER_NAME, peer_keep_rate
@@ -94,6 +95,15 @@ __all__ = [
     "write_report",
     "CaseResult",
     "case_result",
+    "FIT_TERMS",
+    "READINGS_FILE",
+    "FitCase",
+    "FitReport",
+    "FitRow",
+    "fit_cases",
+    "fit_markdown",
+    "fit_model",
+    "model_json",
     "DEFAULT_FOOTAGE",
     "fill_footage",
     "footage_status",

@@ -39,8 +39,9 @@ MIN_IOU = 0.5
 """A track covers a true object in a frame when their masks overlap with at least this IoU."""
 
 VERDICTS = ("consistent", "inconsistent", "not judged", "failed")
-"""A case's verdict: the record's report gate (``background.consistent`` True / False / None), or
-``failed`` when it could not be scored."""
+"""A case's verdict: the record's finding (:meth:`~geocon_core.record.ClipRecord.finding`: the clip
+model's where the record has readings, else the report gate's), ``not judged`` for ``cannot
+judge``, or ``failed`` when it could not be scored."""
 
 _SYNTH_GATE = {"H", "F"}
 
@@ -295,10 +296,6 @@ def _report_margin(rec: ClipRecord) -> float | None:
     return report_margin(rec.background.ir, rec.background.ge, rec.config.ir_gate, rec.config.ge_gate)
 
 
-def _verdict(consistent: bool | None) -> str:
-    return "not judged" if consistent is None else ("consistent" if consistent else "inconsistent")
-
-
 def _expected(case: dict[str, Any], truth_path: str | None) -> dict[str, Any]:
     """The expected fields of a case from its ground truth or its annotation."""
     if case["kind"] == "synthetic":
@@ -367,18 +364,19 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
 
     rec = read_record(folder)
     scores = [o.adadfrc for o in rec.objects if o.adadfrc is not None]
-    verdict = _verdict(rec.background.consistent)
+    finding = rec.finding()
+    verdict = "not judged" if finding.verdict == "cannot judge" else finding.verdict
     within, tau_px = f_within_px(rec) if case["kind"] == "real" else (None, None)
     return CaseResult(
         **base,
         truth_cuts=_scored_cuts(case, rec.video.num_frames) if case["kind"] == "real" else None,
         cuts=rec.video.cuts,
         report_margin=_report_margin(rec),
-        clip_score=rec.finding().clip_score,
+        clip_score=finding.clip_score,
         peer_score=peer_score(folder),
         f_within=within,
         tau_f_px=tau_px,
-        verdict_note=rec.background.choice_note,
+        verdict_note=finding.reason if rec.readings is not None else rec.background.choice_note,
         verdict=verdict,
         gate=rec.gate.label,
         t_inf=rec.gate.t_inf,

@@ -142,8 +142,13 @@ def _map(fn: Callable[..., Any], jobs: int, argsets: list[tuple], on_done: Calla
         for i, args in enumerate(argsets):
             on_done(i, fn(*args))
         return
+    from ..files import die_with_parent
+
     with ProcessPoolExecutor(
-        max_workers=min(jobs, len(argsets)), mp_context=multiprocessing.get_context("spawn")
+        max_workers=min(jobs, len(argsets)),
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=die_with_parent,  # workers exit when this process dies (an interrupt, kill -9)
+        initargs=(os.getpid(),),
     ) as pool:
         futures: dict[Future, int] = {pool.submit(fn, *args): i for i, args in enumerate(argsets)}
         try:

@@ -116,6 +116,23 @@ def _verdict_row(record: ClipRecord) -> str:
     return f"[{colour}]{f.verdict}[/]{score}: {f.reason}"
 
 
+def _why_row(record: ClipRecord) -> str:
+    """The clip model's contributions, reading by reading (empty for the background's own score)."""
+    from geocon_core.signals import READING_LABELS
+
+    f = record.finding()
+    if not f.parts:
+        return ""
+    values = record.reading_values()
+    cells = []
+    for name, part in f.parts:
+        value = values.get(name)
+        shown = "-" if value is None else f"{value:.3g}"
+        colour = "red" if part > 0.005 else ("green" if part < -0.005 else "dim")
+        cells.append(f"[{colour}]{part:+.2f}[/] {READING_LABELS.get(name, name)} ({shown})")
+    return "log-odds: " + "   ".join(cells)
+
+
 def _object_rows(table: Table, record: ClipRecord) -> None:
     share = max(record.masked_share) if record.masked_share else 0.0
     table.add_row(
@@ -174,6 +191,9 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
             f"GE {fmt(shot.ge, '.2f')} px   {state}",
         )
     table.add_row("verdict", _verdict_row(record))
+    why = _why_row(record)
+    if why:
+        table.add_row("why this score", why)
     if record.category is not None:
         table.add_row("category", f"{record.category.label}: {record.category.rule}")
     _object_rows(table, record)

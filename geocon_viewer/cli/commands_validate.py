@@ -194,6 +194,26 @@ def validate(
         bool,
         typer.Option("--report-only", help="Score nothing: the table of the cases already scored in --out."),
     ] = False,
+    fit: Annotated[
+        bool,
+        typer.Option(
+            "--fit",
+            help="Score nothing: fit the clip model on the tune half of the annotated clips scored in --out "
+            "(their readings are read from the clips where the records lack them) and report both halves; "
+            "writes clip_model.json and fit.md into --out.",
+        ),
+    ] = False,
+    fit_l2: Annotated[
+        float, typer.Option("--fit-l2", min=0.0, help="The fit's L2 penalty on the readings' weights.")
+    ] = 1.0,
+    fit_with: Annotated[
+        Optional[list[Path]],
+        typer.Option(
+            "--fit-with",
+            help="With --fit: also the cases of another validation's --out (planted cases of a --planted run, say); "
+            "repeatable.",
+        ),
+    ] = None,
 ) -> None:
     """Validate the default settings: synthetic scenes at several heights and codecs, clean and
     with injected failures, and the real clips in --data against the project's annotations; prints
@@ -243,6 +263,11 @@ def validate(
         _fill(notes, cache_dir, footage_from)
     if roots:
         _say_missing(plan, notes)
+    if fit:
+        _fit([out_dir, *(fit_with or [])], cfg, notes, annotations, fit_l2)
+        return
+    if fit_with:
+        raise fail("--fit-with adds cases to a fit; add --fit")
     started = time.monotonic()
     report = _run(plan, cfg, out_dir, cache or out_dir / "cache", jobs, notes, not report_only, peer)
     took = time.monotonic() - started
@@ -255,6 +280,61 @@ def validate(
     print_report(report)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
     out.print(f"this run took {_minutes(took)} with {jobs} worker process{'es' if jobs > 1 else ''}")
+
+
+def _fit(
+    folders: list[Path], cfg: ScoreConfig, notes: dict[str, Annotation], annotations: Path | None, l2: float
+) -> None:
+    """``--fit``: the clip model fitted on the tune half of the clips scored in ``folders`` (the
+    first is --out, where the model and its report are written)."""
+    import datetime
+
+    from rich.progress import TaskID
+
+    from geocon_core.files import part_path, replace_file
+    from geocon_core.validation import ANNOTATIONS_PATH, FitCase, fit_cases, fit_markdown, fit_model, model_json
+
+    out_dir = folders[0]
+    for folder in folders:
+        if not (folder / "cases").is_dir():
+            raise fail(f"{folder}: no scored cases to fit on (run `geocon validate --out {folder}` first)")
+    rows: list[FitCase] = []
+    problems: list[str] = []
+    with progress_bar("readings", "clips") as bar:
+        for folder in folders:
+            task = bar.add_task(f"readings of {folder}", total=None)
+
+            def advance(done: int, total: int, task: TaskID = task) -> None:
+                bar.update(task, completed=done, total=total)
+
+            more, trouble = fit_cases(folder / "cases", notes, cfg, advance)
+            rows += more
+            problems += trouble
+    for line in problems:
+        out.print(f"[yellow]left out[/] {line}")
+    halves = {(c.split, c.broken) for c in rows}
+    if ("tune", True) not in halves or ("tune", False) not in halves:
+        raise fail(f"{out_dir}: the tune half needs clips with a geometric artifact and sound clips to fit on")
+    version = datetime.date.today().isoformat()
+    try:
+        report = fit_model(
+            rows,
+            l2=l2,
+            version=version,
+            annotations_path=annotations or ANNOTATIONS_PATH,
+            decisive_shortfall=cfg.signals.decisive_shortfall,
+        )
+    except ValueError as exc:
+        raise fail(str(exc)) from None
+    for name, text in (("clip_model.json", model_json(report.model)), ("fit.md", fit_markdown(report))):
+        part = part_path(out_dir / name)
+        part.write_text(text)
+        replace_file(part, out_dir / name)
+    out.print(fit_markdown(report))
+    out.print(
+        f"model: {out_dir / 'clip_model.json'} (digest {report.model.digest()}); report: {out_dir / 'fit.md'}; "
+        f"{report.cases} clips"
+    )
 
 
 def _minutes(seconds: float) -> str:

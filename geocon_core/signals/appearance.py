@@ -1,0 +1,221 @@
+"""What the motion does not explain: dense-flow readings of a clip's appearance.
+
+A real scene's pixels can be followed from frame to frame: the forward flow of a pair and the
+backward flow agree (forward-backward test) except where a surface is hidden or revealed, which
+happens along motion boundaries; and a pixel followed by the flow still looks like itself. In a
+generated clip a melting body, a face turning into another face or a pattern re-forming breaks
+both: the flow fails inside surfaces, and where it holds the texture it lands on is not the one
+it left. Each reading is a number per clip, the larger the more broken:
+
+- ``flow_failure``: over the clip's pairs ``gap`` frames apart, the 90th percentile of the share of
+  the pixels whose flow fails the forward-backward test (pixels whose flow leaves the frame are
+  not counted);
+- ``interior_failure``: the mean share of failing pixels away from motion boundaries (where the
+  flow's spatial gradient is steep, and a band around them): failures there are occlusions, not
+  damage;
+- ``unexplained_appearance``: over pairs of neighbouring frames, the mean census distance (the
+  share of the 24 neighbour comparisons of a 5x5 window that change) between a pixel and where
+  the consistent flow takes it, over textured pixels away from motion boundaries;
+- ``mover_share``: the mean share of the pixels whose consistent flow departs from one homography
+  fitted to the whole frame's flow: how much of the frame moves on its own.
+
+The clip is read on a small canvas (``SignalsConfig.long_side``) at up to ``max_pairs`` pairs spread
+evenly over it, so the cost does not grow with clip length. Everything is seeded: the same frames
+give the same numbers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from ..config import FlowConfig, SignalsConfig
+from ..flow import FlowField, make_flow_backend
+
+__all__ = ["AppearanceReading", "PairReading", "appearance_reading", "plan_pairs", "reduce_gray", "summarize"]
+
+
+@dataclass(frozen=True)
+class PairReading:
+    """One pair's shares: frames ``t0`` and ``t1``; ``failure``: pixels failing the forward-backward
+    test (of those whose flow stays in the frame); ``interior``: failing pixels away from motion
+    boundaries; ``movers``: pixels moving against the frame's homography (None for a pair of
+    neighbouring frames, where ``census`` is read instead)."""
+
+    t0: int
+    t1: int
+    failure: float | None = None
+    interior: float | None = None
+    movers: float | None = None
+    census: float | None = None
+
+
+@dataclass(frozen=True)
+class AppearanceReading:
+    """The clip's appearance readings (module docstring); None where no pair could be read."""
+
+    flow_failure: float | None
+    interior_failure: float | None
+    unexplained_appearance: float | None
+    mover_share: float | None
+    pairs: tuple[PairReading, ...] = ()
+
+    def to_dict(self) -> dict[str, float | None]:
+        return {
+            "flow_failure": self.flow_failure,
+            "interior_failure": self.interior_failure,
+            "unexplained_appearance": self.unexplained_appearance,
+            "mover_share": self.mover_share,
+        }
+
+
+def plan_pairs(num_frames: int, cfg: SignalsConfig) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """The pairs read: (pairs ``cfg.gap`` apart, pairs of neighbouring frames), at most
+    ``cfg.max_pairs`` each, their first frames spread evenly over the clip."""
+
+    def spread(gap: int) -> list[tuple[int, int]]:
+        last = num_frames - 1 - gap
+        if last < 0:
+            return []
+        count = min(cfg.max_pairs, last + 1)
+        starts = np.unique(np.round(np.linspace(0, last, count)).astype(int))
+        return [(int(t), int(t) + gap) for t in starts]
+
+    gap = min(cfg.gap, max(1, num_frames - 1))
+    return spread(gap), spread(1)
+
+
+def reduce_gray(gray: np.ndarray, cfg: SignalsConfig) -> np.ndarray:
+    """A grey frame on the readings' canvas: its long side at most ``cfg.long_side`` (area
+    interpolation), sides rounded to even."""
+    h, w = gray.shape[:2]
+    s = min(1.0, cfg.long_side / max(h, w))
+    if s >= 1.0:
+        return np.ascontiguousarray(gray)
+    size = (max(16, round(w * s) // 2 * 2), max(16, round(h * s) // 2 * 2))
+    return cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+
+
+def _boundaries(flow: np.ndarray, cfg: SignalsConfig) -> np.ndarray:
+    """Pixels on or near a motion boundary: the flow's spatial gradient (px per px) above
+    ``cfg.boundary_gradient``, widened by ``cfg.boundary_px``."""
+    grad = np.zeros(flow.shape[:2], np.float32)
+    for c in range(2):
+        comp = np.ascontiguousarray(flow[..., c])
+        gx = cv2.Sobel(comp, cv2.CV_32F, 1, 0, ksize=3).astype(np.float32) / np.float32(8.0)
+        gy = cv2.Sobel(comp, cv2.CV_32F, 0, 1, ksize=3).astype(np.float32) / np.float32(8.0)
+        grad += gx * gx + gy * gy
+    edge = (np.sqrt(grad) > cfg.boundary_gradient).astype(np.uint8)
+    k = 2 * cfg.boundary_px + 1
+    return cv2.dilate(edge, np.ones((k, k), np.uint8)) > 0
+
+
+def _textured(gray: np.ndarray, cfg: SignalsConfig) -> np.ndarray:
+    """Pixels whose local mean gradient (5x5) is at least ``cfg.texture_gradient`` grey levels per px."""
+    g = gray.astype(np.float32)
+    gx = (cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 4.0).astype(np.float32)
+    gy = (cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 4.0).astype(np.float32)
+    return cv2.blur(cv2.magnitude(gx, gy), (5, 5)) >= cfg.texture_gradient
+
+
+def _census(gray: np.ndarray, radius: int) -> np.ndarray:
+    """The census transform: for each pixel, whether each neighbour of its window is brighter
+    ((k, h, w) bool, k = (2r+1)^2 - 1)."""
+    g = gray.astype(np.int16)
+    h, w = g.shape
+    p = np.pad(g, radius, mode="edge")
+    bits = [
+        p[radius + dy : radius + dy + h, radius + dx : radius + dx + w] > g
+        for dy in range(-radius, radius + 1)
+        for dx in range(-radius, radius + 1)
+        if dx or dy
+    ]
+    return np.stack(bits)
+
+
+def _warp(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """``image`` sampled where ``flow`` takes each pixel (bilinear, 0 outside)."""
+    h, w = flow.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return cv2.remap(image, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _mover_share(field: FlowField, inside: np.ndarray, cfg: SignalsConfig, seed: int) -> float | None:
+    """The share of in-frame pixels whose flow departs from the homography fitted (RANSAC, seeded)
+    to the consistent flow of a grid of pixels by more than ``cfg.mover_px``."""
+    flow = field.flow
+    h, w = flow.shape[:2]
+    ys, xs = np.mgrid[4:h:8, 4:w:8]
+    pick = field.reliable[ys, xs]
+    if np.count_nonzero(pick) < 12:
+        return None
+    src = np.stack([xs[pick], ys[pick]], 1).astype(np.float32)
+    dst = src + flow[ys[pick], xs[pick]]
+    cv2.setRNGSeed(seed)
+    H, _ = cv2.findHomography(src, dst, cv2.RANSAC, cfg.mover_px, maxIters=1000, confidence=0.995)
+    if H is None:
+        return None
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    pts = np.stack([gx, gy, np.ones_like(gx)], -1) @ H.T
+    z = pts[..., 2]
+    ok = np.abs(z) > 1e-9
+    pred = np.where(ok[..., None], pts[..., :2] / np.where(ok, z, 1.0)[..., None], np.inf)
+    off = np.linalg.norm(flow + np.stack([gx, gy], -1) - pred, axis=2)
+    moving = (off > cfg.mover_px) & inside
+    return float(np.count_nonzero(moving) / max(1, int(np.count_nonzero(inside))))
+
+
+def appearance_reading(frames: dict[int, np.ndarray], num_frames: int, cfg: SignalsConfig) -> AppearanceReading:
+    """The readings of a clip of ``num_frames`` frames from ``frames`` (index -> grey frame on the
+    readings' canvas, :func:`reduce_gray`), which must hold every frame of :func:`plan_pairs`."""
+    flow = make_flow_backend("dis", FlowConfig(preset=cfg.flow_preset, fb_abs=cfg.fb_abs, fb_rel=cfg.fb_rel, margin=0))
+    far, near = plan_pairs(num_frames, cfg)
+    pairs: list[PairReading] = []
+    for t0, t1 in far:
+        field = flow.compute(frames[t0], frames[t1])
+        inside = np.isfinite(field.fb_error)
+        if np.count_nonzero(inside) < 100:
+            continue
+        failing = inside & ~field.reliable
+        away = inside & ~_boundaries(field.flow, cfg)
+        pairs.append(
+            PairReading(
+                t0,
+                t1,
+                failure=float(np.count_nonzero(failing) / np.count_nonzero(inside)),
+                interior=float(np.count_nonzero(failing & away) / max(1, int(np.count_nonzero(away)))),
+                movers=_mover_share(field, inside, cfg, seed=t0 * 7919 + t1),
+            )
+        )
+    for t0, t1 in near:
+        field = flow.compute(frames[t0], frames[t1])
+        keep = field.reliable & ~_boundaries(field.flow, cfg) & _textured(frames[t0], cfg)
+        if np.count_nonzero(keep) < 50:
+            continue
+        a = _census(frames[t0], cfg.census_radius)
+        b = _census(_warp(frames[t1], field.flow), cfg.census_radius)
+        changed = (a != b).mean(axis=0)
+        pairs.append(PairReading(t0, t1, census=float(changed[keep].mean())))
+    return summarize(pairs)
+
+
+def summarize(pairs: Sequence[PairReading]) -> AppearanceReading:
+    """The clip's readings from its pairs' (module docstring)."""
+
+    def values(name: str) -> list[float]:
+        return [v for p in pairs if (v := getattr(p, name)) is not None]
+
+    def mean(xs: list[float]) -> float | None:
+        return float(np.mean(xs)) if xs else None
+
+    failure = values("failure")
+    return AppearanceReading(
+        flow_failure=float(np.percentile(failure, 90)) if failure else None,
+        interior_failure=mean(values("interior")),
+        unexplained_appearance=mean(values("census")),
+        mover_share=mean(values("movers")),
+        pairs=tuple(pairs),
+    )
