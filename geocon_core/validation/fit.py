@@ -100,6 +100,8 @@ class FitRow:
 
 @dataclass(frozen=True)
 class FitReport:
+    """A fitted clip model with its figures on the tune and the check half, over ``cases`` clips."""
+
     model: ClipModel
     rows: tuple[FitRow, ...]
     cases: int
@@ -343,4 +345,5 @@ def fit_markdown(report: FitReport) -> str:
 
 
 def model_json(model: ClipModel) -> str:
+    """The model file's text (``clip_model.json``)."""
     return json.dumps(model.to_dict(), indent=1) + "\n"
