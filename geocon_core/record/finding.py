@@ -47,8 +47,8 @@ class ClipFinding:
     reason: str
     clip_score: float | None
     parts: tuple[tuple[str, float], ...] = ()
-    """Where a clip model made the score: each reading's contribution to its log-odds (name,
-    value), largest first ("why this score"); empty for the background's own score."""
+    """Where a clip model made the score: each weighed reading's contribution to its log-odds
+    (name, value), largest first ("why this score"); empty for the background's own score."""
 
     def to_dict(self) -> dict[str, object]:
         return {"verdict": self.verdict, "reason": self.reason}
@@ -132,7 +132,10 @@ def model_finding(
     if background.verdict == "cannot judge":
         return background
     score = model.score(values)
-    parts = tuple(sorted(model.contributions(values).items(), key=lambda kv: -kv[1]))
+    weighed = {t.name for t in model.terms if t.weight > 0}  # a reading at weight 0 explains nothing
+    parts = tuple(
+        sorted(((k, v) for k, v in model.contributions(values).items() if k in weighed), key=lambda kv: -kv[1])
+    )
     shortfall = values.get("shortfall")
     if shortfall is not None and shortfall > decisive_shortfall:
         head = f"the background fails decisively ({shortfall:.1f} gate ranges short, beyond {decisive_shortfall:g})"
