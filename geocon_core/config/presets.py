@@ -363,7 +363,8 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "scores); "
         "a clip the first-last pose gates H whose 16-frame gate window reads t_inf above 0.03 is in the "
         "gray zone (both families fitted); a failing background half of whose matches moved on their "
-        "own cannot be judged; "
+        "own cannot be judged; the verdict is a clip model's over readings beyond the background (dense-flow "
+        "failures, appearance the flow does not explain, the keep reading), fitted on annotated clips; "
         "the default of `geocon score` and `geocon bench`",
         ScoreConfig(
             preset="audit",
