@@ -118,7 +118,7 @@ def _verdict_row(record: ClipRecord) -> str:
 
 def _why_row(record: ClipRecord) -> str:
     """The clip model's contributions, reading by reading (empty for the background's own score)."""
-    from geocon_core.signals import READING_LABELS
+    from geocon_core.signals import READING_LABELS, load_clip_model
 
     f = record.finding()
     if not f.parts:
@@ -130,7 +130,10 @@ def _why_row(record: ClipRecord) -> str:
         shown = "-" if value is None else f"{value:.3g}"
         colour = "red" if part > 0.005 else ("green" if part < -0.005 else "dim")
         cells.append(f"[{colour}]{part:+.2f}[/] {READING_LABELS.get(name, name)} ({shown})")
-    return "log-odds: " + "   ".join(cells)
+    signals = record.config.signals
+    base = load_clip_model(signals.model, signals.model_sha256).intercept
+    total = base + sum(part for _, part in f.parts)
+    return f"log-odds {total:+.2f} = base {base:+.2f}   " + "   ".join(cells)
 
 
 def _object_rows(table: Table, record: ClipRecord) -> None:
