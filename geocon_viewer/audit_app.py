@@ -38,6 +38,7 @@ from geocon_core.media import DEFAULT_FPS
 from geocon_core.record import ClipRecord, RecordError, read_overlays, read_record
 from geocon_core.results import BROKEN, ResultsError, ResultsIndex, TriageRow
 from geocon_core.scoring import ClipVerdict, Thresholds, pair_inliers
+from geocon_core.signals import MAP_NAMES
 
 from .audit_gui import ANY, FLAGGED, AuditPanels
 from .audit_triage import LIST_ROWS, rrd_text, thresholds_text, triage_summary, triage_table
@@ -47,7 +48,9 @@ from .audit_views import (
     clip_card,
     dense_legend_html,
     draw_frame,
+    evidence,
     frame_text,
+    map_choice,
     move_clip_camera,
     pair_options,
     pair_text,
@@ -131,7 +134,7 @@ class AuditApp(AuditPanels, ServedApp):
 
         self.slider.on_update(lambda e: self._on_frame(int(e.target.value)))
         self.pair.on_update(lambda e: self._on_pair(e.target.value))
-        for box in (self.show_matches, self.show_masks):
+        for box in (self.show_matches, self.show_masks, self.reading_map):
             box.on_update(lambda _: self._render_frame())
 
         def on_rrd(_: object) -> None:
@@ -261,7 +264,13 @@ class AuditApp(AuditPanels, ServedApp):
             self.view = view
             n = view.num_frames
             self.slider.max = max(1, n - 1)
-            self.frame = min(self.frame, n - 1)
+            # a flagged clip opens on its evidence: the reading map its score leans on and the frame
+            # where that reading is strongest (or the worst background pair)
+            shown_map, at = evidence(record)
+            self.reading_map.value = map_choice(shown_map)  # type: ignore[misc]  # viser setter typing gap
+            self.frame = min(self.frame if at is None else at, n - 1)
+            if at is not None and int(self.slider.value) != self.frame:
+                self.slider.value = self.frame  # type: ignore[misc]  # viser setter typing gap
             self._show_pairs(record)
             self.cloud_handle = render_scene(self.server, self.view, self._pair_index)
             move_clip_camera(view, self.frame)
@@ -402,8 +411,13 @@ class AuditApp(AuditPanels, ServedApp):
             return None
         if self.show_matches.value and matches is None:
             matches = self.frame_matches(t)
+        chosen = {map_choice(name): name for name in MAP_NAMES}.get(str(self.reading_map.value))
         return draw_frame(
-            view, t, masks=bool(self.show_masks.value), matches=matches if self.show_matches.value else None
+            view,
+            t,
+            masks=bool(self.show_masks.value),
+            matches=matches if self.show_matches.value else None,
+            reading_map=chosen,
         )
 
     def _render_frame(self) -> None:

@@ -11,9 +11,10 @@ import viser
 
 from geocon_core.results import VERDICTS, ResultsIndex
 from geocon_core.scoring import Thresholds
+from geocon_core.signals import MAP_NAMES
 
 from .audit_triage import LIST_ROWS, THRESHOLD_LABELS
-from .audit_views import PAIR_FIRST_LAST, empty_plot
+from .audit_views import MAP_MENU, PAIR_FIRST_LAST, empty_plot, map_choice
 
 __all__ = ["AuditPanels", "ANY", "FLAGGED"]
 
@@ -83,6 +84,13 @@ class AuditPanels:
                 "inliers / outliers", True, hint="Background matches of the pair (t, t+1): green inliers, red outliers"
             )
             self.show_masks = gui.add_checkbox("object masks", True)
+            self.reading_map = gui.add_dropdown(
+                MAP_MENU,
+                [map_choice(None), *(map_choice(name) for name in MAP_NAMES)],
+                initial_value=map_choice(None),
+                hint="Where a reading of the clip score fires over the whole clip (brighter: more often); "
+                "a flagged clip opens on the one its score leans on most",
+            )
             self.frame_md = gui.add_markdown("")
         with self.frame_panel.add_tab("Audit card"):
             self.card_md = gui.add_markdown("")

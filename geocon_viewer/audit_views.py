@@ -49,6 +49,10 @@ __all__ = [
     "DENSE_POINTS",
     "render_plots",
     "clip_card",
+    "app_picture",
+    "evidence",
+    "map_choice",
+    "MAP_MENU",
 ]
 
 
@@ -76,6 +80,21 @@ class ClipView:
     clip_camera: Any = None
     """Scene handle of the current camera of the clip's one reconstruction (moved by the frame
     slider), when that scene is shown."""
+    heat: dict[str, np.ndarray] = field(default_factory=dict)
+    """Reading maps at display size (shares 0..1), by map name, made when first shown."""
+
+    def reading_shares(self, name: str, size: tuple[int, int]) -> np.ndarray | None:
+        """Map ``name`` of the clip's readings (:mod:`geocon_core.signals.pictures`) as shares on a
+        frame of display ``size`` (w, h); None when the record has no maps."""
+        from geocon_core.signals import map_on_frame
+
+        a = self.record.readings.appearance if self.record.readings is not None else None
+        if a is None or a.maps is None:
+            return None
+        if name not in self.heat:
+            full = map_on_frame(a.maps, name, self.record.video.content_box, self.working_size)
+            self.heat[name] = cv2.resize(full, size, interpolation=cv2.INTER_AREA)
+        return self.heat[name]
 
     @property
     def num_frames(self) -> int:
@@ -87,11 +106,25 @@ class ClipView:
         return int(w), int(h)
 
 
-def draw_frame(view: ClipView, t: int, *, masks: bool, matches: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+def draw_frame(
+    view: ClipView,
+    t: int,
+    *,
+    masks: bool,
+    matches: tuple[np.ndarray, np.ndarray] | None,
+    reading_map: str | None = None,
+) -> np.ndarray:
     """Frame ``t`` at display size (decoded already) with the object masks tinted in their colours
-    (``masks``) and the background matches drawn (green inliers, red outliers) when given."""
+    (``masks``), the background matches drawn (green inliers, red outliers) when given, and
+    under them the map ``reading_map`` of where a reading fires (:data:`~geocon_core.signals.MAP_VIEWS`)."""
+    from geocon_core.signals import MAP_VIEWS, blend_heat
+
     img = view.frames[t].copy()
     k = view.display_scale
+    if reading_map is not None:
+        shares = view.reading_shares(reading_map, (img.shape[1], img.shape[0]))
+        if shares is not None:
+            img = blend_heat(img, shares, MAP_VIEWS[reading_map].vmax)
     if masks and view.overlays is not None:
         labels = view.overlays.labels(t)
         if labels is not None:
@@ -419,6 +452,54 @@ def render_plots(plots: Plots, view: ClipView | None, v: ClipVerdict | None, th:
     plots.gate.title = f"Gate t_inf: {v.label} (margin {fmt(v.margin, '+.4f')})"
 
 
+MAP_MENU = "reading map"
+"""The label of the Frame tab's menu of reading maps."""
+
+
+def map_choice(name: str | None) -> str:
+    """The entry of the reading-map menu for map ``name`` (None: no map)."""
+    from geocon_core.signals import MAP_VIEWS
+
+    return "none" if name is None else MAP_VIEWS[name].title
+
+
+def app_picture(name: str) -> str:
+    """Where the app shows reading ``name``: the Frame tab's reading-map entry, or its other view."""
+    from geocon_core.signals import picture_of
+
+    tab = picture_of(name)
+    if tab is not None:
+        return f"Frame tab, {MAP_MENU} *{map_choice(tab)}*"
+    return {
+        "shortfall": "Frame tab (inliers / outliers), Background plots",
+        "unkept": "Frame tab (red: outliers)",
+        "mv_residual": "3D scene, pair *one camera for the clip*",
+        "object_rigidity": "Objects plot",
+    }.get(name, "")
+
+
+def evidence(record: ClipRecord) -> tuple[str | None, int | None]:
+    """What a flagged clip opens on: (the reading map the clip score leans on most, the frame where
+    that reading is strongest), or (None, the frame of the worst background pair) when the
+    background decided; (None, None) for a clip that is not flagged."""
+    from geocon_core.signals import leading_picture
+
+    from .rerun_card import worst_frame
+
+    finding = record.finding()
+    if finding.verdict != "inconsistent":
+        return None, None
+    picture = leading_picture(finding.parts)
+    a = record.readings.appearance if record.readings is not None else None
+    if picture is None or a is None or a.maps is None:
+        return None, worst_frame(record)
+    field_of = {"failure": "interior", "movers": "movers", "unexplained": "census"}[picture[1]]
+    strongest = max(
+        (p for p in a.pairs if getattr(p, field_of) is not None), key=lambda p: getattr(p, field_of), default=None
+    )
+    return picture[1], None if strongest is None else strongest.t0
+
+
 def clip_card(view: ClipView, v: ClipVerdict, clip: ResultClip, th: Thresholds, recorded: Thresholds) -> str:
     """The markdown card of the selected clip under the verdict ``v`` at ``th``."""
     rec = view.record
@@ -438,7 +519,7 @@ def clip_card(view: ClipView, v: ClipVerdict, clip: ResultClip, th: Thresholds, 
     why: list[str] = []
     if rec.readings is not None and rec.config.signals.enabled:
         # the clip model reads the record as scored; moving the thresholds re-gates the background only
-        finding, why = rec.finding(), why_lines(rec)
+        finding, why = rec.finding(), why_lines(rec, app_picture)
     lines = [
         f"### {view.clip_id}",
         f"platform **{clip.platform}** · category **{clip.category or EMPTY}** (expects {clip.expected_model or EMPTY})"

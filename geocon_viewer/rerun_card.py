@@ -3,6 +3,8 @@ record, no Rerun needed."""
 
 from __future__ import annotations
 
+from typing import Callable
+
 import rerun as rr
 
 from geocon_core.record import ClipRecord
@@ -10,7 +12,15 @@ from geocon_core.record import ClipRecord
 from .rerun_dense import dense_legend_markdown
 from .style import fmt
 
-__all__ = ["audit_card", "worst_frame", "RERUN_VERSION"]
+__all__ = [
+    "audit_card",
+    "reading_tab",
+    "rerun_picture",
+    "why_lines",
+    "worst_frame",
+    "PICTURE_ELSEWHERE",
+    "RERUN_VERSION",
+]
 
 RERUN_VERSION: str = rr.__version__
 
@@ -30,24 +40,50 @@ def worst_frame(record: ClipRecord) -> int:
     return worst
 
 
-def why_lines(record: ClipRecord) -> list[str]:
+def reading_tab(name: str) -> str:
+    """The title of the recording's tab that shows map ``name`` (:data:`~geocon_core.signals.MAP_VIEWS`)."""
+    from geocon_core.signals import MAP_VIEWS
+
+    title = MAP_VIEWS[name].title
+    return title[0].upper() + title[1:]
+
+
+PICTURE_ELSEWHERE: dict[str, str] = {
+    "shortfall": "*Frame + background matches*, *Residual map*",
+    "unkept": "*Frame + background matches* (red: outliers)",
+    "mv_residual": "*Frame + background matches* (multi-view tracks)",
+    "object_rigidity": "*Object flow + AdaDFRC cells*",
+}
+"""The recording's views that show a reading without a map of its own."""
+
+
+def rerun_picture(name: str) -> str:
+    """Where the recording shows reading ``name``: its map's tab, or the view of
+    :data:`PICTURE_ELSEWHERE`."""
+    from geocon_core.signals import picture_of
+
+    tab = picture_of(name)
+    return f"tab *{reading_tab(tab)}*" if tab is not None else PICTURE_ELSEWHERE.get(name, "")
+
+
+def why_lines(record: ClipRecord, look: Callable[[str], str] | None = rerun_picture) -> list[str]:
     """The "why this score" table: the clip model's contributions in markdown (empty when the score
-    is the background's own)."""
+    is the background's own), each with where to look at it (``look(reading)``; no column when None)."""
     from geocon_core.signals import READING_LABELS
 
     finding = record.finding()
     if not finding.parts:
         return []
     values = record.reading_values()
-    return [
-        "",
-        "| why this score: reading | value | contribution to the log-odds |",
-        "|---|---|---|",
-        *[
-            f"| {READING_LABELS.get(name, name)} | {fmt(values.get(name), '.3g')} | {part:+.2f} |"
-            for name, part in finding.parts
-        ],
+    head = "| why this score: reading | value | contribution to the log-odds |"
+    rows = [
+        f"| {READING_LABELS.get(name, name)} | {fmt(values.get(name), '.3g')} | {part:+.2f} |"
+        + ("" if look is None else f" {look(name)} |")
+        for name, part in finding.parts
     ]
+    if look is None:
+        return ["", head, "|---|---|---|", *rows]
+    return ["", head + " where to look |", "|---|---|---|---|", *rows]
 
 
 def audit_card(record: ClipRecord) -> str:

@@ -1,5 +1,6 @@
 """The parts of a Rerun audit recording that come from the finished record: matches and residual
-maps per pair, per-cell object vectors, time series, and the 3D world. :class:`RecordLayers`
+maps per pair, per-cell object vectors, time series, the 3D world, and the maps of where the
+clip's readings fire. :class:`RecordLayers`
 writes them into an explicit recording stream (see :mod:`geocon_viewer.rerun_log` for the
 entity paths)."""
 
@@ -54,6 +55,22 @@ class RecordLayers:
         self._log_series(record)
         self._log_world(record)
         log_multiview(self.rec, record, self._time)
+        self._log_readings(record)
+
+    def _log_readings(self, record: ClipRecord) -> None:
+        """Where each appearance reading fires over the clip (``frame/readings/<map>``, static, on
+        the frame's working size; :mod:`geocon_core.signals.pictures`)."""
+        from geocon_core.signals import MAP_NAMES, MAP_VIEWS, heat_rgba, map_on_frame
+
+        a = record.readings.appearance if record.readings is not None else None
+        if a is None or a.maps is None:
+            return
+        size = record.video.working_size
+        for name in MAP_NAMES:
+            shares = map_on_frame(a.maps, name, record.video.content_box, size)
+            rgba = heat_rgba(shares, MAP_VIEWS[name].vmax)
+            image = rr.EncodedImage(contents=png_bytes(rgba, level=3), media_type="image/png", draw_order=1.5)
+            self.rec.log(f"frame/readings/{name}", image, static=True)
 
     def _time(self, t: int) -> None:
         self.rec.set_time("frame", sequence=int(t))

@@ -23,6 +23,9 @@ logged at frame t. Entity paths:
                                transparent where there are no matches)
 ``frame/flow``                 flow-direction hue slices of the objects inside their masks (hue =
                                direction, brightness = magnitude; transparent elsewhere)
+``frame/readings/<map>``       where a reading fires over the clip (static; ``failure``,
+                               ``movers``, ``unexplained``: :mod:`geocon_core.signals.pictures`),
+                               each in a tab beside the residual map
 ``frame/cells/<id>/observed``  per-cell median flow of object <id> (arrows, exaggerated)
 ``frame/cells/<id>/predicted`` the affine prediction at the same cells
 ``series/background/...``      IR and GE per gap and scale, report gates, flagged pairs
@@ -54,8 +57,9 @@ import rerun.blueprint as rrb
 from geocon_core.files import clear_stale_parts, part_path, replace_file
 from geocon_core.media import DEFAULT_FPS
 from geocon_core.record import ClipRecord, FlowSlice, FrameDiagnostics, flow_hue
+from geocon_core.signals import MAP_NAMES
 
-from .rerun_card import RERUN_VERSION, audit_card, worst_frame
+from .rerun_card import RERUN_VERSION, audit_card, reading_tab, worst_frame
 from .rerun_images import object_rgba, png_bytes, residual_map
 from .rerun_layers import ARROW_GAIN, RecordLayers
 from .rerun_video import FrameVideo, quiet_encoder_logs
@@ -245,6 +249,12 @@ def blueprint() -> rrb.Blueprint:
     residual_view = rrb.Spatial2DView(
         name="Residual map", origin="frame", contents=["+ frame/image", "+ frame/residual_map/**"]
     )
+    reading_views = [
+        rrb.Spatial2DView(
+            name=reading_tab(name), origin="frame", contents=["+ frame/image", f"+ frame/readings/{name}"]
+        )
+        for name in MAP_NAMES
+    ]
     object_view = rrb.Spatial2DView(
         name="Object flow + AdaDFRC cells",
         origin="frame",
@@ -252,7 +262,7 @@ def blueprint() -> rrb.Blueprint:
     )
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(frame_view, residual_view, object_view),
+            rrb.Horizontal(frame_view, rrb.Tabs(residual_view, *reading_views, active_tab=0), object_view),
             rrb.Horizontal(
                 rrb.Tabs(
                     rrb.Spatial3DView(name="One camera for the clip", origin="clip3d"),

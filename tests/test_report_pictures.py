@@ -197,6 +197,24 @@ def test_every_flagged_clip_has_a_strip_of_thumbnails(report):
     assert "worst pair" in report.page and "IR" in report.page
 
 
+def test_a_clip_flagged_on_a_reading_shows_where_it_fires(report, tmp_path):
+    from geocon_core.signals import READING_LABELS
+
+    from .flagged import flagged_on_appearance
+
+    rec, patch = flagged_on_appearance(report.root / "results" / "clips" / "clean-c1_static-s0", tmp_path / "f")
+    ct = clip_thumbs(tmp_path / "f")
+    labels = [t.label for t in ct.thumbs]
+    assert labels[1].startswith(READING_LABELS["unexplained_appearance"]) and len(labels) == 4, labels
+    pic = cv2.cvtColor(cv2.imdecode(np.frombuffer(ct.thumbs[1].jpeg, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    first = cv2.cvtColor(cv2.imdecode(np.frombuffer(ct.thumbs[0].jpeg, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    k = THUMB_WIDTH / rec.video.working_size[0]
+    (ix, iy), (ox, oy) = ((round(x * k), round(y * k)) for x, y in (patch.centre, patch.far))
+    assert pic[iy, ix].astype(int).sum() > 500  # the patch at full colour (inferno's pale yellow)
+    assert pic[oy, ox].astype(int).sum() < 0.7 * first[oy, ox].astype(int).sum() + 20  # elsewhere dimmed
+    assert "the reading the clip score leans on most" in ct.thumbs[1].title
+
+
 def test_a_clip_that_cannot_be_read_gets_a_note_instead(report, tmp_path):
     folder = report.root / "results" / "clips" / "breathing-c1_static-s0"
     video = next((report.root / "data" / "breathing").rglob("c1_static*.mp4"))

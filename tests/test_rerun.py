@@ -73,6 +73,40 @@ def parallax_run(synth_dir: Path, tmp_path_factory) -> tuple:
     return record, folder, _rows(folder / "live.rrd")
 
 
+@pytest.fixture(scope="module")
+def audit_run(synth_dir: Path, tmp_path_factory) -> tuple:
+    """The clip with two moving objects scored with the default preset (readings and their maps)."""
+    folder = tmp_path_factory.mktemp("rrd_audit")
+    record = _score(synth_dir / "c4_objects.mp4", folder, preset("audit"))
+    return record, folder, _rows(folder / "live.rrd")
+
+
+def test_the_reading_maps_are_the_records_and_the_card_says_where_to_look(audit_run):
+    import cv2
+
+    from geocon_core.signals import MAP_NAMES, MAP_VIEWS, heat_rgba, map_on_frame
+    from geocon_viewer.rerun_card import reading_tab
+
+    record, _, rows = audit_run
+    a = record.readings.appearance
+    assert a is not None and a.maps is not None
+    w, h = record.video.working_size
+    for name in MAP_NAMES:
+        (row,) = rows[f"/frame/readings/{name}"]
+        assert row.get("frame") is None  # static: the map sums the whole clip
+        blob = next(v for k, v in row.items() if k.endswith("blob") and v is not None)
+        data = np.asarray(blob[0] if isinstance(blob[0], list) else blob, np.uint8)
+        shown = cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
+        want = heat_rgba(map_on_frame(a.maps, name, record.video.content_box, (w, h)), MAP_VIEWS[name].vmax)
+        np.testing.assert_array_equal(shown, want)
+    # the objects move against the still background: the movers picture is not empty
+    assert rows["/frame/readings/movers"] and a.maps.movers.max() > 128
+    card = audit_card(record)
+    assert "where to look" in card
+    weighed = [name for name, _ in record.finding().parts]
+    assert "unexplained_appearance" in weighed and f"tab *{reading_tab('unexplained')}*" in card
+
+
 def test_entity_paths_present(objects_run):
     record, _, rows = objects_run
     ids = [o.object_id for o in record.objects]

@@ -468,3 +468,30 @@ def test_the_scene_shows_the_dense_cloud_of_the_pair_picked_with_its_legend(dens
             assert f"frames {w.start} -> {w.end}: {len(w.cloud)} points" in audit.pair_md.content
     finally:
         audit.stop()
+
+
+def test_a_flagged_clip_opens_on_the_reading_its_score_leans_on(results, tmp_path):
+    """The record's readings say the clip's appearance changes along the flow, strongest at a known
+    frame and only inside a known patch: the app opens on that map and that frame, and paints the patch."""
+    from geocon_core.signals import MAP_VIEWS
+    from geocon_viewer.audit_views import MAP_MENU
+
+    from .flagged import STRONGEST_FRAME, flagged_on_appearance
+
+    rec, patch = flagged_on_appearance(results / "clips" / "clean-c1_static-s0", tmp_path / "flagged")
+    assert rec.finding().verdict == "inconsistent" and rec.finding().parts[0][0] == "unexplained_appearance"
+    audit = AuditApp(tmp_path / "flagged", port=0)
+    try:
+        assert audit.reading_map.value == MAP_VIEWS["unexplained"].title and audit.frame == STRONGEST_FRAME
+        assert f"{MAP_MENU} *{MAP_VIEWS['unexplained'].title}*" in audit.card_md.content
+        assert audit.view is not None and audit.view.frames_ready.wait(60)
+        audit.show_matches.value = False
+        t, k = STRONGEST_FRAME, audit.view.display_scale
+        shown, plain = audit.frame_image(t).astype(np.int16), audit.view.frames[t].astype(np.int16)
+        (ix, iy), (ox, oy) = ((round(x * k), round(y * k)) for x, y in (patch.centre, patch.far))
+        assert np.abs(shown[iy, ix] - plain[iy, ix]).sum() > 60  # painted
+        assert np.allclose(shown[oy, ox], plain[oy, ox] * 0.5, atol=2)  # only dimmed
+        audit.reading_map.value = "none"
+        np.testing.assert_array_equal(audit.frame_image(t), audit.view.frames[t])
+    finally:
+        audit.stop()

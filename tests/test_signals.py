@@ -19,6 +19,7 @@ from geocon_core.config import SignalsConfig, preset
 from geocon_core.media import open_video
 from geocon_core.signals import (
     READING_LABELS,
+    AppearanceReading,
     ClipModel,
     ClipReadings,
     ModelTerm,
@@ -33,10 +34,14 @@ from geocon_core.signals import (
 CFG = SignalsConfig(enabled=True)
 
 
-def _read(path: Path) -> dict[str, float | None]:
+def _reading(path: Path) -> AppearanceReading:
     _fps, frames = open_video(str(path))
     grays = {i: reduce_gray(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY), CFG) for i, f in enumerate(frames)}
-    return appearance_reading(grays, len(grays), CFG).to_dict()
+    return appearance_reading(grays, len(grays), CFG)
+
+
+def _read(path: Path) -> dict[str, float | None]:
+    return _reading(path).to_dict()
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +53,9 @@ def scenes(synth_clips):
 
 
 def _clip(folder: Path, family: str) -> Path:
-    return next(folder.glob(f"{family.lower()}_*.mp4"))
+    """The clean clip of ``family`` (the folder is shared with other modules' clips, failures included)."""
+    (clip,) = (p for p in folder.glob(f"{family.lower()}_*.mp4") if "__" not in p.stem)
+    return clip
 
 
 def test_pairs_are_spread_over_the_clip_and_bounded():
@@ -75,9 +82,13 @@ def test_the_moving_share_follows_the_objects_that_move(scenes):
 
     clip = _clip(scenes, "C4")
     truth = float(np.mean(load_ground_truth(clip.with_suffix(".gt.json")).masked_share))
-    r = _read(clip)
+    reading = _reading(clip)
+    r = reading.to_dict()
     assert truth > 0.03
     assert r["mover_share"] == pytest.approx(truth, abs=0.04)
+    # the picture holds the number: the movers map averages to the moving share
+    assert reading.maps is not None
+    assert float(reading.maps.shares("movers").mean()) == pytest.approx(r["mover_share"], abs=0.01)
     # failures sit on the objects' outlines (occlusion), not inside surfaces
     assert r["interior_failure"] < 0.25 * r["flow_failure"]
 
@@ -89,6 +100,27 @@ def test_a_planted_breathing_background_moves_on_its_own_and_is_not_explained(sc
     clean, planted = _read(result.clean), _read(result.planted)
     assert clean["mover_share"] < 0.005 < 0.03 < planted["mover_share"]
     assert planted["unexplained_appearance"] > clean["unexplained_appearance"] + 0.01
+
+
+@pytest.mark.parametrize(
+    "kind", ["morph", pytest.param("slide", marks=pytest.mark.slow), pytest.param("redraw", marks=pytest.mark.slow)]
+)
+def test_the_unexplained_map_lights_up_the_planted_region(scenes, tmp_path, kind):
+    from geocon_core.plant import plant_clip
+
+    result = plant_clip(_clip(scenes, "C1"), kind, "high", 0, tmp_path)
+    maps = {}
+    for name, path in (("planted", result.planted), ("clean", result.clean)):
+        reading = _reading(path)
+        assert reading.maps is not None
+        maps[name] = reading.maps.shares("unexplained")
+    region = result.planting.mask(reading.pairs[-1].t1).astype(np.uint8)
+    inside = cv2.resize(region, maps["planted"].shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert 0.05 < inside.mean() < 0.3
+    planted, clean = maps["planted"], maps["clean"]
+    # the damage is where it was planted: above the rest of the frame and above the clean clip there
+    assert planted[inside].mean() > 1.4 * max(planted[~inside].mean(), clean[inside].mean())
+    assert abs(planted[~inside].mean() - clean[~inside].mean()) < 0.005
 
 
 def test_unkept_share_reads_neighbouring_pairs_at_the_largest_scale():
@@ -248,3 +280,34 @@ def test_validate_fit_refuses_what_it_cannot_fit(tmp_path, args, words):
     argv = ["validate", "--no-synthetic", "--no-real", *[a.format(tmp=tmp_path) for a in args]]
     result = CliRunner().invoke(app, argv)
     assert result.exit_code != 0 and words in " ".join(result.output.split()), result.output
+
+
+def test_a_new_clip_model_reads_readings_and_keeps_the_background_fit(tmp_path):
+    """validate does not score a case again when only ``signals`` changed: the record gets the
+    readings a fresh score would make and keeps its background fit; any other change scores again."""
+    from geocon_core.config import config_hash
+    from geocon_core.record import read_record
+    from geocon_core.validation import CaseSpec, ValidationPlan
+    from geocon_core.validation.runner import run_cases
+
+    plan = ValidationPlan(heights=(256,), codecs=("png",), families=("C4",), frames=16, data=None)
+    case = CaseSpec("C4__clean__h256__png", "synthetic", family="C4", height=256, codec="png")
+    audit = preset("audit")
+    without = replace(audit, signals=replace(audit.signals, enabled=False))
+    cache, first, fresh = tmp_path / "cache", tmp_path / "a", tmp_path / "b"
+    [(_, s0)] = run_cases([case], plan, without, first, cache, peer=False)
+    before = read_record(first / "cases" / case.case_id)
+    assert s0["status"] == "ok" and before.readings is None
+    [(_, s1)] = run_cases([case], plan, audit, first, cache, peer=False)
+    assert "readings_seconds" in s1 and s1["config_hash"] == config_hash(audit) != s0["config_hash"]
+    refreshed = read_record(first / "cases" / case.case_id)
+    [(_, s2)] = run_cases([case], plan, audit, fresh, cache, peer=False)
+    scored = read_record(fresh / "cases" / case.case_id)
+    assert "readings_seconds" not in s2
+    assert refreshed.readings is not None and refreshed.readings == scored.readings
+    assert refreshed.config_hash == scored.config_hash and refreshed.background == before.background
+    assert refreshed.finding() == scored.finding()
+    np.testing.assert_array_equal(refreshed.matches.f_res_px, before.matches.f_res_px)
+    other = replace(audit, ir_gate=audit.ir_gate + 0.01)  # a setting of the background fit: scored again
+    [(_, s3)] = run_cases([case], plan, other, first, cache, peer=False)
+    assert "readings_seconds" not in s3 and s3["config_hash"] == config_hash(other)

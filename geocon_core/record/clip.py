@@ -31,7 +31,7 @@ from ..files import NPZ_ERRORS
 from ..media import MAX_FPS, ClipInfo
 from ..reconstruction import ARRAY_NAMES as MV_ARRAYS
 from ..reconstruction import DenseCloud, MultiViewResult, WindowCloud
-from ..signals import ClipReadings, load_clip_model
+from ..signals import MAP_ARRAYS, ClipReadings, load_clip_model
 from . import parts as record_parts
 from .finding import ClipFinding, clip_finding, model_finding, report_margin
 from .parts import (
@@ -356,6 +356,8 @@ def _arrays(record: ClipRecord) -> dict[str, np.ndarray]:
         arrays.update(_dense_arrays(record.dense))
     if record.multiview is not None:
         arrays.update(record.multiview.arrays())
+    if record.readings is not None:
+        arrays.update(record.readings.arrays())
     return arrays
 
 
@@ -573,6 +575,7 @@ def read_record(path: str | Path) -> ClipRecord:
             *dense_names,
             *pointmaps_names,
             *MV_ARRAYS,
+            *MAP_ARRAYS,
             RECORD_ID_ARRAY,
         ),
     )
@@ -719,6 +722,6 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         shots=tuple(ShotRecord(**s) for s in d.get("shots", [])),
         dynamic_share=tuple(float(v) for v in d.get("dynamic_share", [])),
         multiview=None if d.get("multiview") is None else MultiViewResult.from_parts(d["multiview"], z),
-        readings=None if d.get("readings") is None else ClipReadings.from_json_dict(d["readings"]),
+        readings=None if d.get("readings") is None else ClipReadings.from_json_dict(d["readings"], z),
         record_id=d.get("record_id"),
     )

@@ -1,7 +1,9 @@
 """Thumbnails of the flagged clips in ``geocon report`` (:mod:`geocon_core.report`): per clip, its
 first frame, its worst pair (the lowest IR under the family the clip was judged with) with the
 pair's inlier matches drawn green and its outliers red, and its last frame, as small JPEGs for
-the self-contained page.
+the self-contained page. Where the clip model's score leans on a reading with a picture, the map
+of where that reading fires (:mod:`geocon_core.signals.pictures`) is shown on the middle frame;
+where the multi-view check found a drifting layer, the layer.
 
 Frames are read again from the clip the record names, at the working resolution the clip was
 scored at (the record's :class:`~geocon_core.media.reader.ClipInfo`; no new probe pass), and only the
@@ -27,6 +29,7 @@ import numpy as np
 from ..media import ClipError, ClipInfo, image_frames, layout_of, locate_clip, native_path, resolve_clip, to_working
 from ..record import ClipRecord, PairRecord, read_record
 from ..scoring import Family, Thresholds, pair_inliers
+from ..signals import MAP_VIEWS, READING_LABELS, blend_heat, leading_picture, map_on_frame
 
 __all__ = [
     "THUMB_WIDTH",
@@ -230,6 +233,31 @@ def _drift_thumb(record: ClipRecord, rgb: np.ndarray, t: int, width: int) -> Thu
     )
 
 
+def _readings_picture(record: ClipRecord) -> tuple[str, str] | None:
+    """(reading, map) the clip model's verdict leans on most among the readings with a picture
+    (:func:`~geocon_core.signals.leading_picture`), or None."""
+    a = record.readings.appearance if record.readings is not None else None
+    if a is None or a.maps is None or not record.config.signals.enabled:
+        return None
+    return leading_picture(record.finding().parts)
+
+
+def _readings_thumb(record: ClipRecord, rgb: np.ndarray, t: int, reading: str, name: str, width: int) -> Thumb:
+    """Where ``reading`` fires over the clip (its map, :mod:`geocon_core.signals.pictures`) on frame ``t``."""
+    a = record.readings.appearance if record.readings is not None else None
+    assert a is not None and a.maps is not None
+    view = MAP_VIEWS[name]
+    shares = map_on_frame(a.maps, name, record.video.content_box, (rgb.shape[1], rgb.shape[0]))
+    value = record.reading_values().get(reading)
+    shown = "?" if value is None else f"{value:.3g}"
+    return _thumb(
+        f"{READING_LABELS[reading]}: {shown}",
+        f"{view.title} over the clip, on frame {t} ({view.unit}; full colour at {view.vmax:g}): the reading the "
+        f"clip score leans on most",
+        _resize(blend_heat(rgb, shares, view.vmax), width),
+    )
+
+
 def _jpeg(rgb: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     if not ok:
@@ -256,13 +284,18 @@ def clip_thumbs(folder: str | Path, clip_id: str | None = None, *, width: int = 
         last = info.num_frames - 1
         worst = worst_pair(record)
         drift_at = _drift_frame(record)
+        picture = _readings_picture(record)
+        middle = last // 2
         wanted = (
             {0, last}
             | ({worst.pair.t0} if worst is not None else set())
             | ({drift_at} if drift_at is not None else set())
+            | ({middle} if picture is not None else set())
         )
         frames = read_frames(info, wanted)
         thumbs = [_thumb("first frame", f"frame 0 of {info.num_frames}", _resize(frames[0], width))]
+        if picture is not None:
+            thumbs.append(_readings_thumb(record, frames[middle], middle, *picture, width))
         if drift_at is not None:
             thumbs.append(_drift_thumb(record, frames[drift_at], drift_at, width))
         note = None

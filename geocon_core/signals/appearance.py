@@ -19,6 +19,10 @@ it left. Each reading is a number per clip, the larger the more broken:
 - ``mover_share``: the mean share of the pixels whose consistent flow departs from one homography
   fitted to the whole frame's flow: how much of the frame moves on its own.
 
+Where each reading fires is kept as a map on the readings' canvas (:class:`ReadingMaps`): per
+pixel, the share of the pairs in which it fails the flow test inside a surface, moves on its own,
+or changes its census, so that a viewer can show the picture beside the number.
+
 The clip is read on a small canvas (``SignalsConfig.long_side``) at up to ``max_pairs`` pairs spread
 evenly over it, so the cost does not grow with clip length. Everything is seeded: the same frames
 give the same numbers.
@@ -35,7 +39,19 @@ import numpy as np
 from ..config import FlowConfig, SignalsConfig
 from ..flow import FlowField, make_flow_backend
 
-__all__ = ["AppearanceReading", "PairReading", "appearance_reading", "plan_pairs", "reduce_gray", "summarize"]
+__all__ = [
+    "MAP_NAMES",
+    "AppearanceReading",
+    "PairReading",
+    "ReadingMaps",
+    "appearance_reading",
+    "plan_pairs",
+    "reduce_gray",
+    "summarize",
+]
+
+MAP_NAMES: tuple[str, ...] = ("failure", "movers", "unexplained")
+"""The maps of :class:`ReadingMaps`, in the order kept."""
 
 
 @dataclass(frozen=True)
@@ -53,15 +69,63 @@ class PairReading:
     census: float | None = None
 
 
+@dataclass(frozen=True, eq=False)
+class ReadingMaps:
+    """Where the appearance readings fire, on the readings' canvas of the clip's content box
+    (uint8 images, 255 = every pair): ``failure``, per pixel, the share of the far pairs in which
+    its flow fails the forward-backward test away from motion boundaries (``interior_failure``);
+    ``movers``, the share in which it moves against the frame's homography (``mover_share``);
+    ``unexplained``, the mean census change where its neighbouring-frame flow was followed
+    (``unexplained_appearance``; 0 where it never was). Pixels are those of each pair's first
+    frame: on a still camera they stay put, on a moving one the map is the clip's sum."""
+
+    failure: np.ndarray
+    movers: np.ndarray
+    unexplained: np.ndarray
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ReadingMaps):
+            return NotImplemented
+        return all(np.array_equal(getattr(self, n), getattr(other, n)) for n in MAP_NAMES)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def shares(self, name: str) -> np.ndarray:
+        """The map ``name`` (:data:`MAP_NAMES`) as shares 0..1 (float32)."""
+        return getattr(self, name).astype(np.float32) / np.float32(255.0)
+
+
+class _MapSum:
+    """Per-pixel sums of a share and of how often it was read."""
+
+    def __init__(self) -> None:
+        self.hits: np.ndarray | None = None
+        self.seen: np.ndarray | None = None
+
+    def add(self, hits: np.ndarray, seen: np.ndarray) -> None:
+        if self.hits is None or self.seen is None:
+            self.hits, self.seen = np.zeros(hits.shape, np.float32), np.zeros(hits.shape, np.float32)
+        self.hits += hits
+        self.seen += seen
+
+    def image(self, shape: tuple[int, int]) -> np.ndarray:
+        if self.hits is None or self.seen is None:
+            return np.zeros(shape, np.uint8)
+        share = np.divide(self.hits, self.seen, out=np.zeros_like(self.hits), where=self.seen > 0)
+        return np.round(np.clip(share, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
 @dataclass(frozen=True)
 class AppearanceReading:
-    """The clip's appearance readings (module docstring); None where no pair could be read."""
+    """The clip's appearance readings (module docstring); None where no pair could be read.
+    ``maps``: where they fire (None for readings stored without them)."""
 
     flow_failure: float | None
     interior_failure: float | None
     unexplained_appearance: float | None
     mover_share: float | None
     pairs: tuple[PairReading, ...] = ()
+    maps: ReadingMaps | None = None
 
     def to_dict(self) -> dict[str, float | None]:
         return {
@@ -136,16 +200,25 @@ def _census(gray: np.ndarray, radius: int) -> np.ndarray:
     return np.stack(bits)
 
 
-def _warp(image: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """``image`` sampled where ``flow`` takes each pixel (bilinear, 0 outside)."""
-    h, w = flow.shape[:2]
+def _grid(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates (x, y) of a canvas of ``shape`` (float32)."""
+    h, w = shape[:2]
     gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return gx, gy
+
+
+def _warp(image: np.ndarray, flow: np.ndarray, grid: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``image`` sampled where ``flow`` takes each pixel (bilinear, 0 outside)."""
+    gx, gy = grid
     return cv2.remap(image, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
-def _mover_share(field: FlowField, inside: np.ndarray, cfg: SignalsConfig, seed: int) -> float | None:
-    """The share of in-frame pixels whose flow departs from the homography fitted (RANSAC, seeded)
-    to the consistent flow of a grid of pixels by more than ``cfg.mover_px``."""
+def _movers(
+    field: FlowField, inside: np.ndarray, cfg: SignalsConfig, seed: int, grid: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray | None:
+    """The in-frame pixels whose flow departs from the homography fitted (RANSAC, seeded) to the
+    consistent flow of a grid of pixels by more than ``cfg.mover_px`` (None when no homography
+    can be fitted)."""
     flow = field.flow
     h, w = flow.shape[:2]
     ys, xs = np.mgrid[4:h:8, 4:w:8]
@@ -158,14 +231,13 @@ def _mover_share(field: FlowField, inside: np.ndarray, cfg: SignalsConfig, seed:
     H, _ = cv2.findHomography(src, dst, cv2.RANSAC, cfg.mover_px, maxIters=1000, confidence=0.995)
     if H is None:
         return None
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    gx, gy = grid
     pts = np.stack([gx, gy, np.ones_like(gx)], -1) @ H.T
     z = pts[..., 2]
     ok = np.abs(z) > 1e-9
     pred = np.where(ok[..., None], pts[..., :2] / np.where(ok, z, 1.0)[..., None], np.inf)
     off = np.linalg.norm(flow + np.stack([gx, gy], -1) - pred, axis=2)
-    moving = (off > cfg.mover_px) & inside
-    return float(np.count_nonzero(moving) / max(1, int(np.count_nonzero(inside))))
+    return (off > cfg.mover_px) & inside
 
 
 def appearance_reading(frames: dict[int, np.ndarray], num_frames: int, cfg: SignalsConfig) -> AppearanceReading:
@@ -174,6 +246,9 @@ def appearance_reading(frames: dict[int, np.ndarray], num_frames: int, cfg: Sign
     flow = make_flow_backend("dis", FlowConfig(preset=cfg.flow_preset, fb_abs=cfg.fb_abs, fb_rel=cfg.fb_rel, margin=0))
     far, near = plan_pairs(num_frames, cfg)
     pairs: list[PairReading] = []
+    sums = {name: _MapSum() for name in MAP_NAMES}
+    shape = next(iter(frames.values())).shape[:2] if frames else (0, 0)
+    grid = _grid(shape)
     for t0, t1 in far:
         field = flow.compute(frames[t0], frames[t1])
         inside = np.isfinite(field.fb_error)
@@ -181,13 +256,17 @@ def appearance_reading(frames: dict[int, np.ndarray], num_frames: int, cfg: Sign
             continue
         failing = inside & ~field.reliable
         away = inside & ~_boundaries(field.flow, cfg)
+        sums["failure"].add(failing & away, away)
+        moving = _movers(field, inside, cfg, t0 * 7919 + t1, grid)
+        if moving is not None:
+            sums["movers"].add(moving, inside)
         pairs.append(
             PairReading(
                 t0,
                 t1,
                 failure=float(np.count_nonzero(failing) / np.count_nonzero(inside)),
                 interior=float(np.count_nonzero(failing & away) / max(1, int(np.count_nonzero(away)))),
-                movers=_mover_share(field, inside, cfg, seed=t0 * 7919 + t1),
+                movers=None if moving is None else float(np.count_nonzero(moving) / np.count_nonzero(inside)),
             )
         )
     for t0, t1 in near:
@@ -196,14 +275,16 @@ def appearance_reading(frames: dict[int, np.ndarray], num_frames: int, cfg: Sign
         if np.count_nonzero(keep) < 50:
             continue
         a = _census(frames[t0], cfg.census_radius)
-        b = _census(_warp(frames[t1], field.flow), cfg.census_radius)
+        b = _census(_warp(frames[t1], field.flow, grid), cfg.census_radius)
         changed = (a != b).mean(axis=0)
+        sums["unexplained"].add(np.where(keep, changed, 0.0), keep)
         pairs.append(PairReading(t0, t1, census=float(changed[keep].mean())))
-    return summarize(pairs)
+    maps = ReadingMaps(**{name: sums[name].image(shape) for name in MAP_NAMES}) if pairs else None
+    return summarize(pairs, maps)
 
 
-def summarize(pairs: Sequence[PairReading]) -> AppearanceReading:
-    """The clip's readings from its pairs' (module docstring)."""
+def summarize(pairs: Sequence[PairReading], maps: ReadingMaps | None = None) -> AppearanceReading:
+    """The clip's readings from its pairs' (module docstring), with ``maps`` where they fire."""
 
     def values(name: str) -> list[float]:
         return [v for p in pairs if (v := getattr(p, name)) is not None]
@@ -218,4 +299,5 @@ def summarize(pairs: Sequence[PairReading]) -> AppearanceReading:
         unexplained_appearance=mean(values("census")),
         mover_share=mean(values("movers")),
         pairs=tuple(pairs),
+        maps=maps,
     )

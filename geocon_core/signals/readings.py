@@ -5,9 +5,14 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, Mapping
 
-from .appearance import AppearanceReading, PairReading
+import numpy as np
 
-__all__ = ["READING_LABELS", "ClipReadings"]
+from .appearance import MAP_NAMES, AppearanceReading, PairReading, ReadingMaps
+
+__all__ = ["MAP_ARRAYS", "READING_LABELS", "ClipReadings"]
+
+MAP_ARRAYS: tuple[str, ...] = tuple(f"readings_{name}" for name in MAP_NAMES)
+"""The arrays of ``matches.npz`` that hold the readings' maps (:class:`~.appearance.ReadingMaps`)."""
 
 READING_LABELS: dict[str, str] = {
     "shortfall": "background fit",
@@ -53,9 +58,21 @@ class ClipReadings:
             else {**self.appearance.to_dict(), "pairs": [asdict(p) for p in self.appearance.pairs]},
         }
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The maps kept in ``matches.npz`` (:data:`MAP_ARRAYS`), empty when there are none."""
+        maps = None if self.appearance is None else self.appearance.maps
+        if maps is None:
+            return {}
+        return {key: getattr(maps, name) for key, name in zip(MAP_ARRAYS, MAP_NAMES, strict=True)}
+
     @classmethod
-    def from_json_dict(cls, d: Mapping[str, Any]) -> "ClipReadings":
+    def from_json_dict(cls, d: Mapping[str, Any], arrays: Mapping[str, np.ndarray] | None = None) -> "ClipReadings":
+        """The readings of ``record.json``'s ``readings``, with their maps where ``arrays`` (of
+        ``matches.npz``) hold them."""
         a = d.get("appearance")
+        maps = None
+        if arrays is not None and all(key in arrays for key in MAP_ARRAYS):
+            maps = ReadingMaps(*(np.asarray(arrays[key], np.uint8) for key in MAP_ARRAYS))
         appearance = None
         if a is not None:
             appearance = AppearanceReading(
@@ -64,5 +81,6 @@ class ClipReadings:
                 unexplained_appearance=a["unexplained_appearance"],
                 mover_share=a["mover_share"],
                 pairs=tuple(PairReading(**p) for p in a.get("pairs", [])),
+                maps=maps,
             )
         return cls(appearance, d.get("unkept"))

@@ -18,13 +18,17 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..config import ScoreConfig
 from ..intervals import Interval, auc_interval, paired_auc_difference, wilson_interval
 from ..signals import READING_LABELS, ClipModel, fit_clip_model
 from .cases import ANNOTATIONS_PATH, Annotation
 from .results import peer_score
+
+if TYPE_CHECKING:
+    from ..record import ClipRecord
+    from ..signals import ClipReadings
 
 __all__ = [
     "FIT_TERMS",
@@ -38,6 +42,7 @@ __all__ = [
     "fit_markdown",
     "model_json",
     "case_readings",
+    "stored_readings",
 ]
 
 FITTED_GROUPS: tuple[str, ...] = ("artifact", "clean", "real")
@@ -116,36 +121,43 @@ def _signals_key(cfg: ScoreConfig) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
 
-def case_readings(folder: Path, cfg: ScoreConfig) -> tuple[dict[str, float | None], float | None]:
-    """The readings of the case in ``folder`` (:meth:`~geocon_core.record.ClipRecord.reading_values`)
-    and the record's own clip score; read from the clip again when the record has none (and kept
-    in :data:`READINGS_FILE`)."""
-    from ..record import read_record
+def stored_readings(folder: Path, rec: ClipRecord, cfg: ScoreConfig) -> ClipReadings:
+    """The readings ``cfg.signals`` makes of the record ``rec`` stored in ``folder``: its own when it
+    has them, else read from its clip again (:func:`~geocon_core.scoring.read_readings`) and kept in
+    :data:`READINGS_FILE`, keyed by the record and the readings' settings, so that the next call
+    reads the file."""
+    from ..files import part_path, replace_file
+    from ..scoring import read_readings
     from ..signals import ClipReadings
 
-    rec = read_record(folder)
-    before = rec.background_finding().clip_score
     if rec.readings is not None:
-        return rec.reading_values(), before
+        return rec.readings
     key = {"record_id": rec.record_id, "signals": _signals_key(cfg)}
     saved = folder / READINGS_FILE
     try:
         data = json.loads(saved.read_text())
         if data.get("key") == key:
-            from dataclasses import replace
-
-            return replace(rec, readings=ClipReadings.from_json_dict(data["readings"])).reading_values(), before
+            return ClipReadings.from_json_dict(data["readings"])
     except (OSError, ValueError, KeyError, TypeError):
         pass
-    from ..files import part_path, replace_file
-    from ..scoring import read_readings
-
-    rec = read_readings(rec, folder, cfg)
-    assert rec.readings is not None
+    readings = read_readings(rec, folder, cfg).readings
+    assert readings is not None
     part = part_path(saved)
-    part.write_text(json.dumps({"key": key, "readings": rec.readings.to_json_dict()}, indent=1) + "\n")
+    part.write_text(json.dumps({"key": key, "readings": readings.to_json_dict()}, indent=1) + "\n")
     replace_file(part, saved)
-    return rec.reading_values(), before
+    return readings
+
+
+def case_readings(folder: Path, cfg: ScoreConfig) -> tuple[dict[str, float | None], float | None]:
+    """The readings of the case in ``folder`` (:meth:`~geocon_core.record.ClipRecord.reading_values`,
+    :func:`stored_readings`) and the record's own background clip score."""
+    from dataclasses import replace
+
+    from ..record import read_record
+
+    rec = read_record(folder)
+    before = rec.background_finding().clip_score
+    return replace(rec, readings=stored_readings(folder, rec, cfg)).reading_values(), before
 
 
 def _source_note(case: dict[str, Any], by_clip: dict[tuple[str, str], Annotation]) -> Annotation | None:

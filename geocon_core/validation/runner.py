@@ -4,8 +4,9 @@ writes them, and ``case.json`` with the case, its status and timing).
 
 Both phases run in ``jobs`` worker processes (inline when ``jobs`` is 1). A case whose
 ``case.json`` says it was scored from the same clip with the same configuration is not scored
-again, so an interrupted run resumes; a case that fails is recorded with its reason, never
-dropped.
+again, so an interrupted run resumes; one scored with a configuration that differs only in its
+readings' settings (``signals``: a refitted clip model) gets its readings and keeps its background
+fit (:func:`_refresh_readings`); a case that fails is recorded with its reason, never dropped.
 """
 
 from __future__ import annotations
@@ -66,6 +67,12 @@ def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], fold
     cv2.setNumThreads(threads)
     cfg = ScoreConfig.from_dict(cfg_dict)
     out = Path(folder)
+    try:
+        refreshed = _refresh_readings(out, cfg, str(clip_for(case, Path(cache_folder)).clip))
+    except Exception:  # noqa: BLE001 - anything amiss with the old record: score the case again
+        refreshed = None
+    if refreshed is not None:
+        return refreshed
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
     status: dict[str, Any] = {"case": asdict(case), "status": "ok", "error": None, "config_hash": config_hash(cfg)}
@@ -90,6 +97,36 @@ def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], fold
         status.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=6))
     status["seconds"] = round(time.perf_counter() - start, 3)
     (out / CASE_FILE).write_text(json.dumps(status, indent=1) + "\n")
+    return status
+
+
+def _refresh_readings(out: Path, cfg: ScoreConfig, clip: str) -> dict | None:
+    """A case scored earlier from ``clip`` with a configuration that differs from ``cfg`` in its
+    ``signals`` alone (a new clip model, other readings' settings) is not scored again: its record
+    gets the readings ``cfg`` makes (read from the clip again, maps included) and ``cfg`` itself;
+    the background fit, which ``signals`` does not touch, is kept. Returns the case's new status,
+    or None when the case must be scored."""
+    from dataclasses import replace
+
+    from ..record import read_record, write_record
+    from ..scoring import read_readings
+
+    status = _saved_status(out, clip)
+    if status is None:
+        return None
+    digest = config_hash(cfg)
+    head = json.loads((out / "record.json").read_text())
+    old = ScoreConfig.from_dict(head["config"])
+    if config_hash(old) != status.get("config_hash") or config_hash(replace(old, signals=cfg.signals)) != digest:
+        return None
+    start = time.perf_counter()
+    rec = read_record(out)
+    readings = read_readings(rec, out, cfg).readings if cfg.signals.enabled else None
+    write_record(replace(rec, config=cfg, config_hash=digest, readings=readings), out)
+    status.update(config_hash=digest, readings_seconds=round(time.perf_counter() - start, 3))
+    tmp = out / (CASE_FILE + ".part")
+    tmp.write_text(json.dumps(status, indent=1) + "\n")
+    os.replace(tmp, out / CASE_FILE)
     return status
 
 
@@ -122,11 +159,18 @@ def _peer_done(folder: Path, clip: str) -> bool:
 def _finished(folder: Path, digest: str, clip: Path | None) -> dict | None:
     """The saved status of a case scored earlier from ``clip`` (any clip when None) with the same
     configuration."""
+    status = _saved_status(folder, clip)
+    return status if status is not None and status.get("config_hash") == digest else None
+
+
+def _saved_status(folder: Path, clip: Path | str | None) -> dict | None:
+    """The saved status of a case scored earlier from ``clip`` (any clip when None), whatever its
+    configuration."""
     try:
         status = json.loads((folder / CASE_FILE).read_text())
     except (OSError, json.JSONDecodeError):
         return None
-    if status.get("status") != "ok" or status.get("config_hash") != digest:
+    if status.get("status") != "ok":
         return None
     if clip is not None and status.get("clip") != str(clip):
         return None
