@@ -282,7 +282,7 @@ def test_validate_fit_refuses_what_it_cannot_fit(tmp_path, args, words):
     assert result.exit_code != 0 and words in " ".join(result.output.split()), result.output
 
 
-def test_a_new_clip_model_reads_readings_and_keeps_the_background_fit(tmp_path):
+def test_a_new_clip_model_reads_readings_and_keeps_the_background_fit(tmp_path, monkeypatch):
     """validate does not score a case again when only ``signals`` changed: the record gets the
     readings a fresh score would make and keeps its background fit; any other change scores again."""
     from geocon_core.config import config_hash
@@ -308,6 +308,12 @@ def test_a_new_clip_model_reads_readings_and_keeps_the_background_fit(tmp_path):
     assert refreshed.config_hash == scored.config_hash and refreshed.background == before.background
     assert refreshed.finding() == scored.finding()
     np.testing.assert_array_equal(refreshed.matches.f_res_px, before.matches.f_res_px)
+    # the clip prepared again under another cache key (new renderer code) with the same bytes: kept
+    import geocon_core.validation.runner as runner
+
+    monkeypatch.setattr(runner, "code_digest", lambda: "another-renderer")
+    [(_, again)] = run_cases([case], plan, audit, first, cache, peer=False)
+    assert len(list(cache.iterdir())) == 2 and again == s1  # rendered again, not scored again
     other = replace(audit, ir_gate=audit.ir_gate + 0.01)  # a setting of the background fit: scored again
     [(_, s3)] = run_cases([case], plan, other, first, cache, peer=False)
     assert "readings_seconds" not in s3 and s3["config_hash"] == config_hash(other)

@@ -65,7 +65,7 @@ from ..pose import (
 from ..pose import failure as pose_failure
 from ..reconstruction import DenseCloudBuilder, DenseCloudConfig, LongTracks, TrackObservations, reconstruct
 from ..record import ClipRecord, FrameDiagnostics, ObjectFlow, PointCloud, PointMaps
-from ..signals import ClipReadings, appearance_reading, plan_pairs, reduce_gray, unkept_share
+from ..signals import ClipReadings, appearance_reading, content_gray, plan_pairs, unkept_share
 from .assemble import add_objects, assemble_record, software_versions
 from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, quiet_pot_backends, refine_object_mask
 from .schedule import StreamSchedule, gate_windows
@@ -253,8 +253,7 @@ class _Pipeline:
         if frame.index in self.still_frames:
             self.still[frame.index] = _reduced(frame.gray, labels, self.info, self.config.motion.analysis_size)
         if frame.index in self.reading_needed:
-            x0, y0, x1, y1 = self.info.content_box
-            self.reading_frames[frame.index] = reduce_gray(frame.gray[y0:y1, x0:x1], self.config.signals)
+            self.reading_frames[frame.index] = content_gray(frame.gray, self.info.content_box, self.config.signals)
         if self.tracks is not None:
             start = time.perf_counter()
             self.tracks.observe(
@@ -803,10 +802,9 @@ def read_readings(record: ClipRecord, record_dir: str | Path, config: ScoreConfi
     far, near = plan_pairs(info.num_frames, cfg.signals)
     needed = {t for pair in (*far, *near) for t in pair}
     frames: dict[int, np.ndarray] = {}
-    x0, y0, x1, y1 = info.content_box
     for frame in iter_frames(info):
         if frame.index in needed:
-            frames[frame.index] = reduce_gray(frame.gray[y0:y1, x0:x1], cfg.signals)
+            frames[frame.index] = content_gray(frame.gray, info.content_box, cfg.signals)
         if len(frames) == len(needed):
             break
     return _with_readings(record, frames, cfg, _Timer(None))

@@ -45,6 +45,7 @@ __all__ = [
     "PairReading",
     "ReadingMaps",
     "appearance_reading",
+    "content_gray",
     "plan_pairs",
     "reduce_gray",
     "summarize",
@@ -161,6 +162,13 @@ def reduce_gray(gray: np.ndarray, cfg: SignalsConfig) -> np.ndarray:
         return np.ascontiguousarray(gray)
     size = (max(16, round(w * s) // 2 * 2), max(16, round(h * s) // 2 * 2))
     return cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+
+
+def content_gray(gray: np.ndarray, content_box: tuple[int, int, int, int], cfg: SignalsConfig) -> np.ndarray:
+    """The clip's content box (x0, y0, x1, y1) of a grey working frame on the readings' canvas
+    (:func:`reduce_gray`): what the readings read, while scoring and when read again."""
+    x0, y0, x1, y1 = content_box
+    return reduce_gray(gray[y0:y1, x0:x1], cfg)
 
 
 def _boundaries(flow: np.ndarray, cfg: SignalsConfig) -> np.ndarray:

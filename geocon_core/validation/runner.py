@@ -165,18 +165,29 @@ def _finished(folder: Path, digest: str, clip: Path | None) -> dict | None:
 
 def _saved_status(folder: Path, clip: Path | str | None) -> dict | None:
     """The saved status of a case scored earlier from ``clip`` (any clip when None), whatever its
-    configuration."""
+    configuration. A clip prepared again into another cache folder is the same clip when its bytes
+    are (:func:`~geocon_core.media.clip_fingerprint` of both, the earlier one still there)."""
     try:
         status = json.loads((folder / CASE_FILE).read_text())
     except (OSError, json.JSONDecodeError):
         return None
     if status.get("status") != "ok":
         return None
-    if clip is not None and status.get("clip") != str(clip):
+    if clip is not None and status.get("clip") != str(clip) and not _same_clip(status.get("clip"), Path(clip)):
         return None
     if status.get("truth") is not None and "labels" not in status:  # scored before labels were kept
         return None
     return status if (folder / "record.json").is_file() else None
+
+
+def _same_clip(before: Any, clip: Path) -> bool:
+    """Whether the clip at ``before`` (a path, or nothing) is still there and holds the bytes of ``clip``."""
+    from ..media import clip_fingerprint
+
+    if not isinstance(before, str) or not Path(before).exists():
+        return False
+    saved = clip_fingerprint(Path(before))
+    return saved is not None and saved == clip_fingerprint(clip)
 
 
 def _map(fn: Callable[..., Any], jobs: int, argsets: list[tuple], on_done: Callable[[int, Any], None]) -> None:
