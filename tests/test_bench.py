@@ -21,6 +21,7 @@ from geocon_core.bench import (  # noqa: E402
     read_status,  # noqa: E402
     read_tables,
 )
+from geocon_core.record import read_record  # noqa: E402
 from geocon_core.scoring import is_flagged  # noqa: E402
 from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
 
@@ -118,6 +119,7 @@ def test_flagged_clips_get_a_recording_linked_from_the_table(results):
             pose_present=summary["gate"]["pose_present"],
             gate_model=summary["gate"]["model"],
             expected_model=row.expected_model,
+            finding=read_record(results / row.record).model_verdict(),
         )
         if importlib_has_rerun():
             assert isinstance(row.rrd, str) == flagged, row.clip_id  # a missing path reads as NaN

@@ -1,7 +1,9 @@
 """The verdict rules: one ``is_flagged`` on which the benchmark (audit recordings), the triage list
 (``flagged_only``), the report's flagged section and the audit app's "flagged" filter agree, for
-every combination of report gate (passing, failing, not judged), pose (present, absent) and gate
-(agreeing or not with the clip's category); and gate defaults that are the config's."""
+every combination of report gate (passing, failing, not judged), pose (present, absent), gate
+(agreeing or not with the clip's category) and the clip model's verdict (none: the background
+decides; consistent, inconsistent, cannot judge: it decides instead of the report gate); and gate
+defaults that are the config's."""
 
 from __future__ import annotations
 
@@ -35,16 +37,20 @@ SCORES = {"passes": (0.99, 0.2), "fails": (0.3, 4.0), "not judged": (None, None)
 EXPECTING = {"H": "C1", "F": "C3"}  # a category whose expected model is H / F
 
 
+FINDINGS = (None, "consistent", "inconsistent", "cannot judge")
+
+
 def _combos():
-    return list(itertools.product(GATES, (True, False), (True, False)))
+    return list(itertools.product(GATES, (True, False), (True, False), FINDINGS))
 
 
-def _clip(gate: str, pose: bool, agrees: bool) -> ResultClip:
+def _clip(gate: str, pose: bool, agrees: bool, finding: str | None = None) -> ResultClip:
     ir, ge = SCORES[gate]
     model = "H" if pose else "F"  # t_inf 0 gates H; without a pose the clip is gated F
     expected = model if agrees else ("F" if model == "H" else "H")
     return ResultClip(
-        clip_id=f"{gate.replace(' ', '_')}-{'pose' if pose else 'nopose'}-{'agrees' if agrees else 'disagrees'}",
+        clip_id=f"{gate.replace(' ', '_')}-{'pose' if pose else 'nopose'}-{'agrees' if agrees else 'disagrees'}"
+        f"-{(finding or 'background').replace(' ', '_')}",
         platform="p",
         category=EXPECTING[expected],
         expected_model=expected,
@@ -61,6 +67,7 @@ def _clip(gate: str, pose: bool, agrees: bool) -> ResultClip:
         ge_f=ge,
         adap90_max=None,
         n_objects=0,
+        finding=finding,
     )
 
 
@@ -70,8 +77,9 @@ def index() -> ResultsIndex:
     return ResultsIndex(Path("."), clips, ScoreConfig(), None, "bench")
 
 
-def _truth(gate: str, pose: bool, agrees: bool) -> bool:
-    return not (gate == "passes" and pose and agrees)
+def _truth(gate: str, pose: bool, agrees: bool, finding: str | None) -> bool:
+    passes = gate == "passes" if finding is None else finding == "consistent"
+    return not (passes and pose and agrees)
 
 
 def _report_flagged(index: ResultsIndex) -> set[str]:
@@ -91,6 +99,8 @@ def _report_flagged(index: ResultsIndex) -> set[str]:
                 "gate_model": v.model,
                 "pose_present": c.pose_present,
                 "consistent": v.consistent,
+                "clip_verdict": c.finding,
+                "clip_score": None if c.finding is None else 0.5,
                 "record": f"clips/{c.clip_id}",
                 "rrd": None,
             }
@@ -116,7 +126,9 @@ def _app_flagged(index: ResultsIndex) -> set[str]:
 
 def test_bench_results_report_and_app_flag_the_same_clips(index):
     expected = {_clip(*c).clip_id for c in _combos() if _truth(*c)}
-    assert len(expected) == 11  # of 12: only a passing clip with a pose and the expected gate is not flagged
+    # of 48: not flagged, a clip with a pose and the expected gate that passes the report gate where
+    # the background decides (1 of 12) or that the clip model calls consistent (3 of 12)
+    assert len(expected) == 48 - 4
 
     bench = set()
     for c in index.clips:
@@ -124,6 +136,7 @@ def test_bench_results_report_and_app_flag_the_same_clips(index):
         record = SimpleNamespace(
             background=SimpleNamespace(consistent=v.consistent),
             gate=SimpleNamespace(pose_present=c.pose_present, model=v.model),
+            model_verdict=lambda c=c: c.finding,
         )
         if bench_flagged(record, c.expected_model):
             bench.add(c.clip_id)
@@ -135,8 +148,8 @@ def test_bench_results_report_and_app_flag_the_same_clips(index):
 
 
 def test_each_combination_is_what_it_claims(index):
-    for gate, pose, agrees in _combos():
-        clip = _clip(gate, pose, agrees)
+    for gate, pose, agrees, finding in _combos():
+        clip = _clip(gate, pose, agrees, finding)
         v = index.verdict(clip.clip_id, index.recorded)
         assert v.consistent is {"passes": True, "fails": False, "not judged": None}[gate]
         assert v.model == ("H" if pose else "F")
@@ -153,6 +166,14 @@ def test_flag_reasons_name_each_cause():
         "fails",
         "gate_mismatch",
     )
+    # where the clip model decides, it stands in for the report gate
+    assert flag_reasons(
+        consistent=True, pose_present=True, gate_model="H", expected_model="H", finding="inconsistent"
+    ) == ("model",)
+    assert not is_flagged(consistent=False, pose_present=True, gate_model="H", expected_model="H", finding="consistent")
+    assert flag_reasons(
+        consistent=True, pose_present=True, gate_model="H", expected_model="H", finding="cannot judge"
+    ) == ("not_judged",)
     # no category, no expected model: the gate cannot disagree with it
     assert not is_flagged(consistent=True, pose_present=True, gate_model="F", expected_model=None)
 
@@ -233,3 +254,33 @@ def test_a_failing_background_of_moving_matches_is_not_judged_and_a_passing_one_
     idx = ResultsIndex(Path("."), [moved], ScoreConfig(untrusted_share=0.5), None, "bench")
     got = idx.verdict(moved.clip_id, idx.recorded)
     assert got is not None and got.consistent is None and got.untrusted
+
+
+def test_a_bench_of_the_default_flags_on_the_clip_models_verdict(tmp_path):
+    """`geocon bench` with the default preset: the clips table, the results index (from the table
+    and from record.json alone) and each record carry the same clip-model verdict, and the triage
+    flag follows it."""
+    pytest.importorskip("pandas")
+    from geocon_core.bench import read_tables, run_bench
+    from geocon_core.config import preset
+    from geocon_core.record import read_record
+    from geocon_core.synth import plan_benchmark, write_benchmark
+
+    plan = plan_benchmark(families=("C1",), scenes=1, platforms=("clean", "breathing"), breathing_px=12.0)
+    write_benchmark(tmp_path / "data", plan, width=320, height=180, num_frames=12)
+    run_bench(tmp_path / "data", tmp_path / "r", preset("audit").with_(working_size=(320, 180)), workers=2)
+    clips = read_tables(tmp_path / "r")["clips"].set_index("clip_id")
+    records = {cid: read_record(tmp_path / "r" / "clips" / cid) for cid in clips.index}
+    assert len(records) == 2
+    for cid, rec in records.items():
+        assert rec.model_verdict() is not None
+        assert clips.loc[cid, "clip_verdict"] == rec.model_verdict()
+        score = rec.finding().clip_score
+        assert clips.loc[cid, "clip_score"] == pytest.approx(float("nan") if score is None else score, nan_ok=True)
+    from_table = {c.clip_id: c.finding for c in ResultsIndex.open(tmp_path / "r").clips}
+    (tmp_path / "r" / "tables" / "clips.parquet").unlink()
+    from_json = {c.clip_id: c.finding for c in ResultsIndex.open(tmp_path / "r").clips}
+    assert from_table == from_json == {cid: rec.model_verdict() for cid, rec in records.items()}
+    index = ResultsIndex.open(tmp_path / "r")
+    flagged = {r.clip_id for r in index.triage(flagged_only=True)}
+    assert flagged == {cid for cid, rec in records.items() if rec.model_verdict() != "consistent"}

@@ -48,6 +48,7 @@ def _flagged(record: ClipRecord, expected_model: str | None) -> bool:
         pose_present=record.gate.pose_present,
         gate_model=record.gate.model,
         expected_model=expected_model,
+        finding=record.model_verdict(),
     )
 
 

@@ -168,6 +168,13 @@ class ClipRecord:
         model = load_clip_model(signals.model, signals.model_sha256)
         return model_finding(background, self.reading_values(), model, signals.decisive_shortfall)
 
+    def model_verdict(self) -> str | None:
+        """The clip model's verdict where it decides the clip (``config.signals`` on and readings
+        recorded), else None (the background verdict decides)."""
+        if not self.config.signals.enabled or self.readings is None:
+            return None
+        return self.finding().verdict
+
     def reading_values(self) -> dict[str, float | None]:
         """Every reading a clip model can use, by name (:data:`~geocon_core.signals.READING_LABELS`)."""
         bg, cfg = self.background, self.config

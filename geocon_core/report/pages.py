@@ -115,7 +115,12 @@ def _flag(v: Any) -> Any:
     return bool(v) if isinstance(v, (bool, np.bool_)) else v
 
 
-_FLAG_TEXT = {"fails": "fails the report gate", "not_judged": "background not judged", "no_pose": "no pose (gated F)"}
+_FLAG_TEXT = {
+    "model": "the clip model flags it",
+    "fails": "fails the report gate",
+    "not_judged": "not judged",
+    "no_pose": "no pose (gated F)",
+}
 
 
 def _flag_reasons(ok: pd.DataFrame, top: list[dict[str, Any]]) -> dict[str, list[str]]:
@@ -127,11 +132,13 @@ def _flag_reasons(ok: pd.DataFrame, top: list[dict[str, Any]]) -> dict[str, list
             pose_present=_flag(r.pose_present) is True,
             gate_model=_flag(r.gate_model),
             expected_model=_flag(r.expected_model),
+            finding=_flag(getattr(r, "clip_verdict", None)),
         )
-        why = [
-            f"gated {r.gate_model}, {r.category} expects {r.expected_model}" if c == "gate_mismatch" else _FLAG_TEXT[c]
-            for c in codes
-        ]
+        texts = dict(_FLAG_TEXT, gate_mismatch=f"gated {r.gate_model}, {r.category} expects {r.expected_model}")
+        score = _flag(getattr(r, "clip_score", None))
+        if score is not None:
+            texts["model"] += f" (clip score {score:.2f})"
+        why = [texts[c] for c in codes]
         if why:
             reasons[r.clip_id] = why
     for t in top[:5]:

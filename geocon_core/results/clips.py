@@ -49,6 +49,10 @@ class ResultClip:
     drift: str | None = None
     """What the multi-view check found when it failed the background (it does not depend on the
     thresholds re-gating moves), else None."""
+    finding: str | None = None
+    """The clip model's verdict where it decides the clip
+    (:meth:`~geocon_core.record.ClipRecord.model_verdict`; it does not depend on the thresholds
+    re-gating moves: the flag follows it), else None."""
 
     def scores(self, family: str) -> tuple[float | None, float | None]:
         """The recorded ``(IR, GE)`` of background ``family``."""
@@ -114,7 +118,17 @@ def clip_from_record_json(
         n_objects=len(d.get("objects", [])),
         shots=len(d.get("shots", [])),
         drift=drift_of_json(d),
+        finding=finding_of_json(d),
     )
+
+
+def finding_of_json(d: dict[str, Any]) -> str | None:
+    """The clip model's verdict of a parsed ``record.json`` where it decides the clip (as
+    :meth:`~geocon_core.record.ClipRecord.model_verdict`), else None."""
+    if d.get("readings") is None or not (d.get("config", {}).get("signals") or {}).get("enabled"):
+        return None
+    verdict = (d.get("summary", {}).get("verdict") or {}).get("verdict")
+    return str(verdict) if verdict is not None else None
 
 
 def drift_of_json(d: dict[str, Any]) -> str | None:
@@ -154,6 +168,8 @@ def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]
     cols += ["shots", "t_window", "ind_h", "ind_f"]
     if "mv_finding" in schema.names:
         cols += ["mv_finding", "mv_drift_px"]
+    if "clip_verdict" in schema.names:
+        cols += ["clip_verdict"]
     table = pq.read_table(path, columns=cols).to_pydict()
     return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
 
@@ -207,6 +223,7 @@ def read_bench_clips(root: Path) -> list[ResultClip]:
                 n_objects=int(row["n_objects"]),
                 shots=int(row["shots"]),
                 drift=_drift_of_row(row),
+                finding=row.get("clip_verdict"),
             )
         )
     return clips

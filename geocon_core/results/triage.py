@@ -124,6 +124,7 @@ class TriageRow:
             pose_present=self.clip.pose_present,
             gate_model=None if v is None else v.model,
             expected_model=self.clip.expected_model,
+            finding=self.clip.finding,
         )
 
 

@@ -501,20 +501,30 @@ def combine_shots(verdicts: Sequence[ClipVerdict], gate: int) -> ClipVerdict:
 
 # --- clips worth an audit ----------------------------------------------------------------------
 
-FLAG_REASONS = ("fails", "not_judged", "no_pose", "gate_mismatch")
+FLAG_REASONS = ("model", "fails", "not_judged", "no_pose", "gate_mismatch")
 """Reason codes of :func:`flag_reasons`, in the order they are reported."""
 
 
 def flag_reasons(
-    *, consistent: bool | None, pose_present: bool, gate_model: str | None, expected_model: str | None
+    *,
+    consistent: bool | None,
+    pose_present: bool,
+    gate_model: str | None,
+    expected_model: str | None,
+    finding: str | None = None,
 ) -> tuple[str, ...]:
-    """Why a clip deserves an audit (codes of :data:`FLAG_REASONS`, empty when it does not): it
-    fails the report gate (``fails``) or cannot be judged (``not_judged``: no valid pair, or the
-    clip failed to score), it has no first-last pose (``no_pose``), or, with a pose, its gate chose
-    another model than the expected one of its category (``gate_mismatch``; a clip without a
+    """Why a clip deserves an audit (codes of :data:`FLAG_REASONS`, empty when it does not): the
+    clip model calls it inconsistent (``model``; ``finding`` is the model's verdict where it decides
+    the clip, :meth:`~geocon_core.record.ClipRecord.model_verdict`, and then stands in for the report
+    gate), it fails the report gate (``fails``) or cannot be judged (``not_judged``: no valid pair,
+    or the clip failed to score), it has no first-last pose (``no_pose``), or, with a pose, its gate
+    chose another model than the expected one of its category (``gate_mismatch``; a clip without a
     known category has no expected model)."""
     why = []
-    if consistent is not True:
+    if finding is not None:
+        if finding != "consistent":
+            why.append("model" if finding == "inconsistent" else "not_judged")
+    elif consistent is not True:
         why.append("fails" if consistent is False else "not_judged")
     if not pose_present:
         why.append("no_pose")
@@ -524,7 +534,12 @@ def flag_reasons(
 
 
 def is_flagged(
-    *, consistent: bool | None, pose_present: bool, gate_model: str | None, expected_model: str | None
+    *,
+    consistent: bool | None,
+    pose_present: bool,
+    gate_model: str | None,
+    expected_model: str | None,
+    finding: str | None = None,
 ) -> bool:
     """A clip worth auditing (see :func:`flag_reasons`): not consistent, or no pose, or a gate that
     disagrees with the expected model of the clip's category. The one definition used by
@@ -532,6 +547,10 @@ def is_flagged(
     flagged section and the audit app."""
     return bool(
         flag_reasons(
-            consistent=consistent, pose_present=pose_present, gate_model=gate_model, expected_model=expected_model
+            consistent=consistent,
+            pose_present=pose_present,
+            gate_model=gate_model,
+            expected_model=expected_model,
+            finding=finding,
         )
     )
