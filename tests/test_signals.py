@@ -233,8 +233,11 @@ def test_a_decisive_background_failure_fails_the_clip_whatever_the_model_says():
     assert loud.reason.startswith("the background fails decisively (7.0 gate ranges short, beyond 6)")
     flagged = model_finding(background, {"a": 1.0}, m)
     assert flagged.verdict == "inconsistent" and "reading a +4.00" in flagged.reason
+    # a background that cannot be judged: the clip is judged on its other readings, if it has any
     unjudged = ClipFinding("cannot judge", "too few valid pairs", None)
-    assert model_finding(unjudged, {"a": 1.0}, m) is unjudged
+    judged = model_finding(unjudged, {"a": 1.0, "shortfall": None}, m)
+    assert judged.verdict == "inconsistent" and judged.reason.endswith("too few valid pairs")
+    assert model_finding(unjudged, {"a": None, "shortfall": None}, m) is unjudged
 
 
 def test_the_fit_is_made_on_the_tune_half_and_reports_both_halves(tmp_path):

@@ -128,11 +128,13 @@ def model_finding(
     naming the readings that pushed the score up most. A background that fails its report gate by
     more than ``decisive_shortfall`` (the reading ``shortfall``) fails the clip whatever the model
     says, and the clip score is then the background's own (above any the model gives). A clip whose
-    background cannot be judged (``background.verdict == "cannot judge"``) stays so."""
-    if background.verdict == "cannot judge":
+    background cannot be judged (``background.verdict == "cannot judge"``) is judged on its other
+    readings; it stays ``cannot judge`` only when the model weighs none of them (no reading beyond
+    the background's could be made)."""
+    weighed = {t.name for t in model.terms if t.weight > 0}  # a reading at weight 0 explains nothing
+    if background.verdict == "cannot judge" and all(values.get(n) is None for n in weighed - {"shortfall"}):
         return background
     score = model.score(values)
-    weighed = {t.name for t in model.terms if t.weight > 0}  # a reading at weight 0 explains nothing
     parts = tuple(
         sorted(((k, v) for k, v in model.contributions(values).items() if k in weighed), key=lambda kv: -kv[1])
     )

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..config import ScoreConfig
 from ..intervals import Interval, auc_interval, paired_auc_difference, wilson_interval
+from ..record.finding import ClipFinding, model_finding
 from ..signals import READING_LABELS, ClipModel, fit_clip_model
 from .cases import ANNOTATIONS_PATH, Annotation
 from .results import peer_score
@@ -226,15 +227,18 @@ def _half(model: ClipModel, cases: list[FitCase], split: str, decisive: float) -
     group = {name: [c for c in rows if c.group == name] for name in ("artifact", "clean", "real", "reencode")}
     broken, clean = group["artifact"], group["clean"]
 
-    def score(c: FitCase) -> float:
-        """The clip score the verdict reads: the model's, or the background's where it fails decisively."""
-        shortfall = c.values.get("shortfall")
-        if shortfall is not None and shortfall > decisive:
-            return max(model.score(c.values), c.before or 0.0)
-        return model.score(c.values)
+    def finding(c: FitCase) -> float | None:
+        """The clip score the record's verdict reads (:func:`~geocon_core.record.finding.model_finding`:
+        the model's, the background's where it fails decisively), None when the clip cannot be judged."""
+        background = ClipFinding("cannot judge" if c.before is None else "judged", "", c.before)
+        return model_finding(background, c.values, model, decisive).clip_score
 
     def nz(v: float | None) -> float:
         return 0.5 if v is None else v
+
+    def score(c: FitCase) -> float:
+        """The clip score, a clip that cannot be judged at 0.5 (as the validation report counts it)."""
+        return nz(finding(c))
 
     auc = before = peer = diff = None
     if broken and clean:
@@ -245,8 +249,9 @@ def _half(model: ClipModel, cases: list[FitCase], split: str, decisive: float) -
         peer = auc_interval(*theirs)
         diff = paired_auc_difference(*ours, *theirs)
 
-    def flagged(members: list[FitCase], by: Callable[[FitCase], float] = score, at: float = model.threshold):
-        return sum(by(c) >= at for c in members), len(members)
+    def flagged(members: list[FitCase]) -> tuple[int, int]:
+        scores = [finding(c) for c in members]
+        return sum(v is not None and v >= model.threshold for v in scores), len(members)
 
     planted = []
     for kind in sorted({c.group.split(":", 1)[1] for c in rows if c.group.startswith("planted:")}):
