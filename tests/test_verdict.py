@@ -277,10 +277,15 @@ def test_a_bench_of_the_default_flags_on_the_clip_models_verdict(tmp_path):
         assert clips.loc[cid, "clip_verdict"] == rec.model_verdict()
         score = rec.finding().clip_score
         assert clips.loc[cid, "clip_score"] == pytest.approx(float("nan") if score is None else score, nan_ok=True)
-    from_table = {c.clip_id: c.finding for c in ResultsIndex.open(tmp_path / "r").clips}
+    from_table = {c.clip_id: (c.finding, c.clip_score) for c in ResultsIndex.open(tmp_path / "r").clips}
     (tmp_path / "r" / "tables" / "clips.parquet").unlink()
-    from_json = {c.clip_id: c.finding for c in ResultsIndex.open(tmp_path / "r").clips}
-    assert from_table == from_json == {cid: rec.model_verdict() for cid, rec in records.items()}
+    from_json = {c.clip_id: (c.finding, c.clip_score) for c in ResultsIndex.open(tmp_path / "r").clips}
+    truth = {cid: (rec.model_verdict(), rec.finding().clip_score) for cid, rec in records.items()}
+    assert from_table == from_json == truth
     index = ResultsIndex.open(tmp_path / "r")
+    rows = index.triage()
     flagged = {r.clip_id for r in index.triage(flagged_only=True)}
     assert flagged == {cid for cid, rec in records.items() if rec.model_verdict() != "consistent"}
+    # the list's verdict is the model's, most severe first
+    state = {"inconsistent": "fails", "consistent": "passes", "cannot judge": "not judged"}
+    assert [r.state for r in rows] == [state[truth[r.clip_id][0]] for r in rows]

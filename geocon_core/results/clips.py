@@ -53,6 +53,8 @@ class ResultClip:
     """The clip model's verdict where it decides the clip
     (:meth:`~geocon_core.record.ClipRecord.model_verdict`; it does not depend on the thresholds
     re-gating moves: the flag follows it), else None."""
+    clip_score: float | None = None
+    """The clip model's score where it decides the clip (with :attr:`finding`), else None."""
 
     def scores(self, family: str) -> tuple[float | None, float | None]:
         """The recorded ``(IR, GE)`` of background ``family``."""
@@ -119,6 +121,7 @@ def clip_from_record_json(
         shots=len(d.get("shots", [])),
         drift=drift_of_json(d),
         finding=finding_of_json(d),
+        clip_score=None if finding_of_json(d) is None else _num(d.get("summary", {}).get("clip_score")),
     )
 
 
@@ -169,7 +172,7 @@ def _table_rows(results: Path, newest_status: float) -> dict[str, dict[str, Any]
     if "mv_finding" in schema.names:
         cols += ["mv_finding", "mv_drift_px"]
     if "clip_verdict" in schema.names:
-        cols += ["clip_verdict"]
+        cols += ["clip_verdict", "clip_score"]
     table = pq.read_table(path, columns=cols).to_pydict()
     return {cid: {c: table[c][i] for c in cols} for i, cid in enumerate(table["clip_id"])}
 
@@ -224,6 +227,7 @@ def read_bench_clips(root: Path) -> list[ResultClip]:
                 shots=int(row["shots"]),
                 drift=_drift_of_row(row),
                 finding=row.get("clip_verdict"),
+                clip_score=None if row.get("clip_verdict") is None else _num(row.get("clip_score")),
             )
         )
     return clips

@@ -101,8 +101,12 @@ class TriageRow:
 
     @property
     def state(self) -> str:
+        """The severity verdict (:data:`VERDICTS`): the clip model's where it decides the clip
+        (:attr:`ResultClip.finding`), else the report gate's at the thresholds of the moment."""
         if self.verdict is None:
             return "error"
+        if self.clip.finding is not None:
+            return {"consistent": "passes", "inconsistent": "fails"}.get(self.clip.finding, "not judged")
         return {True: "passes", False: "fails", None: "not judged"}[self.verdict.consistent]
 
     @property
@@ -136,15 +140,19 @@ def _none_last(v: float | None, *, descending: bool = False) -> float:
 
 def severity_key(row: TriageRow) -> tuple:
     """Most severe first: clips failing the report gate (deepest below it first), then unjudged and
-    unscorable clips, then passing clips (least headroom first); ties by the translation gate's
-    margin (no pose first, then closest to its threshold), then by the worst object's AdaP90
-    (largest first), then by clip id."""
+    unscorable clips, then passing clips (least headroom first); where the clip model decides, its
+    verdict ranks and its clip score orders (highest first); ties by the translation gate's margin
+    (no pose first, then closest to its threshold), then by the worst object's AdaP90 (largest
+    first), then by clip id."""
     v = row.verdict
     rank = VERDICTS.index(row.state)
     if v is None:
         return (rank, 0.0, 0.0, 0.0, row.clip_id)
     margin = -math.inf if v.margin is None else v.margin
-    return (rank, _none_last(v.report_margin), margin, _none_last(row.clip.adap90_max, descending=True), row.clip_id)
+    depth = _none_last(v.report_margin)
+    if row.clip.finding is not None:
+        depth = _none_last(row.clip.clip_score, descending=True)
+    return (rank, depth, margin, _none_last(row.clip.adap90_max, descending=True), row.clip_id)
 
 
 class ResultsIndex:
