@@ -99,7 +99,7 @@ def _first_valid(name: str, value: Any, build: Callable[[Any], ScoreConfig]) -> 
 
 
 VARIANTS = _variants()
-AUDIT_HASH = "2ca85d68b4fd5123"
+AUDIT_HASH = "6109d0ec3050fe0e"
 """The hash of ``audit`` (renewed whenever a setting of it changes)."""
 
 

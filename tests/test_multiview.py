@@ -191,8 +191,9 @@ def test_only_audit_runs_it_and_papers_hash_is_unchanged():
 
 def test_audit_fails_a_sliding_layer_and_the_record_keeps_it(clips, scored_clip, tmp_path):
     """The check finds the layer and fails the background; in ``audit`` the clip's verdict is the
-    clip model's, which reads the drift as one reading among others (a drifting layer is no veto:
-    movers partly masked drift in real footage too) and carries the background's finding."""
+    clip model's, which reads the drift as one reading among others (a drifting layer alone is no
+    veto: movers partly masked drift in real footage too), fails the clip where the pair fits fail
+    their gate too, and carries the background's finding."""
     from geocon_core.record import read_record, write_record
 
     rec = scored_clip(clips["C3-across"], preset("audit"))
@@ -201,6 +202,8 @@ def test_audit_fails_a_sliding_layer_and_the_record_keeps_it(clips, scored_clip,
     assert background.clip_score is not None and background.clip_score > 0.5
     finding = rec.finding()
     assert background.reason in finding.reason and finding.parts
+    # the pair fits pass here (a slow slide over 480 frames): the drift alone does not fail the clip
+    assert rec.reading_values()["shortfall"] < 0 and finding.verdict == "consistent"
     assert rec.reading_values()["mv_residual"] == pytest.approx(rec.multiview.mv_ge)
     assert rec.background.consistent is False and rec.multiview is not None
     assert rec.summary()["multiview"]["layers"][0]["drift_px"] > 4

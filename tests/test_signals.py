@@ -233,6 +233,12 @@ def test_a_decisive_background_failure_fails_the_clip_whatever_the_model_says():
     assert loud.reason.startswith("the background fails decisively (7.0 gate ranges short, beyond 6)")
     flagged = model_finding(background, {"a": 1.0}, m)
     assert flagged.verdict == "inconsistent" and "reading a +4.00" in flagged.reason
+    # a drifting layer fails the clip beside a background that fails its gate at all, not alone
+    drifting = "a layer drifts 3.0 px across the camera's travel"
+    both = model_finding(background, {"a": 0.5, "shortfall": 0.2}, m, decisive_shortfall=6.0, drift=drifting)
+    assert both.verdict == "inconsistent" and both.clip_score == 0.99 and drifting in both.reason
+    alone = model_finding(background, {"a": 0.5, "shortfall": -0.2}, m, decisive_shortfall=6.0, drift=drifting)
+    assert alone.verdict == "consistent"
     # a background that cannot be judged: the clip is judged on its other readings, if it has any
     unjudged = ClipFinding("cannot judge", "too few valid pairs", None)
     judged = model_finding(unjudged, {"a": 1.0, "shortfall": None}, m)

@@ -545,6 +545,10 @@ class SignalsConfig:
     """A background that fails its report gate by more than this many times the gate's range (the
     reading ``shortfall``: IR below 0.79 or GE above 4.2 px at audit's gates) fails the clip whatever
     the model says; chosen on the tune half (docs: Scoring)."""
+    drift_fails_with_background: bool = True
+    """A drifting layer the multi-view check finds fails the clip when the background also fails its
+    report gate (the reading ``shortfall`` above 0), whatever the model says; alone it is one
+    reading among the others. Chosen on the tune half (docs: Scoring)."""
     model_sha256: str = SHIPPED_MODEL_DIGEST
     """... whose digest (:meth:`~geocon_core.signals.ClipModel.digest`) must be this one, so the
     configuration hash covers the model (empty: any model, for trying one out)."""

@@ -166,7 +166,8 @@ class ClipRecord:
             return background
         signals = self.config.signals
         model = load_clip_model(signals.model, signals.model_sha256)
-        return model_finding(background, self.reading_values(), model, signals.decisive_shortfall)
+        drift = self.drift_finding() if signals.drift_fails_with_background else None
+        return model_finding(background, self.reading_values(), model, signals.decisive_shortfall, drift)
 
     def model_verdict(self) -> str | None:
         """The clip model's verdict where it decides the clip (``config.signals`` on and readings

@@ -122,12 +122,15 @@ def model_finding(
     values: Mapping[str, float | None],
     model: ClipModel,
     decisive_shortfall: float = math.inf,
+    drift: str | None = None,
 ) -> ClipFinding:
     """The finding of a clip model (:mod:`geocon_core.signals.model`) over the readings ``values``:
     ``inconsistent`` when the model's score reaches its threshold, else ``consistent``, the reason
     naming the readings that pushed the score up most. A background that fails its report gate by
     more than ``decisive_shortfall`` (the reading ``shortfall``) fails the clip whatever the model
-    says, and the clip score is then the background's own (above any the model gives). A clip whose
+    says, and the clip score is then the background's own (above any the model gives); so does a
+    drifting layer (``drift``: what the multi-view check found, when it counts) beside a background
+    that fails its gate at all (``shortfall`` above 0). A clip whose
     background cannot be judged (``background.verdict == "cannot judge"``) is judged on its other
     readings; it stays ``cannot judge`` only when the model weighs none of them (no reading beyond
     the background's could be made)."""
@@ -139,8 +142,12 @@ def model_finding(
         sorted(((k, v) for k, v in model.contributions(values).items() if k in weighed), key=lambda kv: -kv[1])
     )
     shortfall = values.get("shortfall")
+    head = None
     if shortfall is not None and shortfall > decisive_shortfall:
         head = f"the background fails decisively ({shortfall:.1f} gate ranges short, beyond {decisive_shortfall:g})"
+    elif drift is not None and shortfall is not None and shortfall > 0:
+        head = f"a layer drifts against the camera path ({drift}) and the background fails its gate"
+    if head is not None:
         return ClipFinding(
             "inconsistent", f"{head}; {background.reason}", max(score, background.clip_score or score), parts
         )

@@ -82,6 +82,9 @@ class FitCase:
     group: str = ""
     """``artifact``, ``clean`` (clean-looking generated), ``real``, ``planted:KIND`` or ``reencode``
     (a planted case's clean re-encode)."""
+    drift: str | None = None
+    """The multi-view check's drifting layer where it found one (the record's
+    :meth:`~geocon_core.record.ClipRecord.drift_finding`), else None."""
 
 
 @dataclass(frozen=True)
@@ -113,7 +116,7 @@ class FitReport:
     cases: int
 
 
-_NOT_READINGS = ("enabled", "model", "model_sha256", "decisive_shortfall")
+_NOT_READINGS = ("enabled", "model", "model_sha256", "decisive_shortfall", "drift_fails_with_background")
 """Settings of ``signals`` that change no reading (the verdict's, not the readings')."""
 
 
@@ -149,16 +152,16 @@ def stored_readings(folder: Path, rec: ClipRecord, cfg: ScoreConfig) -> ClipRead
     return readings
 
 
-def case_readings(folder: Path, cfg: ScoreConfig) -> tuple[dict[str, float | None], float | None]:
+def case_readings(folder: Path, cfg: ScoreConfig) -> tuple[dict[str, float | None], float | None, str | None]:
     """The readings of the case in ``folder`` (:meth:`~geocon_core.record.ClipRecord.reading_values`,
-    :func:`stored_readings`) and the record's own background clip score."""
+    :func:`stored_readings`), the record's own background clip score and its drifting layer."""
     from dataclasses import replace
 
     from ..record import read_record
 
     rec = read_record(folder)
     before = rec.background_finding().clip_score
-    return replace(rec, readings=stored_readings(folder, rec, cfg)).reading_values(), before
+    return replace(rec, readings=stored_readings(folder, rec, cfg)).reading_values(), before, rec.drift_finding()
 
 
 def _source_note(case: dict[str, Any], by_clip: dict[tuple[str, str], Annotation]) -> Annotation | None:
@@ -210,19 +213,20 @@ def fit_cases(
     problems: list[str] = []
     for i, (folder, note, group) in enumerate(folders):
         try:
-            values, before = case_readings(folder, cfg)
+            values, before, drift = case_readings(folder, cfg)
         except (OSError, ValueError) as exc:
             problems.append(f"{folder.name}: {exc}")
         else:
             broken = group == "artifact" or group.startswith("planted:")
             real = group in ("real", "reencode") or group.startswith("planted:")
-            out.append(FitCase(folder.name, note.split, broken, real, values, peer_score(folder), before, group))
+            case = FitCase(folder.name, note.split, broken, real, values, peer_score(folder), before, group, drift)
+            out.append(case)
         if progress is not None:
             progress(i + 1, len(folders))
     return out, problems
 
 
-def _half(model: ClipModel, cases: list[FitCase], split: str, decisive: float) -> FitRow:
+def _half(model: ClipModel, cases: list[FitCase], split: str, decisive: float, with_drift: bool) -> FitRow:
     rows = [c for c in cases if c.split == split]
     group = {name: [c for c in rows if c.group == name] for name in ("artifact", "clean", "real", "reencode")}
     broken, clean = group["artifact"], group["clean"]
@@ -231,7 +235,7 @@ def _half(model: ClipModel, cases: list[FitCase], split: str, decisive: float) -
         """The clip score the record's verdict reads (:func:`~geocon_core.record.finding.model_finding`:
         the model's, the background's where it fails decisively), None when the clip cannot be judged."""
         background = ClipFinding("cannot judge" if c.before is None else "judged", "", c.before)
-        return model_finding(background, c.values, model, decisive).clip_score
+        return model_finding(background, c.values, model, decisive, c.drift if with_drift else None).clip_score
 
     def nz(v: float | None) -> float:
         return 0.5 if v is None else v
@@ -280,12 +284,14 @@ def fit_model(
     l2: float = 1.0,
     real_false_flags: float = 0.05,
     decisive_shortfall: float = math.inf,
+    drift_fails_with_background: bool = False,
     version: str,
     annotations_path: Path = ANNOTATIONS_PATH,
     terms: Iterable[str] = FIT_TERMS,
 ) -> FitReport:
     """The clip model fitted on the tune half of ``cases``, reported on both halves with the
-    verdict's rule (a background failing by more than ``decisive_shortfall`` fails the clip)."""
+    verdict's rules (a background failing by more than ``decisive_shortfall`` fails the clip; with
+    ``drift_fails_with_background``, so does a drifting layer beside a failing background)."""
     # planted cases are reported, not fitted: no reading sees the planted morph, redraw or slide
     # (AUC about 0.5 against their clean re-encodes), and fitted beside the annotated clips they
     # only add noise to the broken class (measured: tune AUC 0.72 -> 0.68, artifacts flagged 64% -> 22%)
@@ -302,7 +308,9 @@ def fit_model(
         version=version,
         fitted={"split": "tune", "annotations_sha256": digest},
     )
-    rows = (_half(model, cases, "tune", decisive_shortfall), _half(model, cases, "check", decisive_shortfall))
+    rows = tuple(
+        _half(model, cases, half, decisive_shortfall, drift_fails_with_background) for half in ("tune", "check")
+    )
     return FitReport(model, rows, len(cases))
 
 

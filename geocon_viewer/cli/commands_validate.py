@@ -323,6 +323,7 @@ def _fit(
             version=version,
             annotations_path=annotations or ANNOTATIONS_PATH,
             decisive_shortfall=cfg.signals.decisive_shortfall,
+            drift_fails_with_background=cfg.signals.drift_fails_with_background,
         )
     except ValueError as exc:
         raise fail(str(exc)) from None
