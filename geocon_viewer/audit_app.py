@@ -48,7 +48,6 @@ from .audit_views import (
     clip_card,
     dense_legend_html,
     draw_frame,
-    evidence,
     frame_text,
     map_choice,
     move_clip_camera,
@@ -59,6 +58,7 @@ from .audit_views import (
     thumb,
 )
 from .processes import check_bind
+from .rerun_card import evidence
 from .served import ServedApp
 
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]

@@ -50,7 +50,6 @@ __all__ = [
     "render_plots",
     "clip_card",
     "app_picture",
-    "evidence",
     "map_choice",
     "MAP_MENU",
 ]
@@ -476,28 +475,6 @@ def app_picture(name: str) -> str:
         "mv_residual": "3D scene, pair *one camera for the clip*",
         "object_rigidity": "Objects plot",
     }.get(name, "")
-
-
-def evidence(record: ClipRecord) -> tuple[str | None, int | None]:
-    """What a flagged clip opens on: (the reading map the clip score leans on most, the frame where
-    that reading is strongest), or (None, the frame of the worst background pair) when the
-    background decided; (None, None) for a clip that is not flagged."""
-    from geocon_core.signals import leading_picture
-
-    from .rerun_card import worst_frame
-
-    finding = record.finding()
-    if finding.verdict != "inconsistent":
-        return None, None
-    picture = leading_picture(finding.parts)
-    a = record.readings.appearance if record.readings is not None else None
-    if picture is None or a is None or a.maps is None:
-        return None, worst_frame(record)
-    field_of = {"failure": "interior", "movers": "movers", "unexplained": "census"}[picture[1]]
-    strongest = max(
-        (p for p in a.pairs if getattr(p, field_of) is not None), key=lambda p: getattr(p, field_of), default=None
-    )
-    return picture[1], None if strongest is None else strongest.t0
 
 
 def clip_card(view: ClipView, v: ClipVerdict, clip: ResultClip, th: Thresholds, recorded: Thresholds) -> str:

@@ -14,6 +14,7 @@ from .style import fmt
 
 __all__ = [
     "audit_card",
+    "evidence",
     "reading_tab",
     "rerun_picture",
     "why_lines",
@@ -38,6 +39,26 @@ def worst_frame(record: ClipRecord) -> int:
         if key is None or k < key:
             worst, key = p.t0, k
     return worst
+
+
+def evidence(record: ClipRecord) -> tuple[str | None, int | None]:
+    """What a flagged clip opens on: (the reading map the clip score leans on most, the frame where
+    that reading is strongest), or (None, the frame of the worst background pair) when the
+    background decided; (None, None) for a clip that is not flagged."""
+    from geocon_core.signals import leading_picture
+
+    finding = record.finding()
+    if finding.verdict != "inconsistent":
+        return None, None
+    picture = leading_picture(finding.parts)
+    a = record.readings.appearance if record.readings is not None else None
+    if picture is None or a is None or a.maps is None:
+        return None, worst_frame(record)
+    field_of = {"failure": "interior", "movers": "movers", "unexplained": "census"}[picture[1]]
+    strongest = max(
+        (p for p in a.pairs if getattr(p, field_of) is not None), key=lambda p: getattr(p, field_of), default=None
+    )
+    return picture[1], None if strongest is None else strongest.t0
 
 
 def reading_tab(name: str) -> str:

@@ -59,7 +59,7 @@ from geocon_core.media import DEFAULT_FPS
 from geocon_core.record import ClipRecord, FlowSlice, FrameDiagnostics, flow_hue
 from geocon_core.signals import MAP_NAMES
 
-from .rerun_card import RERUN_VERSION, audit_card, reading_tab, worst_frame
+from .rerun_card import RERUN_VERSION, audit_card, evidence, reading_tab, worst_frame
 from .rerun_images import object_rgba, png_bytes, residual_map
 from .rerun_layers import ARROW_GAIN, RecordLayers
 from .rerun_video import FrameVideo, quiet_encoder_logs
@@ -238,9 +238,10 @@ class RerunAudit:
         self._log_content(content)
 
 
-def blueprint() -> rrb.Blueprint:
+def blueprint(reading_map: str | None = None) -> rrb.Blueprint:
     """The default layout: frame with matches, residual map and object flow on top; 3D, the
-    time series and the audit card below."""
+    time series and the audit card below. The residual map shares its place with the reading maps
+    (tabs); ``reading_map`` names the one shown first (none: the residual map)."""
     frame_view = rrb.Spatial2DView(
         name="Frame + background matches",
         origin="frame",
@@ -262,7 +263,15 @@ def blueprint() -> rrb.Blueprint:
     )
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(frame_view, rrb.Tabs(residual_view, *reading_views, active_tab=0), object_view),
+            rrb.Horizontal(
+                frame_view,
+                rrb.Tabs(
+                    residual_view,
+                    *reading_views,
+                    active_tab=0 if reading_map is None else 1 + MAP_NAMES.index(reading_map),
+                ),
+                object_view,
+            ),
             rrb.Horizontal(
                 rrb.Tabs(
                     rrb.Spatial3DView(name="One camera for the clip", origin="clip3d"),
@@ -388,7 +397,14 @@ class RrdSink:
     disk or a file-size limit raises ``OSError`` naming ``path`` at the next frame or at
     :meth:`finish`, never a wait."""
 
-    def __init__(self, path: str | Path | None, *, connect: str | None = None, frames: str = "video") -> None:
+    def __init__(
+        self,
+        path: str | Path | None,
+        *,
+        connect: str | None = None,
+        frames: str = "video",
+        reading_map: str | None = None,
+    ) -> None:
         if path is None and connect is None:
             raise ValueError("RrdSink needs a file path, a viewer URL to connect to, or both")
         self.path = None if path is None else Path(path)
@@ -405,7 +421,7 @@ class RrdSink:
         if connect is not None:
             sinks.append(rr.GrpcSink(connect))
         try:
-            self.rec.set_sinks(*sinks, default_blueprint=blueprint())
+            self.rec.set_sinks(*sinks, default_blueprint=blueprint(reading_map))
         except BaseException:
             self.abort()
             raise
@@ -468,7 +484,7 @@ def write_rrd(
 
     record = read_record(record_dir)
     overlays = read_overlays(record_dir, record)
-    sink = RrdSink(path, connect=connect)
+    sink = RrdSink(path, connect=connect, reading_map=evidence(record)[0])  # a flagged clip opens on its evidence
     fps = record.video.fps
     try:
         found: ClipInfo | None = locate_clip(record.video, record_dir)

@@ -414,3 +414,23 @@ def test_flow_hue_is_one_frame_sized_layer_inside_the_masks(objects_run):
     assert len(shapes) == 1
     (shape,) = shapes
     assert shape[:2] == tuple(record.video.working_size[::-1])
+
+
+def test_a_flagged_clip_opens_on_its_evidence(synth_dir, tmp_path):
+    """`geocon view` of a clip the model flags on a pictured reading: the recording's layout opens
+    that map's tab, and the start frame is where the reading is strongest."""
+    import rerun.blueprint as rrb
+
+    from geocon_viewer.rerun_card import evidence, reading_tab
+    from geocon_viewer.rerun_log import blueprint
+
+    from .flagged import STRONGEST_FRAME, flagged_on_appearance
+
+    source = tmp_path / "scored"
+    write_record(score_clip(synth_dir / "c1_static.mp4", preset("audit")), source)
+    rec, _ = flagged_on_appearance(source, tmp_path / "flagged")
+    assert evidence(rec) == ("unexplained", STRONGEST_FRAME)
+    tabs = [c for c in blueprint("unexplained").root_container.contents[0].contents if isinstance(c, rrb.Tabs)]
+    (reading_tabs,) = tabs
+    assert reading_tabs.contents[reading_tabs.active_tab].name == reading_tab("unexplained")
+    assert write_rrd(tmp_path / "flagged", tmp_path / "f.rrd").stat().st_size > 0

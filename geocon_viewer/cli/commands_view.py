@@ -194,6 +194,7 @@ def view(
     _check_connect(connect)
     from geocon_core.record import read_overlays, read_record
 
+    from ..rerun_card import evidence
     from ..rerun_log import quiet_encoder_logs, worst_frame, write_rrd
 
     quiet_encoder_logs()
@@ -229,7 +230,8 @@ def view(
         raise fail(str(exc)) from None
     except RuntimeError as exc:  # Rerun's gRPC client: the viewer went away while the recording streamed
         raise _stream_failed(connect, exc) from None
-    frame = at if at is not None else worst_frame(record)
+    strongest = evidence(record)[1]  # a flagged clip: where the reading its score leans on is strongest
+    frame = at if at is not None else (strongest if strongest is not None else worst_frame(record))
     out.print(
         f"recording: {rrd} ({rrd.stat().st_size / 1e6:.1f} MB, Rerun {rerun_version()}: open it with a viewer "
         "of the same version)"
