@@ -323,6 +323,14 @@ def test_a_new_clip_model_reads_readings_and_keeps_the_background_fit(tmp_path, 
     monkeypatch.setattr(runner, "code_digest", lambda: "another-renderer")
     [(_, again)] = run_cases([case], plan, audit, first, cache, peer=False)
     assert len(list(cache.iterdir())) == 2 and again == s1  # rendered again, not scored again
+    # a record written before a setting of the background's existed is scored again, not read again
+    record_json = first / "cases" / case.case_id / "record.json"
+    doc = json.loads(record_json.read_text())
+    del doc["config"]["multiview"]
+    record_json.write_text(json.dumps(doc))
+    refit = replace(audit, signals=replace(audit.signals, decisive_shortfall=7.0))
+    [(_, s4)] = run_cases([case], plan, refit, first, cache, peer=False)
+    assert "readings_seconds" not in s4 and s4["config_hash"] == config_hash(refit)
     other = replace(audit, ir_gate=audit.ir_gate + 0.01)  # a setting of the background fit: scored again
     [(_, s3)] = run_cases([case], plan, other, first, cache, peer=False)
     assert "readings_seconds" not in s3 and s3["config_hash"] == config_hash(other)

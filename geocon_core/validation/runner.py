@@ -116,8 +116,14 @@ def _refresh_readings(out: Path, cfg: ScoreConfig, clip: str) -> dict | None:
         return None
     digest = config_hash(cfg)
     head = json.loads((out / "record.json").read_text())
-    old = ScoreConfig.from_dict(head["config"])
-    if config_hash(old) != status.get("config_hash") or config_hash(replace(old, signals=cfg.signals)) != digest:
+    if head.get("config_hash") != status.get("config_hash"):
+        return None
+
+    def beyond_signals(d: dict[str, Any]) -> dict[str, Any]:
+        # compared as written: a setting the earlier record lacks (a newer one) is a difference
+        return {k: v for k, v in json.loads(json.dumps(d)).items() if k != "signals"}
+
+    if beyond_signals(head["config"]) != beyond_signals(cfg.to_dict()):
         return None
     start = time.perf_counter()
     rec = read_record(out)
