@@ -26,6 +26,7 @@ from .finding import (
     ClipFinding,
     clip_finding,
     clip_score,
+    model_finding,
     report_margin,
 )
 from .overlays import (
@@ -65,6 +66,7 @@ from .parts import (
 __all__ = [
     "CLIP_SCORE_SLOPE",
     "ClipFinding",
+    "model_finding",
     "DRIFT_MARGIN",
     "VERDICT_WORDS",
     "clip_finding",

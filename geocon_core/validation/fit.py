@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..config import ScoreConfig
 from ..intervals import Interval, auc_interval, paired_auc_difference, wilson_interval
-from ..record.finding import ClipFinding, model_finding
+from ..record import ClipFinding, model_finding
 from ..signals import READING_LABELS, ClipModel, fit_clip_model
 from .cases import ANNOTATIONS_PATH, Annotation
 from .results import peer_score
