@@ -16,9 +16,12 @@ taking turns clip by clip, so that a busy moment of the machine hits both alike.
 commit is checked out in a temporary git worktree and imported from there with the same
 interpreter and packages.
 
-Printed: per clip and version the wall time, frames/s, peak memory and seconds per stage (summed
-over the scorer's threads, so they can exceed the wall time), then per version the clips per
-minute over the set, the frames/s of the full-HD clips and the speed-up.
+Printed: per clip and version the canvas, wall time, frames/s, peak memory and seconds per stage
+(summed over the scorer's threads, so they can exceed the wall time), then per version the clips
+per minute over the set, the frames/s of the full-HD sources (one worker: each clip is scored in
+a process of its own), the frames/s by working canvas, the peak memory over the set, and the
+speed-up. Each child sets the allocator as the command line does (where its version has
+:func:`geocon_core.files.tune_allocator`), so peak memory is that of ``geocon score``.
 """
 
 from __future__ import annotations
@@ -52,6 +55,11 @@ REAL_SET: tuple[tuple[str, Path], ...] = (
 CHILD = r"""
 import json, resource, sys, time
 from geocon_core import preset, score_clip  # the public API, the same in every version
+try:  # the allocator the command line sets (a version without it runs as its command line did)
+    from geocon_core.files import tune_allocator
+    tune_allocator()
+except ImportError:
+    pass
 path, name = sys.argv[1], sys.argv[2]
 timings = {}
 start = time.perf_counter()
@@ -59,7 +67,8 @@ record = score_clip(path, preset(name), timings=timings)
 wall = time.perf_counter() - start
 n = record.video.num_frames
 print(json.dumps({
-    "frames": n, "size": list(record.video.working_size), "wall_s": round(wall, 2), "fps": round(n / wall, 3),
+    "frames": n, "size": list(record.video.working_size), "source": list(record.video.source_size),
+    "wall_s": round(wall, 2), "fps": round(n / wall, 3),
     "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     "stages_s": {k: round(v, 2) for k, v in sorted(timings.items())},
     "consistent": record.background.consistent, "ir": record.background.ir, "ge": record.background.ge,
@@ -163,16 +172,26 @@ def main() -> None:
     rates = {}
     for version, by_clip in runs.items():
         wall = sum(r["wall_s"] for r in by_clip.values())
-        fhd = [r for r in by_clip.values() if max(r["size"]) >= 1920]
+        fhd = [r for r in by_clip.values() if max(r.get("source", r["size"])) >= 1920]
         fhd_fps = sum(r["frames"] for r in fhd) / sum(r["wall_s"] for r in fhd) if fhd else float("nan")
         rates[version] = len(by_clip) / wall * 60
+        canvases: dict[str, list[dict]] = {}
+        for r in by_clip.values():
+            canvases.setdefault("x".join(map(str, r["size"])), []).append(r)
+        by_canvas = "; ".join(
+            f"{c} {sum(r['frames'] for r in rs) / sum(r['wall_s'] for r in rs):.2f}"
+            for c, rs in sorted(canvases.items(), key=lambda kv: -kv[1][0]["size"][0] * kv[1][0]["size"][1])
+        )
+        peak = max(r["peak_rss_mib"] for r in by_clip.values())
         stage_sum: dict[str, float] = {}
         for r in by_clip.values():
             for k, v in r["stages_s"].items():
                 stage_sum[k] = stage_sum.get(k, 0.0) + v
         print(
             f"{version:>8}: {len(by_clip)} clips in {wall:.0f} s = {rates[version]:.2f} clips/min; "
-            f"full-HD clips {fhd_fps:.2f} frames/s; stages (s, summed over threads): "
+            f"full-HD sources {fhd_fps:.2f} frames/s per worker; peak RSS {peak:.0f} MiB\n"
+            f"          frames/s per worker by canvas: {by_canvas}\n"
+            "          stages (s, summed over threads): "
             + ", ".join(f"{k} {v:.0f}" for k, v in sorted(stage_sum.items(), key=lambda kv: -kv[1]))
         )
     if args.before:

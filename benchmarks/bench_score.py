@@ -49,7 +49,10 @@ def clip(frames: int, size: str, family: str = "C4") -> Path:
 
 def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "-") -> dict:
     from geocon_core.config import preset
+    from geocon_core.files import tune_allocator
     from geocon_core.scoring import score_clip
+
+    tune_allocator()  # as the command line does: its peak memory is what a user sees
 
     timings: dict[str, float] = {}
     sink = None

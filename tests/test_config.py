@@ -99,7 +99,7 @@ def _first_valid(name: str, value: Any, build: Callable[[Any], ScoreConfig]) -> 
 
 
 VARIANTS = _variants()
-AUDIT_HASH = "6109d0ec3050fe0e"
+AUDIT_HASH = "4b5bd9b41da70aa5"
 """The hash of ``audit`` (renewed whenever a setting of it changes)."""
 
 

@@ -341,13 +341,17 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         ScoreConfig(preset="strict", gaps=(1, 4, 8), aggregation="worst"),
     ),
     "audit": (
-        "strict plus a gate that has a pose (when the first and last frames share too few matches, "
+        "strict's worst-cell aggregation over frame gaps 1 and 8 at the canvas's own scale (the gap 4 and "
+        "the 1/4 and 1/2 scales were dropped: on the tune half of the annotated and planted clips they "
+        "moved no detection row beyond one clip), plus a gate that has a pose (when the first and last "
+        "frames share too few matches, "
         "the relative poses of consecutive frames are composed; fail->F only without any evidence), "
         "Lowe's ratio 0.7, so that false matches, which grow with the frame gap, do not read as "
         "inconsistency, a GE gate of 0.6 px: a background whose inliers sit half a pixel off "
-        "their model is bending (breathing), whatever its inlier ratio, and a 1920x1080 canvas, so "
-        "a clip up to full HD is scored in its own pixels and a defect of a few source pixels is "
-        "judged alike at every size; an object's pairs whose mask jumps in area by more than 25% "
+        "their model is bending (breathing), whatever its inlier ratio, and a canvas whose long side "
+        "is at most 1280 px, so a clip up to 1280x720 is scored in its own pixels and a larger one is "
+        "resized once at decode (the record says so and gives the background's GE in source px); "
+        "an object's pairs whose mask jumps in area by more than 25% "
         "against its neighbouring frames are left out of its AdaDFRC (a segmentation glitch reads "
         "as deformation), and each object's mask keeps only the pixels its own motion explains better "
         "than the background's (a mask that spills over the edge reads as deformation too); matches "
@@ -368,8 +372,9 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "the default of `geocon score` and `geocon bench`",
         ScoreConfig(
             preset="audit",
-            working_size=(1920, 1080),
-            gaps=(1, 4, 8),
+            working_size=(1280, 1280),
+            gaps=(1, 8),
+            scales=(1.0,),
             aggregation="worst",
             chain_hop=1,
             ratio=0.7,

@@ -2,13 +2,15 @@
 
 :mod:`.paths` (output folders checked before work, outputs kept apart from inputs, whole-folder
 replacement, signals held during a commit), :mod:`.lockfile` (one writer per results folder),
-:mod:`.procs` (worker processes that do not outlive their parent), :mod:`.jsonin` (strict JSON for
+:mod:`.procs` (worker processes that do not outlive their parent), :mod:`.alloc` (the C allocator
+of a long scoring process), :mod:`.jsonin` (strict JSON for
 sidecars and pose logs), :mod:`.npz` (the errors a damaged archive raises, and what a file that is none is) and
 :mod:`.checkpoint` (the one reader of user-given network weights).
 """
 
 from __future__ import annotations
 
+from .alloc import ARENAS, MMAP_THRESHOLD, tune_allocator
 from .checkpoint import (
     read_checkpoint_file,
 )
@@ -54,6 +56,9 @@ from .procs import (
 )
 
 __all__ = [
+    "ARENAS",
+    "MMAP_THRESHOLD",
+    "tune_allocator",
     "PARENT_POLL_S",
     "die_with_parent",
     "quiet_resource_tracker",

@@ -160,14 +160,18 @@ class ClipRecord:
     def finding(self) -> ClipFinding:
         """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.record.finding`):
         the clip model's (``config.signals``) over :meth:`reading_values` where the record has readings,
-        else the background verdict's."""
-        background = self.background_finding()
-        if not self.config.signals.enabled or self.readings is None:
-            return background
-        signals = self.config.signals
-        model = load_clip_model(signals.model, signals.model_sha256)
-        drift = self.drift_finding() if signals.drift_fails_with_background else None
-        return model_finding(background, self.reading_values(), model, signals.decisive_shortfall, drift)
+        else the background verdict's. Computed once per record (the record is frozen)."""
+        known = self.__dict__.get("_finding")
+        if known is not None:
+            return known
+        finding = background = self.background_finding()
+        if self.config.signals.enabled and self.readings is not None:
+            signals = self.config.signals
+            model = load_clip_model(signals.model, signals.model_sha256)
+            drift = self.drift_finding() if signals.drift_fails_with_background else None
+            finding = model_finding(background, self.reading_values(), model, signals.decisive_shortfall, drift)
+        object.__setattr__(self, "_finding", finding)  # a cache, not a field: equality and asdict ignore it
+        return finding
 
     def model_verdict(self) -> str | None:
         """The clip model's verdict where it decides the clip (``config.signals`` on and readings
@@ -213,12 +217,41 @@ class ClipRecord:
             return None
         return mv.layers[0].describe()
 
+    def canvas(self) -> dict[str, Any]:
+        """The canvas the clip was scored on: source and working size (px), ``scale`` (working px
+        per source px, never above 1), whether the clip was ``resized`` once at decode, and the
+        background's GE in source px (``ge_source_px``: working px / scale). Pixel gates read
+        working px; the source-px figure says what a residual is in the clip's own pixels."""
+        v, ge = self.video, self.background.ge
+        scale = float(v.scale) if v.scale else 1.0
+        return {
+            "source_size": list(v.source_size),
+            "working_size": list(v.working_size),
+            "scale": scale,
+            "resized": scale < 1.0,
+            "ge_source_px": None if ge is None else float(ge) / scale,
+        }
+
+    def canvas_note(self) -> str | None:
+        """One sentence when the clip was resized at decode (:meth:`canvas`), else None."""
+        c = self.canvas()
+        if not c["resized"]:
+            return None
+        (w, h), (W, H) = c["source_size"], c["working_size"]
+        ge_src, ge = c["ge_source_px"], self.background.ge
+        said = "" if ge_src is None or ge is None else f"; GE {ge:.2f} px = {ge_src:.2f} source px"
+        return (
+            f"resized once at decode from {w}x{h} to {W}x{H} (x{c['scale']:.3f}): pixel gates read canvas px, "
+            f"1 canvas px = {1 / c['scale']:.2f} source px{said}"
+        )
+
     def summary(self) -> dict[str, Any]:
         """The clip summary printed by ``geocon score --json``."""
         bg, gate = self.background, self.gate
         finding = self.finding()
         return {
             "clip": self.clip,
+            "canvas": self.canvas(),
             "verdict": finding.to_dict(),
             "clip_score": finding.clip_score,
             **({"why": dict(finding.parts)} if finding.parts else {}),

@@ -102,6 +102,7 @@ def clip_from_record_json(
     given = _sidecar(clip_id, status, folder)
     if given["category"] is None and d.get("category"):  # as the tables: the scorer's stands in
         given["category"] = d["category"].get("label")
+    finding = finding_of_json(d)
     return ResultClip(
         **given,
         status="ok",
@@ -120,8 +121,8 @@ def clip_from_record_json(
         n_objects=len(d.get("objects", [])),
         shots=len(d.get("shots", [])),
         drift=drift_of_json(d),
-        finding=finding_of_json(d),
-        clip_score=None if finding_of_json(d) is None else _num(d.get("summary", {}).get("clip_score")),
+        finding=finding,
+        clip_score=None if finding is None else _num(d.get("summary", {}).get("clip_score")),
     )
 
 

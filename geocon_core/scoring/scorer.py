@@ -15,6 +15,7 @@ through the verdict rules of :mod:`geocon_core.scoring.verdict`.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 import os
@@ -71,6 +72,10 @@ from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, quiet_pot_ba
 from .schedule import StreamSchedule, gate_windows
 
 __all__ = ["score_clip", "software_versions", "read_readings"]
+
+LARGE_PASS_PIXELS = 500_000
+"""A feature pass on an image of this many pixels or more waits for any other such pass of the
+clip to end (one at a time: their buffers are the scorer's largest); smaller passes run freely."""
 
 
 def _pair_seed(seed: int, t0: int, t1: int, scale_index: int) -> int:
@@ -183,6 +188,7 @@ class _Pipeline:
         x0, y0, x1, y1 = info.content_box
         side = min(x1 - x0, y1 - y0)
         self.active = tuple(s for s in config.scales if s == self.s_max or s * side >= config.min_scale_side)
+        self.large_pass = threading.BoundedSemaphore(1)  # see extract
         self.K_pose = scale_intrinsics(K, self.s_max)
         self.lookahead = 0 if mask_source is None else mask_source.lookahead
         self.content = info.content_mask
@@ -291,7 +297,10 @@ class _Pipeline:
             out = self.matcher.extract_scales(inputs, frame.index)
         else:
             for s, (g, m) in inputs.items():
-                out[s] = self.matcher.extract(g, m, frame.index, s)
+                # one large pass at a time: SIFT's first octave (a doubled frame, eleven float
+                # images) is the largest buffer of the scorer; deterministic, so the same numbers
+                with self.large_pass if g.size >= LARGE_PASS_PIXELS else contextlib.nullcontext():
+                    out[s] = self.matcher.extract(g, m, frame.index, s)
         self.timer.add("features", start)
         return out
 

@@ -85,9 +85,13 @@ class ClipModel:
         }
 
     def digest(self) -> str:
-        """First 12 hex digits of the SHA-256 of the model's canonical JSON."""
-        blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(blob.encode()).hexdigest()[:12]
+        """First 12 hex digits of the SHA-256 of the model's canonical JSON (computed once per model)."""
+        known = self.__dict__.get("_digest")
+        if known is None:
+            blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+            known = hashlib.sha256(blob.encode()).hexdigest()[:12]
+            object.__setattr__(self, "_digest", known)  # frozen: a cache, not a field
+        return known
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], where: str = "clip model") -> "ClipModel":

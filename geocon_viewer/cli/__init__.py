@@ -260,6 +260,9 @@ def main() -> None:
         if small is not None:
             _say_and_exit(small, 1)
     _stop_on_signals()
+    from geocon_core.files import tune_allocator
+
+    tune_allocator()  # few arenas, frame-sized blocks back to the system: flat memory over long clips
     try:
         app(standalone_mode=True)
     except SystemExit:

@@ -166,6 +166,8 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
     table.add_row("gate", _gate_row(record))
     tau = f"tau_H {cfg.tau_h:g} px" if bg.model == "H" else f"tau_F {cfg.tau_f:g} (~{fmt(bg.tau_f_px, '.1f')} px)"
     table.add_row("background", f"{bg.model}: IR {fmt(bg.ir, '.3f')}   GE {fmt(bg.ge, '.2f')} px   ({tau})")
+    if (resized := record.canvas_note()) is not None:
+        table.add_row("canvas", resized)
     if len(bg.chosen.per_gap) > 1:
         table.add_row(
             "per gap",
