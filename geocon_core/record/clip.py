@@ -20,6 +20,7 @@ import math
 import os
 import zipfile
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -161,17 +162,17 @@ class ClipRecord:
         """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.record.finding`):
         the clip model's (``config.signals``) over :meth:`reading_values` where the record has readings,
         else the background verdict's. Computed once per record (the record is frozen)."""
-        known = self.__dict__.get("_finding")
-        if known is not None:
-            return known
-        finding = background = self.background_finding()
-        if self.config.signals.enabled and self.readings is not None:
-            signals = self.config.signals
-            model = load_clip_model(signals.model, signals.model_sha256)
-            drift = self.drift_finding() if signals.drift_fails_with_background else None
-            finding = model_finding(background, self.reading_values(), model, signals.decisive_shortfall, drift)
-        object.__setattr__(self, "_finding", finding)  # a cache, not a field: equality and asdict ignore it
-        return finding
+        return self._finding
+
+    @cached_property
+    def _finding(self) -> ClipFinding:
+        background = self.background_finding()
+        if not self.config.signals.enabled or self.readings is None:
+            return background
+        signals = self.config.signals
+        model = load_clip_model(signals.model, signals.model_sha256)
+        drift = self.drift_finding() if signals.drift_fails_with_background else None
+        return model_finding(background, self.reading_values(), model, signals.decisive_shortfall, drift)
 
     def model_verdict(self) -> str | None:
         """The clip model's verdict where it decides the clip (``config.signals`` on and readings

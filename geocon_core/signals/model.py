@@ -20,6 +20,7 @@ import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -86,12 +87,12 @@ class ClipModel:
 
     def digest(self) -> str:
         """First 12 hex digits of the SHA-256 of the model's canonical JSON (computed once per model)."""
-        known = self.__dict__.get("_digest")
-        if known is None:
-            blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
-            known = hashlib.sha256(blob.encode()).hexdigest()[:12]
-            object.__setattr__(self, "_digest", known)  # frozen: a cache, not a field
-        return known
+        return self._digest
+
+    @cached_property
+    def _digest(self) -> str:
+        blob = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], where: str = "clip model") -> "ClipModel":
