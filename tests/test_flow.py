@@ -195,6 +195,19 @@ def test_compute_both_gives_consistent_directions() -> None:
     assert np.allclose(np.median(_inner(bwd.flow).reshape(-1, 2), axis=0), [2.0, -1.0], atol=0.05)
 
 
+def test_compute_is_the_forward_field_of_compute_both() -> None:
+    """``compute`` checks only the forward field; it is exactly ``compute_both``'s, box or not."""
+    g0 = _texture(8)
+    g1 = _warp(g0, np.array([[1.0, 0.01, -2.0], [-0.01, 1.0, 1.0]]))
+    for box in (None, (40, 30, 200, 170)):
+        one = DisFlow().compute(g0, g1, box)
+        fwd, bwd = DisFlow().compute_both(g0, g1, box)
+        assert one.box == fwd.box and one.flow.dtype == np.float32
+        for a, b in ((one.flow, fwd.flow), (one.reliable, fwd.reliable), (one.fb_error, fwd.fb_error)):
+            assert np.array_equal(a, b)
+        assert not np.array_equal(one.flow, bwd.flow)
+
+
 def test_deterministic_across_instances_calls_and_threads() -> None:
     g0 = _texture(9)
     g1 = _warp(g0, np.array([[1.0, 0.0, 3.3], [0.0, 1.0, 0.4]]))

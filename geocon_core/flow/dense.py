@@ -183,8 +183,11 @@ class _RegionFlow:
         raise NotImplementedError
 
     def compute(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> FlowField:
-        """Forward flow ``gray0 -> gray1`` over ``box`` (the whole frame if None)."""
-        return self.compute_both(gray0, gray1, box)[0]
+        """Forward flow ``gray0 -> gray1`` over ``box`` (the whole frame if None): the forward
+        field of :meth:`compute_both`, without checking the backward one."""
+        box, region, a, b = self._region(gray0, gray1, box)
+        fwd, bwd = self._both(a, b)
+        return self._field(box, region, fwd, bwd)
 
     def compute_both(self, gray0: np.ndarray, gray1: np.ndarray, box: Box | None = None) -> tuple[FlowField, FlowField]:
         """The forward field ``gray0 -> gray1`` (on ``gray0``'s pixels) and the backward field
@@ -206,25 +209,24 @@ class _RegionFlow:
         b = np.ascontiguousarray(gray1[ry0:ry1, rx0:rx1])
         return (x0, y0, x1, y1), region, a, b
 
+    def _field(self, box: Box, region: Box, flow: np.ndarray, other: np.ndarray) -> FlowField:
+        """The field over ``box`` of the flow ``flow`` of ``region``, checked against ``other``,
+        the flow of the same region the other way."""
+        x0, y0, x1, y1 = box
+        rx0, ry0 = region[:2]
+        err, rel = forward_backward(flow, other, self.config.fb_abs, self.config.fb_rel)
+        sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
+        return FlowField(
+            box=box,
+            flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
+            reliable=np.ascontiguousarray(rel[sl]),
+            fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
+        )
+
     def _fields(self, box: Box, region: Box, fwd: np.ndarray, bwd: np.ndarray) -> tuple[FlowField, FlowField]:
         """The forward and backward fields over ``box`` of the flows ``fwd`` and ``bwd`` of
         ``region``, each with its forward-backward check."""
-        x0, y0, x1, y1 = box
-        rx0, ry0 = region[:2]
-        err_f, rel_f = forward_backward(fwd, bwd, self.config.fb_abs, self.config.fb_rel)
-        err_b, rel_b = forward_backward(bwd, fwd, self.config.fb_abs, self.config.fb_rel)
-        sl = (slice(y0 - ry0, y1 - ry0), slice(x0 - rx0, x1 - rx0))
-        out = []
-        for flow, err, rel in ((fwd, err_f, rel_f), (bwd, err_b, rel_b)):
-            out.append(
-                FlowField(
-                    box=box,
-                    flow=np.ascontiguousarray(flow[sl], dtype=np.float32),
-                    reliable=np.ascontiguousarray(rel[sl]),
-                    fb_error=np.ascontiguousarray(err[sl], dtype=np.float32),
-                )
-            )
-        return out[0], out[1]
+        return self._field(box, region, fwd, bwd), self._field(box, region, bwd, fwd)
 
 
 def _dis_safe_padding(h: int, w: int, patch: int, finest: int, ph: int, pw: int) -> tuple[int, int]:
