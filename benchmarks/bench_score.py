@@ -57,7 +57,7 @@ def measure(path: Path, preset_name: str, masks: str, matcher: str, rrd: str = "
     timings: dict[str, float] = {}
     sink = None
     if rrd != "-":
-        from geocon_viewer.rerun_log import RrdSink
+        from geocon_viewer.rerun.log import RrdSink
 
         sink = RrdSink(rrd)
     u0 = resource.getrusage(resource.RUSAGE_SELF)

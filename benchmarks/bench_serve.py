@@ -130,7 +130,7 @@ def main() -> None:
         )
 
         from geocon_core.results import ResultsIndex
-        from geocon_viewer.audit_app import AuditApp
+        from geocon_viewer.audit.app import AuditApp
 
         t = time.perf_counter()
         index = ResultsIndex.open(results)

@@ -19,7 +19,7 @@ import statistics
 import sys
 import time
 
-from geocon_viewer.teach_app import TeachApp, TeachParams
+from geocon_viewer.teach.app import TeachApp, TeachParams
 
 MOVES: tuple[tuple[str, float, float], ...] = (
     ("translation", 0.07, 0.02),

@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
 # Set up, check lint and types, then run the test suite. Extra arguments go to pytest:
-#   bash scripts/test.sh                      # the default run (slow checks deselected)
+#   bash scripts/test.sh                      # the default run (slow checks deselected): what CI runs
+#   bash scripts/test.sh --quick              # the quick tier: lint, types and the tests not marked
+#                                             # full or slow (every module, under 5 min on 2 cores);
+#                                             # no docs build, no wheel check
 #   bash scripts/test.sh -m slow              # only the slow end-to-end checks
 #   bash scripts/test.sh -m "slow or not slow"  # everything
 #   bash scripts/test.sh tests/test_geometry.py -x
@@ -10,6 +13,11 @@
 # about two minutes; GEOCON_WHEEL_CHECK=0 skips it for a quick local run).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
+quick=0
+if [ "${1:-}" = --quick ]; then
+    quick=1
+    shift
+fi
 bash scripts/bootstrap.sh viewer bench test neural distributed docs
 
 step() {
@@ -27,6 +35,10 @@ step "ruff format --check" "run .venv/bin/ruff format . and commit the result" \
     .venv/bin/ruff format --check --quiet .
 step "mypy" "fix the type errors above (configuration in pyproject.toml)" \
     .venv/bin/mypy --no-error-summary
+if [ "$quick" = 1 ]; then
+    echo "geocon: pytest, the quick tier (-m 'not slow and not full')" >&2
+    exec .venv/bin/python -m pytest -n 2 --dist loadfile --durations=10 -m "not slow and not full" "$@"
+fi
 step "docs build" "fix the warnings above (pages in docs/, configuration in mkdocs.yml)" \
     bash scripts/docs.sh --quiet
 if [ "${GEOCON_WHEEL_CHECK:-1}" != 0 ]; then

@@ -259,7 +259,8 @@ def test_view_connect_to_an_unreachable_viewer_is_one_sentence(ctx: Ctx, monkeyp
 
 def test_view_connect_to_a_viewer_that_goes_away_is_one_sentence(ctx: Ctx, monkeypatch):
     pytest.importorskip("rerun")
-    from geocon_viewer import processes, rerun_log
+    import geocon_viewer.capture
+    import geocon_viewer.rerun
 
     ctx.record()
     before = snapshot(ctx.tmp)
@@ -267,8 +268,9 @@ def test_view_connect_to_a_viewer_that_goes_away_is_one_sentence(ctx: Ctx, monke
     def severed(*_args: object, **_options: object) -> None:
         raise RuntimeError("gRPC connection severed")
 
-    monkeypatch.setattr(processes, "check_viewer_url", lambda url, **_: ("127.0.0.1", 9876))
-    monkeypatch.setattr(rerun_log, "write_rrd", severed)
+    # the command line takes both through their packages' public names
+    monkeypatch.setattr(geocon_viewer.capture, "check_viewer_url", lambda url, **_: ("127.0.0.1", 9876))
+    monkeypatch.setattr(geocon_viewer.rerun, "write_rrd", severed)
     case = Case("severed", nothing, view_connect("rerun+http://127.0.0.1:9876/proxy"), 1, ("stopped answering",))
     res = ctx.invoke(list(case.argv))
     problems = judge_all(case, ctx, res, before)

@@ -711,7 +711,7 @@ print("ok")
 
 def test_frames_too_thin_for_the_av1_encoder_are_logged_as_images():
     pytest.importorskip("rerun")
-    from geocon_viewer.rerun_video import FrameVideo
+    from geocon_viewer.rerun.video import FrameVideo
 
     assert FrameVideo.encodes(160, 90) and FrameVideo.encodes(33, 4096)
     assert not FrameVideo.encodes(2048, 16) and not FrameVideo.encodes(16, 16) and not FrameVideo.encodes(2, 360)
@@ -726,8 +726,8 @@ def test_pycolmap_keeps_the_process_signal_handlers():
 import os, signal, threading, time
 ran = []
 signal.signal(signal.SIGTERM, lambda *_: ran.append(1))
-from geocon_core.reconstruction.multiview import _pycolmap
-worker = threading.Thread(target=_pycolmap)
+from geocon_core.reconstruction.solve import load_pycolmap
+worker = threading.Thread(target=load_pycolmap)
 worker.start()
 worker.join()
 os.kill(os.getpid(), signal.SIGTERM)
@@ -740,7 +740,7 @@ print("handled" if ran else "not handled")
 
 
 def test_served_urls_put_ipv6_addresses_in_brackets():
-    from geocon_viewer.served import ServedApp
+    from geocon_viewer.audit.served import ServedApp
 
     class Server:
         def __init__(self, host: str) -> None:

@@ -20,7 +20,7 @@ import pytest
 from geocon_core.config import ScoreConfig
 from geocon_core.record import MAX_RECORD_JSON_BYTES, RecordError, read_record, read_record_json
 from geocon_core.scoring import load_residuals
-from geocon_viewer.processes import BindError, check_bind
+from geocon_viewer.capture.processes import BindError, check_bind
 
 GEOCON = [sys.executable, "-m", "geocon_viewer.cli"]
 CLEAN, BREATHING, ELASTIC = "clean-c1_static-s0", "breathing-c1_static-s0", "elastic-c1_static-s0"
@@ -139,7 +139,7 @@ def test_cli_serve_says_which_port_it_moved_to_and_why(results):
 
 def test_corrupt_record_and_truncated_matches_are_listed_broken(damaged):
     pytest.importorskip("viser")
-    from geocon_viewer.audit_app import AuditApp
+    from geocon_viewer.audit.app import AuditApp
 
     app = AuditApp(damaged, port=0, preload=True)
     try:
@@ -165,7 +165,7 @@ def test_corrupt_record_and_truncated_matches_are_listed_broken(damaged):
 
 def test_broken_records_found_on_selection_without_preload(damaged):
     pytest.importorskip("viser")
-    from geocon_viewer.audit_app import AuditApp
+    from geocon_viewer.audit.app import AuditApp
 
     app = AuditApp(damaged, port=0, preload=False)
     try:

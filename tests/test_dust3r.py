@@ -321,7 +321,7 @@ def test_geocon_score_with_dust3r_writes_the_pose_and_point_maps(tiny: Path, syn
     # the recording shows the confident points of both maps
     from rerun.chunk import RrdReader
 
-    from geocon_viewer.rerun_log import write_rrd
+    from geocon_viewer.rerun.log import write_rrd
 
     write_rrd(out, tmp_path / "audit.rrd")
     reader = RrdReader(tmp_path / "audit.rrd")

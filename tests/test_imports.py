@@ -170,14 +170,25 @@ CORE_TOP_LEVEL = {"__init__", "_version"}
 (loaded by ``import geocon_core`` at once; docs/layout.md says why it is no package)."""
 
 
+def _packages(top: str = "geocon_core") -> list[str]:
+    return sorted(p.parent.name for p in (ROOT / top).glob("*/__init__.py"))
+
+
 def _core_packages() -> list[str]:
-    return sorted(p.parent.name for p in (ROOT / "geocon_core").glob("*/__init__.py"))
+    return _packages("geocon_core")
+
+
+VIEWER_PACKAGES = {"cli", "rerun", "audit", "teach", "capture", "shared"}
+"""The surfaces of geocon_viewer (docs/layout.md): the command line, the Rerun recording, the
+audit app, the teaching app, what runs beside them (processes, Chromium, screenshots) and what
+they share (style, clouds)."""
 
 
 def _package_of(module: str) -> str:
-    """``geocon_core.record.clip`` -> ``geocon_core.record``; a viewer module stays itself."""
+    """``geocon_core.record.clip`` -> ``geocon_core.record``, ``geocon_viewer.rerun.log`` ->
+    ``geocon_viewer.rerun``; a top-level module stays itself."""
     parts = module.split(".")
-    return ".".join(parts[:2]) if parts[0] == "geocon_core" else module
+    return ".".join(parts[:2])
 
 
 def test_the_core_top_level_holds_packages_only():
@@ -186,14 +197,22 @@ def test_the_core_top_level_holds_packages_only():
     assert len(_core_packages()) >= 10
 
 
-def test_no_cycles_among_the_core_packages():
+def test_the_viewer_top_level_holds_its_surfaces_only():
+    modules = {p.stem for p in (ROOT / "geocon_viewer").glob("*.py")}
+    assert modules == {"__init__"}, f"modules at the top of geocon_viewer: {sorted(modules - {'__init__'})}"
+    assert set(_packages("geocon_viewer")) == VIEWER_PACKAGES
+
+
+@pytest.mark.parametrize("top", PACKAGES)
+def test_no_cycles_among_the_packages(top):
     graph: dict[str, set[str]] = {}
     for module, deps in _graph().items():
-        if not module.startswith("geocon_core."):
+        if not module.startswith(top + "."):
             continue
         mine = _package_of(module)
-        targets = {_package_of(d) for d in deps if d.startswith("geocon_core.")}
-        graph.setdefault(mine, set()).update(targets - {mine, "geocon_core"})
+        targets = {_package_of(d) for d in deps if d.startswith(top + ".")}
+        graph.setdefault(mine, set()).update(targets - {mine, top})
+    assert len(graph) >= 5
     assert _cycle(graph) is None, "package cycle: " + " -> ".join(_cycle(graph) or [])
 
 
@@ -211,33 +230,40 @@ def test_other_packages_use_a_package_through_its_init():
     for name, deps in _graph().items():
         for dep in deps:
             parts = dep.split(".")
-            if parts[0] != "geocon_core" or len(parts) < 3 or not (ROOT / "geocon_core" / parts[1]).is_dir():
+            if parts[0] not in PACKAGES or len(parts) < 3 or not (ROOT / parts[0] / parts[1]).is_dir():
                 continue
             if _package_of(name) != _package_of(dep) and dep in known:
                 bad.append(f"{name} -> {dep}")
     assert not bad, bad
 
 
-@pytest.mark.parametrize("package", _core_packages())
+@pytest.mark.parametrize(
+    "package",
+    [f"geocon_core.{p}" for p in _core_packages()] + [f"geocon_viewer.{p}" for p in sorted(VIEWER_PACKAGES)],
+)
 def test_each_package_declares_its_public_names(package):
     import importlib
 
-    module = importlib.import_module(f"geocon_core.{package}")
-    assert module.__doc__ and len(module.__doc__.strip()) > 40, f"geocon_core.{package} has no docstring"
+    if package.startswith("geocon_viewer.") and package != "geocon_viewer.cli":
+        for needed in ("rerun", "viser"):
+            pytest.importorskip(needed)
+    module = importlib.import_module(package)
+    assert module.__doc__ and len(module.__doc__.strip()) > 40, f"{package} has no docstring"
     names = module.__all__
     assert len(names) == len(set(names)), "a name twice in __all__"
+    top = package.split(".")[0]
     for name in names:
         value = getattr(module, name)
         defined_in = getattr(value, "__module__", None)
-        if isinstance(defined_in, str) and defined_in.startswith("geocon_core."):
+        if isinstance(defined_in, str) and defined_in.startswith(top + "."):
             # re-exported from its own package, or an alias of another package's public name
             owner = _package_of(defined_in)
-            assert owner == f"geocon_core.{package}" or name in importlib.import_module(owner).__all__, name
+            assert owner == package or name in importlib.import_module(owner).__all__, name
 
 
 def test_the_layout_page_names_every_package():
     page = (ROOT / "docs" / "layout.md").read_text()
-    missing = [p for p in _core_packages() if f"`{p}/`" not in page]
+    missing = [p for p in [*_core_packages(), *_packages("geocon_viewer")] if f"`{p}/`" not in page]
     assert not missing, f"docs/layout.md does not describe {missing}"
     assert "`_version.py`" in page
 

@@ -222,8 +222,8 @@ def test_the_recording_shows_the_reconstruction(clips, scored_clip, tmp_path):
     from rerun.chunk import RrdReader
 
     from geocon_core.record import write_record
-    from geocon_viewer.rerun_log import write_rrd
-    from geocon_viewer.rerun_multiview import LAYER_RGBA
+    from geocon_viewer.rerun.log import write_rrd
+    from geocon_viewer.rerun.multiview import LAYER_RGBA
 
     rec = scored_clip(clips["C3-across"], preset("audit"))
     write_record(rec, tmp_path / "record")
@@ -252,8 +252,8 @@ def test_the_recording_shows_the_reconstruction(clips, scored_clip, tmp_path):
 def test_the_audit_app_shows_the_reconstruction_and_the_slider_moves_its_camera(clips, scored_clip, tmp_path):
     pytest.importorskip("viser")
     from geocon_core.record import write_record
-    from geocon_viewer.audit_app import AuditApp
-    from geocon_viewer.audit_views import PAIR_CLIP
+    from geocon_viewer.audit.app import AuditApp
+    from geocon_viewer.audit.views import PAIR_CLIP
 
     rec = scored_clip(clips["C3-across"], preset("audit"))
     write_record(rec, tmp_path / "one")

@@ -263,8 +263,8 @@ def _find(shot: np.ndarray, figure: np.ndarray) -> tuple[float, int, int]:
 
 
 def test_first_screen_in_chromium_shows_the_three_figures(report, tmp_path):
-    from geocon_viewer.chromium import find_chromium
-    from geocon_viewer.screenshot import screenshot_url
+    from geocon_viewer.capture.chromium import find_chromium
+    from geocon_viewer.capture.screenshot import screenshot_url
 
     if find_chromium() is None:
         pytest.skip("Chromium is not installed")

@@ -19,9 +19,9 @@ from geocon_core.config import preset  # noqa: E402
 from geocon_core.reconstruction import DenseCloud, DenseCloudConfig, WindowCloud  # noqa: E402
 from geocon_core.record import OverlayWriter, read_overlays, read_record, record_id, write_record  # noqa: E402
 from geocon_core.scoring import score_clip  # noqa: E402
-from geocon_viewer.rerun_dense import WINDOW_POINTS, WORLD_POINTS  # noqa: E402
-from geocon_viewer.rerun_layers import RecordLayers  # noqa: E402
-from geocon_viewer.rerun_log import RrdSink, audit_card, residual_map, write_rrd  # noqa: E402
+from geocon_viewer.rerun.dense import WINDOW_POINTS, WORLD_POINTS  # noqa: E402
+from geocon_viewer.rerun.layers import RecordLayers  # noqa: E402
+from geocon_viewer.rerun.log import RrdSink, audit_card, residual_map, write_rrd  # noqa: E402
 
 
 def _rows(rrd: Path) -> dict[str, list[dict]]:
@@ -85,7 +85,7 @@ def test_the_reading_maps_are_the_records_and_the_card_says_where_to_look(audit_
     import cv2
 
     from geocon_core.signals import MAP_NAMES, MAP_VIEWS, heat_rgba, map_on_frame
-    from geocon_viewer.rerun_card import reading_tab
+    from geocon_viewer.rerun.card import reading_tab
 
     record, _, rows = audit_run
     a = record.readings.appearance
@@ -208,7 +208,7 @@ def test_cells_are_the_records_vectors(objects_run):
     cells = record.cells.entry(e.index)
     row = next(r for r in rows[f"/frame/cells/{e.object_id}/observed"] if r.get("frame") == e.t0)
     vectors = np.array(row["Arrows2D:vectors"], dtype=np.float32)
-    from geocon_viewer.rerun_log import ARROW_GAIN
+    from geocon_viewer.rerun.log import ARROW_GAIN
 
     assert np.allclose(vectors, ARROW_GAIN * cells["observed"], atol=1e-4)
 
@@ -421,8 +421,8 @@ def test_a_flagged_clip_opens_on_its_evidence(synth_dir, tmp_path):
     that map's tab, and the start frame is where the reading is strongest."""
     import rerun.blueprint as rrb
 
-    from geocon_viewer.rerun_card import evidence, reading_tab
-    from geocon_viewer.rerun_log import blueprint
+    from geocon_viewer.rerun.card import evidence, reading_tab
+    from geocon_viewer.rerun.log import blueprint
 
     from .flagged import STRONGEST_FRAME, flagged_on_appearance
 

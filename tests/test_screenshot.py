@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_viewer import screenshot
-from geocon_viewer.screenshot import (
+from geocon_viewer.capture import screenshot
+from geocon_viewer.capture.screenshot import (
     MIN_SHARE,
     ScreenshotError,
     find_chromium,
@@ -257,7 +257,7 @@ def test_native_path_polls_the_viewer_until_the_frame_is_shown(tmp_path: Path, m
     monkeypatch.setattr(screenshot, "POLL_S", 0.01)
     rrd = tmp_path / "clip.rrd"
     rrd.write_bytes(b"not read by the stand-ins")
-    with caplog.at_level(logging.INFO, logger="geocon_viewer.screenshot"):
+    with caplog.at_level(logging.INFO, logger="geocon_viewer.capture.screenshot"):
         out = screenshot_native(rrd, tmp_path / "native.png", at="frame@3", settle_s=0.0, timeout_s=30.0)
     assert out.read_bytes() == shots[4]  # the second screenshot of the shown frame
     assert calls[:2] == [("open", "clip.rrd"), ("set_time", "frame", 3, "paused")] and len(calls) == 2 + 5
@@ -291,7 +291,7 @@ def test_view_screenshot_shows_the_decoded_frame(small_record: Path, tmp_path: P
 
     png = tmp_path / "view.png"
     started = time.monotonic()
-    with caplog.at_level(logging.INFO, logger="geocon_viewer.screenshot"):
+    with caplog.at_level(logging.INFO, logger="geocon_viewer.capture.screenshot"):
         res = CliRunner().invoke(app, ["view", str(small_record), "--screenshot", str(png)])
     took = time.monotonic() - started
     assert res.exit_code == 0, res.output

@@ -26,7 +26,7 @@ from geocon_core.record import read_record  # noqa: E402
 from geocon_core.results import VERDICTS, ResultsError, ResultsIndex  # noqa: E402
 from geocon_core.scoring import pair_inliers, regate_family  # noqa: E402
 from geocon_core.synth import plan_benchmark, write_benchmark  # noqa: E402
-from geocon_viewer.audit_app import LIST_ROWS, AuditApp  # noqa: E402
+from geocon_viewer.audit.app import LIST_ROWS, AuditApp  # noqa: E402
 
 from .bad_inputs import broken_bench_clip  # noqa: E402
 
@@ -363,7 +363,7 @@ def test_bad_results_folders_are_refused(tmp_path):
 
 @pytest.mark.slow
 def test_headless_chromium_shows_the_list_scene_and_plots(results, tmp_path):
-    from geocon_viewer.screenshot import find_chromium
+    from geocon_viewer.capture.screenshot import find_chromium
 
     if find_chromium() is None:
         pytest.skip("no Chromium on this machine (bash scripts/bootstrap.sh test installs it)")
@@ -449,8 +449,8 @@ def test_switching_pairs_while_frames_decode_raises_in_no_thread(dense_record, m
 
 
 def test_the_scene_shows_the_dense_cloud_of_the_pair_picked_with_its_legend(dense_record):
-    from geocon_viewer.audit_views import DENSE_POINTS
-    from geocon_viewer.clouds import dense_points
+    from geocon_viewer.audit.views import DENSE_POINTS
+    from geocon_viewer.shared.clouds import dense_points
 
     record = read_record(dense_record)
     assert [(w.start, w.end) for w in record.dense] == [(0, 19), (0, 16)]
@@ -474,7 +474,7 @@ def test_a_flagged_clip_opens_on_the_reading_its_score_leans_on(results, tmp_pat
     """The record's readings say the clip's appearance changes along the flow, strongest at a known
     frame and only inside a known patch: the app opens on that map and that frame, and paints the patch."""
     from geocon_core.signals import MAP_VIEWS
-    from geocon_viewer.audit_views import MAP_MENU
+    from geocon_viewer.audit.views import MAP_MENU
 
     from .flagged import STRONGEST_FRAME, flagged_on_appearance
 

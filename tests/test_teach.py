@@ -17,8 +17,8 @@ import pytest
 pytest.importorskip("viser")
 
 from geocon_core.synth import build_scene  # noqa: E402
-from geocon_viewer.style import fmt  # noqa: E402
-from geocon_viewer.teach_app import TeachApp, TeachParams, TeachUpdate  # noqa: E402
+from geocon_viewer.shared.style import fmt  # noqa: E402
+from geocon_viewer.teach.app import TeachApp, TeachParams, TeachUpdate  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -184,8 +184,8 @@ def test_headless_chromium_drives_the_sliders(app, capsys):
     """A user's browser: typing into the sliders' number boxes moves the translation across the
     band (the gate label shown flips from H to F), raises breathing (the strict IR shown falls) and
     elasticity (the disc's AdaDFRC shown rises); the page shows the frame and the controls."""
-    from geocon_viewer.chromium import open_page
-    from geocon_viewer.screenshot import find_chromium
+    from geocon_viewer.capture.chromium import open_page
+    from geocon_viewer.capture.screenshot import find_chromium
 
     if find_chromium() is None:
         pytest.skip("no Chromium on this machine (bash scripts/bootstrap.sh test installs it)")

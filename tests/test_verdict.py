@@ -112,7 +112,7 @@ def _report_flagged(index: ResultsIndex) -> set[str]:
 
 def _app_flagged(index: ResultsIndex) -> set[str]:
     pytest.importorskip("viser")
-    from geocon_viewer.audit_app import ANY, FLAGGED, AuditApp
+    from geocon_viewer.audit.app import ANY, FLAGGED, AuditApp
 
     handles = SimpleNamespace(
         state=SimpleNamespace(value=FLAGGED),

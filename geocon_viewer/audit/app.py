@@ -40,9 +40,12 @@ from geocon_core.results import BROKEN, ResultsError, ResultsIndex, TriageRow
 from geocon_core.scoring import ClipVerdict, Thresholds, pair_inliers
 from geocon_core.signals import MAP_NAMES
 
-from .audit_gui import ANY, FLAGGED, AuditPanels
-from .audit_triage import LIST_ROWS, rrd_text, thresholds_text, triage_summary, triage_table
-from .audit_views import (
+from ..capture import check_bind
+from ..rerun import evidence
+from .gui import ANY, FLAGGED, AuditPanels
+from .served import ServedApp
+from .triage import LIST_ROWS, rrd_text, thresholds_text, triage_summary, triage_table
+from .views import (
     ClipView,
     Plots,
     clip_card,
@@ -57,9 +60,6 @@ from .audit_views import (
     render_scene,
     thumb,
 )
-from .processes import check_bind
-from .rerun_card import evidence
-from .served import ServedApp
 
 __all__ = ["AuditApp", "ClipView", "LIST_ROWS"]
 
@@ -443,7 +443,7 @@ class AuditApp(AuditPanels, ServedApp):
         if background:
             threading.Thread(target=self.write_rrd, name="geocon-rrd", daemon=True).start()
             return None
-        from .rerun_log import write_rrd
+        from ..rerun import write_rrd
 
         self.rrd_button.disabled = True
         self.rrd_md.content = "writing the recording…"

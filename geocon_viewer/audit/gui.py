@@ -1,6 +1,6 @@
 """The panels of the ``geocon serve`` audit app: the control panel (triage list, clip picker,
 thresholds), the frame panel (frame, slider, audit card, Rerun button) and the plots panel. Only
-the handles are made here; :class:`~geocon_viewer.audit_app.AuditApp` hooks them to its callbacks."""
+the handles are made here; :class:`~geocon_viewer.audit.app.AuditApp` hooks them to its callbacks."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from geocon_core.results import VERDICTS, ResultsIndex
 from geocon_core.scoring import Thresholds
 from geocon_core.signals import MAP_NAMES
 
-from .audit_triage import LIST_ROWS, THRESHOLD_LABELS
-from .audit_views import MAP_MENU, PAIR_FIRST_LAST, empty_plot, map_choice
+from .triage import LIST_ROWS, THRESHOLD_LABELS
+from .views import MAP_MENU, PAIR_FIRST_LAST, empty_plot, map_choice
 
 __all__ = ["AuditPanels", "ANY", "FLAGGED"]
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from geocon_core.results import BROKEN, TriageRow
 from geocon_core.scoring import Thresholds
 
-from .style import EMPTY, fmt
+from ..shared import EMPTY, fmt
 
 __all__ = ["LIST_ROWS", "THRESHOLD_LABELS", "triage_summary", "triage_table", "thresholds_text", "rrd_text"]
 

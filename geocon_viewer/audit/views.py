@@ -21,9 +21,8 @@ from geocon_core.record import ClipRecord, Overlays, clip_finding
 from geocon_core.results import ResultClip
 from geocon_core.scoring import ClipVerdict, Thresholds, regate_pairs
 
-from .clouds import dense_points
-from .rerun_card import why_lines
-from .style import EMPTY, dense_legend, fmt, object_color, track_colors
+from ..rerun import why_lines
+from ..shared import EMPTY, dense_legend, dense_points, fmt, object_color, track_colors
 
 INLIER = (60, 200, 90)
 OUTLIER = (235, 60, 50)

@@ -2,7 +2,7 @@
 websocket library needed): open a page on this machine, wait for it to render (a fixed time, or
 screenshots taken until the caller finds one ready), capture a PNG.
 Chromium resolves no host but 127.0.0.1 and runs without a crash reporter, so every process it
-starts stays in its process group and goes with it (:func:`~geocon_viewer.processes.kill_group`)."""
+starts stays in its process group and goes with it (:func:`~geocon_viewer.capture.processes.kill_group`)."""
 
 from __future__ import annotations
 
@@ -274,7 +274,7 @@ def capture(
     Without ``wait`` the PNG is the one screenshot taken then. With it, ``wait(take)`` decides:
     ``take()`` returns a fresh PNG of the page (checking Chromium and ``alive()`` first) and ``wait``
     returns the PNG to save once the page looks ready, polling as often as it likes until the
-    deadline (see :func:`geocon_viewer.screenshot.poll_until_ready`)."""
+    deadline (see :func:`geocon_viewer.capture.screenshot.poll_until_ready`)."""
     chromium = find_chromium()
     if chromium is None:
         raise ScreenshotError("Chromium is not installed (apt-get install chromium, or set $CHROMIUM).")

@@ -13,7 +13,7 @@ Two ways, both on 127.0.0.1 only and always cleaned up:
 Neither viewer says when it has decoded the video, so both paths take screenshots until one is ready
 (:func:`poll_until_ready`): the largest image in a 2D view must be a textured picture, not the flat
 viewer background with matches and masks floating on it (:func:`find_frame`), and the screenshot must
-equal the one before (loading dots animate). The time it took is logged on the ``geocon_viewer.screenshot``
+equal the one before (loading dots animate). The time it took is logged on the ``geocon_viewer.capture.screenshot``
 logger at INFO.
 
 Every child runs in its own process group and is stopped with its group at the end.

@@ -21,7 +21,7 @@ __all__ = ["bench", "report", "presets", "render_audit_rrd"]
 def render_audit_rrd(record_dir: Path, rrd_path: Path) -> Path | None:
     """Write the Rerun recording of a saved record (the renderer ``geocon bench`` gives its worker
     processes for flagged clips: a module-level function, so it pickles by name)."""
-    from ..rerun_log import quiet_encoder_logs, write_rrd
+    from ..rerun import quiet_encoder_logs, write_rrd
 
     quiet_encoder_logs()
     return write_rrd(record_dir, rrd_path)

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from ..style import fmt
+from ..shared import fmt
 from .commands_score import print_record, score_with_progress
 from .commands_synth import check_render_out, render_plans
 from .console import MAX_SEED, fail, has_viewer_extra, out, rerun_version

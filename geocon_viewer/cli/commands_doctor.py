@@ -177,7 +177,7 @@ def checks() -> list[Check]:
         Check("viewer", "viser (geocon serve)", viser is not None, f"viser {viser}" if viser else VIEWER_EXTRA)
     )
     out_checks.append(_open3d())
-    from ..chromium import find_chromium
+    from ..capture import find_chromium
 
     chromium = find_chromium()
     out_checks.append(

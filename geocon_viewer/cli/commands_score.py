@@ -14,7 +14,7 @@ from rich.table import Table
 import geocon_core
 from geocon_core.config import DEFAULT_PRESET
 
-from ..style import fmt
+from ..shared import fmt
 from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, progress_bar, rerun_version
 
 if TYPE_CHECKING:
@@ -49,7 +49,7 @@ def _rrd_sink_factory(rrd: Path) -> Callable[[Path], Any]:
     ``rrd``; fails before scoring when the viewer extra is missing."""
     if not has_viewer_extra("rerun"):
         raise fail(f"writing a Rerun recording needs the viewer extra: {VIEWER_EXTRA}")
-    from ..rerun_log import RrdSink, quiet_encoder_logs
+    from ..rerun import RrdSink, quiet_encoder_logs
 
     quiet_encoder_logs()
     return lambda _folder: RrdSink(rrd)

@@ -46,7 +46,7 @@ def teach(
     gate (H/U/F against t_inf's 0.03/0.05 band), IR/GE against the report gate, each object's
     AdaDFRC, the inliers of a pair and one sentence on what changed and why. Each update's latency
     is printed."""
-    from ..processes import BindError, check_bind
+    from ..capture import BindError, check_bind
 
     try:
         check_bind(host, port)  # before anything starts: a server thread that cannot bind fails unseen
@@ -61,7 +61,7 @@ def teach(
             check_out_file(screenshot, "--screenshot", "screenshot.png")  # before the server starts
         except OutPathError as exc:
             raise fail(str(exc)) from None
-    from ..teach_app import TeachApp, TeachParams, TeachUpdate
+    from ..teach import TeachApp, TeachParams, TeachUpdate
 
     try:
         params = TeachParams(num_frames=frames, seed=seed)

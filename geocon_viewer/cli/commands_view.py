@@ -107,7 +107,7 @@ def _check_outputs(record: Any, folder: Path, rrd: Path, screenshot: Path | None
 def _check_connect(url: str | None) -> None:
     """Refuse a ``--connect`` URL that is malformed (exit 2) or where no viewer answers (exit 1),
     before anything is scored or rendered."""
-    from ..processes import ViewerUnreachable, ViewerUrlError, check_viewer_url
+    from ..capture import ViewerUnreachable, ViewerUrlError, check_viewer_url
 
     if url is None:
         return
@@ -194,8 +194,7 @@ def view(
     _check_connect(connect)
     from geocon_core.record import read_overlays, read_record
 
-    from ..rerun_card import evidence
-    from ..rerun_log import quiet_encoder_logs, worst_frame, write_rrd
+    from ..rerun import evidence, quiet_encoder_logs, worst_frame, write_rrd
 
     quiet_encoder_logs()
     folder = _resolve_record(target, preset_name)
@@ -237,7 +236,7 @@ def view(
         "of the same version)"
     )
     if screenshot is not None:
-        from ..screenshot import ScreenshotError, screenshot_rrd
+        from ..capture import ScreenshotError, screenshot_rrd
 
         try:
             screenshot_rrd(rrd, screenshot, at=f"frame@{frame}")
@@ -246,7 +245,7 @@ def view(
         out.print(f"screenshot: {screenshot}")
     if headless or connect is not None or screenshot is not None:
         return
-    from ..serve import open_native, serve_web
+    from ..rerun import open_native, serve_web
 
     if _has_display() and not serve:
         open_native(rrd, frame=frame)
@@ -290,7 +289,7 @@ def serve(
 ) -> None:
     """Browse a benchmark's clips in the Viser audit app: the triage list (most severe first), live
     re-gating at other thresholds, the 3D scene, frames with overlays and the IR/GE/AdaDFRC plots."""
-    from ..processes import BindError, check_bind
+    from ..capture import BindError, check_bind
 
     try:
         check_bind(host, port)  # before anything starts: a server thread that cannot bind fails unseen
@@ -307,8 +306,8 @@ def serve(
             raise fail(str(exc)) from None
     from geocon_core.results import ResultsError, ResultsIndex
 
-    from ..audit_app import AuditApp
-    from ..rerun_video import quiet_encoder_logs
+    from ..audit import AuditApp
+    from ..rerun import quiet_encoder_logs
 
     quiet_encoder_logs()  # the app writes recordings on request
 

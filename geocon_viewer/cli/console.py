@@ -240,7 +240,7 @@ def serve_until_stopped(
     screenshot: Path | None = None,
     before_shot: Callable[[], object] = lambda: None,
 ) -> None:
-    """Serve ``app`` (a :class:`~geocon_viewer.served.ServedApp`) until Ctrl-C or ``kill``
+    """Serve ``app`` (a :class:`~geocon_viewer.audit.served.ServedApp`) until Ctrl-C or ``kill``
     (raised as KeyboardInterrupt, even when started with SIGINT ignored, as a background job of a
     non-interactive shell is), after printing ``banner`` and a note when ``port`` was busy; with
     ``screenshot``, save a PNG of the page (after ``before_shot()``) and return instead. The caller
@@ -255,7 +255,7 @@ def serve_until_stopped(
         err.print(f"port {port} on {host} is in use: serving on port {app.port} instead", soft_wrap=True)
     out.print(banner, soft_wrap=True)
     if screenshot is not None:
-        from ..screenshot import ScreenshotError, screenshot_url
+        from ..capture import ScreenshotError, screenshot_url
 
         before_shot()
         try:

@@ -9,8 +9,8 @@ import rerun as rr
 
 from geocon_core.record import ClipRecord
 
-from .rerun_dense import dense_legend_markdown
-from .style import fmt
+from ..shared import fmt
+from .dense import dense_legend_markdown
 
 __all__ = [
     "audit_card",

@@ -1,7 +1,7 @@
 """The dense point clouds of a record in a Rerun recording: the first/last pair in ``world`` (static,
 beside the cameras) and each gate window's pair in ``window`` on the timelines (logged at the
 window's first frame, so scrubbing the timeline shows the window being scored). Points are
-coloured by their epipolar residual (:func:`~geocon_viewer.style.dense_colors`); open3d removes
+coloured by their epipolar residual (:func:`~geocon_viewer.shared.style.dense_colors`); open3d removes
 stray points and thins large clouds. A pair without parallax says so in the 3D view itself.
 
 =============================  ===============================================================
@@ -27,8 +27,7 @@ import rerun as rr
 from geocon_core.reconstruction import KIND_OUTLIER, WindowCloud
 from geocon_core.record import ClipRecord
 
-from .clouds import dense_points
-from .style import OUTLIER_SPAN
+from ..shared import OUTLIER_SPAN, dense_points
 
 __all__ = ["log_dense", "log_pointmaps", "dense_legend_markdown", "WORLD_POINTS", "WINDOW_POINTS"]
 

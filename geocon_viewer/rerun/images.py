@@ -8,7 +8,7 @@ import math
 import cv2
 import numpy as np
 
-from .style import object_color
+from ..shared import object_color
 
 __all__ = ["colormap", "object_rgba", "png_bytes", "residual_map"]
 

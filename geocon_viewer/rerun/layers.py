@@ -1,7 +1,7 @@
 """The parts of a Rerun audit recording that come from the finished record: matches and residual
 maps per pair, per-cell object vectors, time series, the 3D world, and the maps of where the
 clip's readings fire. :class:`RecordLayers`
-writes them into an explicit recording stream (see :mod:`geocon_viewer.rerun_log` for the
+writes them into an explicit recording stream (see :mod:`geocon_viewer.rerun.log` for the
 entity paths)."""
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ import rerun as rr
 from geocon_core.geometry import family_spec
 from geocon_core.record import ClipRecord, FitSummary
 
-from .clouds import clean_cloud
-from .rerun_dense import log_dense, log_pointmaps
-from .rerun_images import colormap, object_rgba, png_bytes, residual_map
-from .rerun_multiview import log_multiview
+from ..shared import clean_cloud
+from .dense import log_dense, log_pointmaps
+from .images import colormap, object_rgba, png_bytes, residual_map
+from .multiview import log_multiview
 
 __all__ = ["RecordLayers", "ARROW_GAIN", "INLIER", "OUTLIER"]
 

@@ -32,7 +32,7 @@ logged at frame t. Entity paths:
 ``series/objects/<id>``        AdaDFRC ``D_t`` per object
 ``series/gate/...``            per-window ``t_inf`` with the 0.03 / 0.05 lines and margin
 ``world/points``               first/last two-view point cloud (sparse; when there is no dense one)
-``world/dense``, ``window/...``  the dense clouds (:mod:`geocon_viewer.rerun_dense`)
+``world/dense``, ``window/...``  the dense clouds (:mod:`geocon_viewer.rerun.dense`)
 ``world/cam_first``,
 ``world/cam_last``             both cameras as pinholes
 ``audit``                      the audit card (markdown)
@@ -59,10 +59,10 @@ from geocon_core.media import DEFAULT_FPS
 from geocon_core.record import ClipRecord, FlowSlice, FrameDiagnostics, flow_hue
 from geocon_core.signals import MAP_NAMES
 
-from .rerun_card import RERUN_VERSION, audit_card, evidence, reading_tab, worst_frame
-from .rerun_images import object_rgba, png_bytes, residual_map
-from .rerun_layers import ARROW_GAIN, RecordLayers
-from .rerun_video import FrameVideo, quiet_encoder_logs
+from .card import RERUN_VERSION, audit_card, evidence, reading_tab, worst_frame
+from .images import object_rgba, png_bytes, residual_map
+from .layers import ARROW_GAIN, RecordLayers
+from .video import FrameVideo, quiet_encoder_logs
 
 __all__ = [
     "RerunAudit",
@@ -106,7 +106,7 @@ class RerunAudit:
     fps: the clip's frame rate (for ``video_time``; the reader's ``DEFAULT_FPS`` when not
     positive); frames: ``"video"`` (AV1, compact, the default) or ``"jpeg"`` (one JPEG per frame,
     ``quality``; also what ``"video"`` falls back to for frames too thin for the encoder,
-    :meth:`~geocon_viewer.rerun_video.FrameVideo.encodes`); scale: which scale's matches are drawn
+    :meth:`~geocon_viewer.rerun.video.FrameVideo.encodes`); scale: which scale's matches are drawn
     over the frames (default: the largest).
     """
 

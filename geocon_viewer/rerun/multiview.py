@@ -14,8 +14,9 @@ import numpy as np
 import rerun as rr
 
 from geocon_core.record import ClipRecord
+from geocon_core.results import LAYER_RGB
 
-from .style import LAYER_RGB, track_colors
+from ..shared import track_colors
 
 __all__ = ["LAYER_RGBA", "log_multiview"]
 

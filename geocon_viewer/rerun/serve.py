@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from .processes import ScreenshotError, find_rerun_binary, free_port, kill_group, start_rerun
+from ..capture import ScreenshotError, find_rerun_binary, free_port, kill_group, start_rerun
 
 __all__ = ["open_native", "serve_web"]
 

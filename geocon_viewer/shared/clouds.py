@@ -1,6 +1,6 @@
 """Point clouds as the viewers draw them: open3d removes stray points and thins large clouds; the
 dense clouds of a record are coloured by their epipolar residual
-(:func:`~geocon_viewer.style.dense_colors`). Shared by the Rerun recording and the Viser app."""
+(:func:`~geocon_viewer.shared.style.dense_colors`). Shared by the Rerun recording and the Viser app."""
 
 from __future__ import annotations
 

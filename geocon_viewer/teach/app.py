@@ -44,12 +44,11 @@ from geocon_core.config import MultiViewConfig, preset
 from geocon_core.record import ClipRecord, FrameDiagnostics
 from geocon_core.scoring import Thresholds, score_clip
 
-from .audit_views import thumb
-from .processes import check_bind
-from .served import ServedApp
-from .style import track_colors
-from .teach_scene import FAMILY, SIZES, SLIDERS, TeachParams, mean_distance, render_teach_clip
-from .teach_views import (
+from ..audit import ServedApp, thumb
+from ..capture import check_bind
+from ..shared import track_colors
+from .scene import FAMILY, SIZES, SLIDERS, TeachParams, mean_distance, render_teach_clip
+from .views import (
     TeachUpdate,
     draw_matches,
     explain,

@@ -15,9 +15,9 @@ import numpy as np
 from geocon_core.record import ClipRecord, FamilySummary
 from geocon_core.scoring import Thresholds, pair_inliers
 
-from .audit_views import INLIER, OUTLIER
-from .style import fmt, object_color
-from .teach_scene import SLIDERS, TeachClip, TeachParams
+from ..audit import INLIER, OUTLIER
+from ..shared import fmt, object_color
+from .scene import SLIDERS, TeachClip, TeachParams
 
 __all__ = [
     "TeachUpdate",
