@@ -312,6 +312,7 @@ def test_too_few_open_files_is_refused_up_front(tmp_path, clip):
     assert not (tmp_path / "rec").exists()
 
 
+@pytest.mark.full
 def test_a_low_soft_open_files_limit_is_raised_when_the_hard_limit_allows(tmp_path, clip):
     import resource
 
@@ -357,6 +358,7 @@ def test_running_out_of_file_descriptors_midway_is_one_sentence(tmp_path, code):
 # --- a bench worker killed mid-run ----------------------------------------------------------------
 
 
+@pytest.mark.full
 def test_a_killed_bench_worker_and_resource_tracker_print_no_traceback(tmp_path):
     """``kill -9`` of every multiprocessing child of a running ``geocon bench --workers 2`` (the
     workers and the resource tracker, as ``pkill -f multiprocessing`` does): the run recovers, says
@@ -422,6 +424,7 @@ def test_an_ascii_terminal_gets_the_score_summary_with_stand_ins(tmp_path, synth
     assert re.search(rb"AdaDFRC [0-9.]+ px2", res.stdout), res.stdout  # px\u00b2
 
 
+@pytest.mark.full
 @pytest.mark.parametrize(
     "argv",
     [("synth", "C1", "--out", "s", *SMALL), ("synth-failures",), ("presets",), ("doctor",)],
@@ -431,6 +434,7 @@ def test_an_ascii_terminal_gets_every_table(tmp_path, argv):
     _ascii_run(tmp_path, *argv)
 
 
+@pytest.mark.full
 def test_an_ascii_terminal_gets_the_bench_and_report_output(tmp_path):
     pytest.importorskip("pyarrow")
     pytest.importorskip("matplotlib")
@@ -699,6 +703,7 @@ def test_the_cpu_time_limit_stops_the_run_with_one_sentence(tmp_path):
     assert not (tmp_path / "s").exists(), sorted(p.name for p in (tmp_path / "s").iterdir())
 
 
+@pytest.mark.full
 def test_a_real_ulimit_t_ends_synth_with_one_sentence(tmp_path):
     import resource
 

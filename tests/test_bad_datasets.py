@@ -685,6 +685,7 @@ def test_the_catalogue_is_complete():
     assert len(names) == len(set(names)), "case names are unique"
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_bad_dataset(case: Case, ctx: Ctx):
     run_case(case, ctx)

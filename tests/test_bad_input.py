@@ -1356,6 +1356,7 @@ def run_case(case: Case, ctx: Ctx, judged_by: Callable[..., list[str]] | None = 
     return res
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_bad_input(case: Case, ctx: Ctx):
     run_case(case, ctx)

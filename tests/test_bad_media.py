@@ -678,6 +678,7 @@ def test_the_odd_catalogue_is_complete():
     assert len(names) == len(set(names)), "case names are unique"
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("case", ODD, ids=[c.name for c in ODD])
 def test_odd_media(case: Case, ctx: Ctx, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setattr(catalogue, "SUBPROCESS_TIMEOUT_S", ODD_SUBPROCESS_LIMIT_S)

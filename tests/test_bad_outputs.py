@@ -258,6 +258,7 @@ def test_the_catalogue_is_complete():
     assert len(names) == len(set(names)), "case names are unique"
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_bad_output(case: Case, ctx: Ctx):  # noqa: F811
     run_case(case, ctx)
@@ -344,6 +345,7 @@ def _score_again(work: Path, rrd: Path, fsize: int | None = None) -> subprocess.
     return _geocon(["score", "clip.mp4", *FAST, "--out", "rec", "--rrd", str(rrd), "--fov", "70"], work, fsize)
 
 
+@pytest.mark.full
 def test_a_file_size_limit_while_scoring_stops_with_one_sentence_and_keeps_the_recording(scored: Path):
     before = snapshot(scored)
     res = _score_again(scored, scored / "a.rrd", fsize=64 * 1024)
@@ -358,6 +360,7 @@ def test_a_file_size_limit_while_viewing_stops_with_one_sentence_and_keeps_the_r
     assert snapshot(scored) == before and not _parts(scored)
 
 
+@pytest.mark.full
 def test_a_full_disk_while_the_recording_is_written(scored: Path):
     """The record (on the working disk) and the recording (on a full one) are one unit: neither
     changes, and the full disk holds no partial file."""
@@ -416,6 +419,7 @@ def _machines_sentence(res: subprocess.CompletedProcess, words: str) -> None:
     assert len(lines) == 1 and lines[0].startswith(f"error: {words}"), res.stderr
 
 
+@pytest.mark.full
 def test_a_bench_on_a_full_disk_stops_records_no_failure_and_resumes(tmp_path: Path):
     """A full disk is the machine's failure, not the clip's: the run stops with one sentence,
     no clip is recorded as failed (a resumed run would keep that), nothing partial is left, and
@@ -448,6 +452,7 @@ def test_a_bench_whose_disk_is_full_at_its_first_file_leaves_no_results_folder(t
         subprocess.run(["umount", "-l", str(mount)], capture_output=True)
 
 
+@pytest.mark.full
 def test_a_report_on_a_full_disk_is_the_machines_sentence_and_leaves_nothing(tmp_path: Path):
     _plain_dataset(tmp_path, clips=1)
     assert _geocon(["bench", "ds", "--out", "res", *FAST, "--no-rrd"], tmp_path).returncode == 0
@@ -504,6 +509,7 @@ def test_dataset_write_on_a_full_disk_writes_every_sidecar_or_none(tmp_path: Pat
         subprocess.run(["umount", "-l", str(mount)], capture_output=True)
 
 
+@pytest.mark.full
 def test_ctrl_c_during_a_bench_leaves_no_staging_folder_and_the_rerun_finishes(tmp_path: Path):
     """Ctrl-C (SIGINT to the process group) while clips are being scored: exit 130, the clips in
     flight leave nothing behind (neither their staging folders nor their clip folders), and the

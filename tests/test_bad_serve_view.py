@@ -104,6 +104,7 @@ def test_cli_serve_refuses_bad_port_or_host_at_once(results, args, option):
     _one_sentence(proc, option, args[1])
 
 
+@pytest.mark.full
 def test_cli_serve_says_which_port_it_moved_to_and_why(results):
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))

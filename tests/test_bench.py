@@ -53,6 +53,7 @@ def results(dataset, tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.full
 def test_tables_hold_every_clip_and_count_the_failure(results):
     t = read_tables(results)
     clips = t["clips"]
@@ -79,6 +80,7 @@ def test_tables_hold_every_clip_and_count_the_failure(results):
     assert (merged["ir"] == merged["ir_scan"]).all() and (merged["ge"] == merged["ge_scan"]).all()
 
 
+@pytest.mark.full
 def test_platform_with_breathing_ranks_worse_on_background_and_elastic_on_objects(results):
     from geocon_core.report import scene_balanced_median
 
@@ -92,6 +94,7 @@ def test_platform_with_breathing_ranks_worse_on_background_and_elastic_on_object
     assert max(ada, key=ada.get) == "elastic"
 
 
+@pytest.mark.full
 def test_calibration_picks_a_threshold_where_the_truth_separates(results, dataset):
     from geocon_core.report import bootstrap_tau
 
@@ -109,6 +112,7 @@ def test_calibration_picks_a_threshold_where_the_truth_separates(results, datase
     assert int(np.sum(boot.argmax_counts)) == 400
 
 
+@pytest.mark.full
 def test_flagged_clips_get_a_recording_linked_from_the_table(results):
     clips = read_tables(results)["clips"].query("status == 'ok'")
     for row in clips.itertuples():
@@ -170,6 +174,7 @@ def test_killed_run_resumes_without_losing_or_rescoring_a_clip(dataset, results,
         pd.testing.assert_frame_equal(a[name], b[name], check_exact=True)
 
 
+@pytest.mark.full
 def test_resuming_with_other_settings_is_refused(dataset, results, tmp_path):
     out = tmp_path / "r"
     shutil.copytree(results, out)
@@ -236,6 +241,7 @@ def test_report_is_self_contained_and_names_its_config(results, tmp_path):
     assert any("Effect sizes" in w for w in res.warnings) and any("AdaP90" in w for w in res.warnings)
 
 
+@pytest.mark.full
 def test_clips_without_status_are_scored_again_and_the_tables_match(dataset, results, tmp_path):
     """The resume rule on a copy of a finished run: clips whose ``status.json`` is missing (the
     state a killed worker leaves) are scored again, every other clip is kept as it was, and the

@@ -84,6 +84,7 @@ def test_second_run_into_one_folder_refuses_naming_the_first(two_runs):
     assert not (out / "bench.lock").exists()  # released at the end of the run
 
 
+@pytest.mark.full
 def test_killed_bench_leaves_no_process_and_resumes_to_the_same_tables(dataset, two_runs, tmp_path):
     """kill -9 of the parent alone (not its process group): its workers and the resource tracker
     exit within a few seconds, its lock is taken over, and the rerun's tables equal an
@@ -239,6 +240,7 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, bytes]]:
     }
 
 
+@pytest.mark.full
 def test_report_is_replaced_whole_and_a_failed_run_keeps_the_previous_one(two_runs, tmp_path, monkeypatch):
     import geocon_core.report.pages as report
 

@@ -142,6 +142,7 @@ def _listening(root: int) -> set[str]:
     return hosts
 
 
+@pytest.mark.full
 def test_a_killed_ray_worker_loses_nothing_and_counts_nothing_twice(dataset, pool, tmp_path):
     """A private local instance (no --ray-address): kill -9 of a Ray worker in the middle of a
     clip; that clip is scored again and the tables equal the pool's. Every Ray service of the
@@ -224,6 +225,7 @@ def test_a_clip_a_worker_cannot_read_fails_with_a_sentence(dataset, tmp_path):
     assert "every node of the cluster sees at the same path" in status["error"]
 
 
+@pytest.mark.full
 def test_ray_options_are_refused_in_one_sentence_before_any_work(dataset, tmp_path):
     out = tmp_path / "r"
     proc = subprocess.run(

@@ -20,6 +20,7 @@ def clip(tmp_path_factory):
     return out / "c3_translation.mp4"
 
 
+@pytest.mark.full
 def test_json_summary_has_the_documented_keys_and_is_stable(clip, tmp_path):
     args = ["score", str(clip), "--json", "--preset", "strict"]
     a = runner.invoke(app, [*args, "--out", str(tmp_path / "a")])

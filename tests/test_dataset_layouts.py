@@ -483,6 +483,7 @@ def test_categories_set_in_written_sidecars_reach_the_tables_without_scoring_aga
         pd.testing.assert_frame_equal(again[name], want, check_exact=True)
 
 
+@pytest.mark.full
 def test_plain_folder_reads_folders_of_frames_as_clips(tmp_path):
     """A sub-folder of PNG/JPEG frames is one clip: its platform the folder above, its id and prompt
     from the folder's whole name, its rate the default; a folder with videos beside images stays a

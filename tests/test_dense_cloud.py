@@ -85,6 +85,7 @@ def scored(tmp_path_factory):
     return found
 
 
+@pytest.mark.full
 def test_a_record_holds_the_first_last_and_window_clouds_on_the_true_surfaces(scored):
     plan, gt, record = scored["c3_translation"]
     assert [(w.start, w.end) for w in record.dense] == [(0, RN - 1), (0, 16)]
@@ -102,6 +103,7 @@ def test_a_record_holds_the_first_last_and_window_clouds_on_the_true_surfaces(sc
     assert first.cloud.share(KIND_OUTLIER) < 0.01
 
 
+@pytest.mark.full
 def test_dense_clouds_change_no_score_and_survive_the_record(scored, tmp_path):
     _, _, record = scored["c3_translation"]
     plain = scored["plain"]
@@ -116,12 +118,14 @@ def test_dense_clouds_change_no_score_and_survive_the_record(scored, tmp_path):
         np.testing.assert_array_equal(a.T_cam0_camT, b.T_cam0_camT)
 
 
+@pytest.mark.full
 def test_a_breathing_window_is_coloured_as_outliers_in_the_record(scored):
     clean = scored["c3_translation"][2].dense[1].cloud.share(KIND_OUTLIER)
     breathing = scored["c3_translation__breathing-s3"][2].dense[1].cloud.share(KIND_OUTLIER)
     assert breathing >= 3 * max(clean, 0.002), (clean, breathing)
 
 
+@pytest.mark.full
 def test_a_rotating_camera_records_why_its_clouds_are_empty(scored):
     record = scored["c2_rotation"][2]
     assert record.dense and all(len(w.cloud) == 0 for w in record.dense)

@@ -96,6 +96,7 @@ def test_every_marker_sits_on_a_block_this_test_can_run():
     assert runnable_blocks(), "no code block is marked runnable"
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("block", runnable_blocks(), ids=lambda b: b.name)
 def test_runnable_block(block: Block, tmp_path: Path):
     bin_dir = Path(sys.executable).parent

@@ -51,6 +51,7 @@ def test_the_fade_is_found_where_it_was_made(dissolve):
     assert probe_clip(dissolve, ScoreConfig(working_size=(W, H))).fades == ()  # the paper does not look
 
 
+@pytest.mark.full
 def test_each_shot_is_judged_and_the_dissolve_is_not(dissolve):
     rec = score_clip(dissolve, preset("audit").with_(working_size=(W, H)))
     assert len(rec.shots) == 2 and rec.background.consistent is True
@@ -64,6 +65,7 @@ def test_each_shot_is_judged_and_the_dissolve_is_not(dissolve):
     assert blind.video.fades == () and blind.shots == () and blind.gate.label == "H"
 
 
+@pytest.mark.full
 def test_clean_clips_show_no_fade(synth_clips):
     plans = [ClipPlan(code) for code in FAMILIES]
     folder = synth_clips(plans, seed=5, width=W, height=H, num_frames=N)

@@ -67,6 +67,7 @@ def clips(tmp_path_factory: pytest.TempPathFactory):
 # --- synthetic truth --------------------------------------------------------------------
 
 
+@pytest.mark.full
 def test_c4_one_track_per_mover_covering_its_frames(clips) -> None:
     path = clips("C4")
     info = probe_clip(path)
@@ -80,6 +81,7 @@ def test_c4_one_track_per_mover_covering_its_frames(clips) -> None:
     assert set(cover) == movers and min(cover.values()) >= 0.8
 
 
+@pytest.mark.full
 def test_c3_translating_camera_over_a_static_scene_has_no_object(clips) -> None:
     info = probe_clip(clips("C3"))
     seg = MotionSegmenter(info)
@@ -88,6 +90,7 @@ def test_c3_translating_camera_over_a_static_scene_has_no_object(clips) -> None:
     assert not any(p.any() for p in pred)
 
 
+@pytest.mark.full
 def test_slow_mover_is_found_with_a_still_camera(tmp_path: Path) -> None:
     """A textured disc moving 0.6 px per frame over a static textured background (below the
     2 px per frame residual threshold of adjacent frames): found by the slow-gap evidence, as

@@ -125,6 +125,7 @@ def test_the_chain_takes_the_longest_hop_with_a_pose_at_each_frame():
     assert [w for w, _ in select_hops(hops, 9)] == [(a, a + 1) for a in range(8)]
 
 
+@pytest.mark.full
 def test_movers_the_masks_miss_leave_a_still_camera_consistent(synth_clips):
     """A still camera with two movers scored without masks: their matches leak into the background
     (IR below the gate); audit leaves them out (they jump away from the still background, and they
@@ -147,6 +148,7 @@ def test_movers_the_masks_miss_leave_a_still_camera_consistent(synth_clips):
     assert moved > 0 and rec.matches.h_ind.sum() == moved
 
 
+@pytest.mark.full
 def test_a_failing_background_whose_matches_moved_on_their_own_is_not_judged(synth_clips, tmp_path):
     """The untrusted share: a background that fails while at least ``untrusted_share`` of its
     matches moved on their own is not judged; one that passes keeps its verdict. The share is the

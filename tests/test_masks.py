@@ -329,6 +329,7 @@ def test_registry_and_errors(small_c4) -> None:
 # --- built-in motion segmentation: synthetic ground truth ------------------------------
 
 
+@pytest.mark.full
 def test_motion_finds_the_two_objects_of_c4_with_stable_ids(synth) -> None:
     path, gt = synth("C4")
     info = probe_clip(path)
@@ -364,6 +365,7 @@ def test_motion_finds_the_two_objects_of_c4_with_stable_ids(synth) -> None:
     assert seg.warnings == []
 
 
+@pytest.mark.full
 @pytest.mark.parametrize(
     "family, failure, severity",
     [("C2", None, None), ("C3", None, None), ("C1", "breathing", 3.0), ("C3", "slide", 8.0)],
@@ -383,6 +385,7 @@ def test_motion_finds_no_objects_in_a_rigid_or_failing_background(synth, family,
     assert shares.max() < 0.02
 
 
+@pytest.mark.full
 def test_motion_on_the_stress_scene_finds_the_disc(synth) -> None:
     path, gt = synth("C6")
     info = probe_clip(path)
@@ -404,6 +407,7 @@ def test_motion_on_the_stress_scene_finds_the_disc(synth) -> None:
 # --- real footage -----------------------------------------------------------------------
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("rel", ["real/sam2/dog.mp4", "real/opencv/vtest.avi"])
 def test_motion_on_real_static_camera_footage(rel: str) -> None:
     path = SHARED_DATA / rel
@@ -478,6 +482,7 @@ def test_any_flow_backend_without_compute_both_gives_the_same_labels(small_c4) -
     assert all(np.array_equal(a, b) for a, b in zip(ref, got, strict=True))
 
 
+@pytest.mark.full
 def test_duplicates_copy_labels_and_cuts_restart_tracks(synth, tmp_path: Path) -> None:
     path, _ = synth("C4")
     info = probe_clip(path)
@@ -502,6 +507,7 @@ def test_duplicates_copy_labels_and_cuts_restart_tracks(synth, tmp_path: Path) -
     assert after and after.isdisjoint(before)  # tracks end at the cut: new objects, new ids
 
 
+@pytest.mark.full
 def test_motion_settings_do_not_follow_the_scoring_canvas(tmp_path: Path) -> None:
     """The segmentation's pixel settings are pixels of the clip fitted into ``px_reference``
     (1024x720): a 1280x720 clip read on the 1024x720 canvas and on the 1920x1080 one is analysed

@@ -73,6 +73,7 @@ def test_keyframes_spread_over_the_clip():
     assert keyframes(0, 32) == ()
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name", ["C3", "C5"])
 def test_recovered_camera_path_matches_the_true_one(results, name):
     """Rotation within 0.5 degrees at every keyframe and the direction of travel (camera centres,
@@ -92,6 +93,7 @@ def test_recovered_camera_path_matches_the_true_one(results, name):
     assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 3.0
 
 
+@pytest.mark.full
 def test_recovered_rotations_of_a_pan(results):
     res = results("C2")
     assert res.model == "H" and res.judged and res.cam_from_world is not None
@@ -102,6 +104,7 @@ def test_recovered_rotations_of_a_pan(results):
     assert res.focal_px == pytest.approx(scene.K[0, 0], rel=0.03)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name", ["C2", "C3", "C5"])
 def test_clean_scenes_have_no_drifting_layer(results, name):
     res = results(name)
@@ -129,6 +132,7 @@ def _on_layer(name: str, res: MultiViewResult) -> np.ndarray:
     return out
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name", ["C2-across", "C3-across", "C2-along"])
 def test_the_drifting_layers_tracks_are_the_ones_flagged(results, name):
     """The layer the finding names (the largest) against the true layer; any further layer is
@@ -149,6 +153,7 @@ def test_the_drifting_layers_tracks_are_the_ones_flagged(results, name):
     assert "drifts against the camera path" in layer.describe()
 
 
+@pytest.mark.full
 def test_the_drift_runs_the_way_it_was_planted(results):
     res = results("C3-across")
     scene = build_scene("C3", seed=SEED, width=W, height=H, num_frames=N)
@@ -156,6 +161,7 @@ def test_the_drift_runs_the_way_it_was_planted(results):
     assert abs(float(np.dot(planted, res.layers[0].direction))) > 0.9
 
 
+@pytest.mark.full
 def test_the_check_is_deterministic(clips, results):
     first = results("C3-across")
     cfg = preset("audit")
@@ -189,6 +195,7 @@ def test_only_audit_runs_it_and_papers_hash_is_unchanged():
         MultiViewConfig(max_views=2)
 
 
+@pytest.mark.full
 def test_audit_fails_a_sliding_layer_and_the_record_keeps_it(clips, scored_clip, tmp_path):
     """The check finds the layer and fails the background; in ``audit`` the clip's verdict is the
     clip model's, which reads the drift as one reading among others (a drifting layer alone is no
@@ -215,6 +222,7 @@ def test_audit_fails_a_sliding_layer_and_the_record_keeps_it(clips, scored_clip,
     assert back.finding() == finding
 
 
+@pytest.mark.full
 def test_the_recording_shows_the_reconstruction(clips, scored_clip, tmp_path):
     """Read back with Rerun's reader: the points coloured by residual with the layer in magenta,
     the camera at every keyframe on the timeline, the path, and the tracks on their frames."""
@@ -249,6 +257,7 @@ def test_the_recording_shows_the_reconstruction(clips, scored_clip, tmp_path):
     assert frames == sorted(mv.registered)
 
 
+@pytest.mark.full
 def test_the_audit_app_shows_the_reconstruction_and_the_slider_moves_its_camera(clips, scored_clip, tmp_path):
     pytest.importorskip("viser")
     from geocon_core.record import write_record
@@ -273,6 +282,7 @@ def test_the_audit_app_shows_the_reconstruction_and_the_slider_moves_its_camera(
         audit.stop()
 
 
+@pytest.mark.full
 def test_the_report_thumbnail_marks_the_drifting_layer(clips, scored_clip, tmp_path):
     from geocon_core.bench.tables import _clip_row
     from geocon_core.record import write_record

@@ -41,6 +41,7 @@ def c4(synth):
     return score_clip(synth / "c4_objects.mp4", FAST)
 
 
+@pytest.mark.full
 def test_rigid_objects_are_found_with_stable_ids(synth, c4):
     gt = load_ground_truth(synth / "c4_objects.gt.json")
     assert c4.masks_source == "motion"
@@ -77,6 +78,7 @@ def test_elastic_object_scores_much_higher_and_monotonically(synth):
     assert all(e[2] < disc[2] / 5 for e in elastic)
 
 
+@pytest.mark.full
 def test_object_gap_scores_deformation_over_several_frames(synth):
     """Ground-truth masks: an elastic disc that oscillates over 16 frames changes by at most 0.39
     of its amplitude between adjacent frames, near the flow's noise, and by up to 1.41 of it over
@@ -103,6 +105,7 @@ def test_object_gap_scores_deformation_over_several_frames(synth):
     assert ratio4 >= 5.0 and ratio4 > 1.5 * ratio1, (ratio1, ratio4)
 
 
+@pytest.mark.full
 def test_object_edge_margin_keeps_the_rim_of_a_rigid_object_out(synth):
     """Ground-truth masks, frames 4 apart: the flow mixes an object's motion with the background's
     within about a patch of the edge, so a rigid object's rim reads as deformation. Leaving out
@@ -134,6 +137,7 @@ def test_object_gap_longer_than_the_clip_is_shortened_and_said(tmp_path):
     assert any("frames 3 apart" in w and "4 frames" in w for w in rec.warnings), rec.warnings
 
 
+@pytest.mark.full
 def test_clips_without_objects_report_none(synth, scored_clip):
     for cid in ("c1_static", "c2_rotation", "c3_translation"):
         rec = scored_clip(synth / f"{cid}.mp4", FAST)
@@ -141,6 +145,7 @@ def test_clips_without_objects_report_none(synth, scored_clip):
         assert max(rec.masked_share) < 0.02
 
 
+@pytest.mark.full
 def test_breathing_background_is_not_turned_into_an_object(synth):
     rec = score_clip(synth / "c4_objects__breathing-s3.mp4", preset("strict"))
     assert len(rec.objects) <= 2 and max(rec.masked_share) < 0.2
@@ -149,12 +154,14 @@ def test_breathing_background_is_not_turned_into_an_object(synth):
     assert rec.background.consistent is False and rec.background.ir < 0.97
 
 
+@pytest.mark.full
 def test_masks_raise_background_ir(synth, c4):
     unmasked = score_clip(synth / "c4_objects.mp4", FAST.with_(masks="none"))
     assert c4.background.ir >= 0.97, c4.background.ir
     assert unmasked.background.ir < c4.background.ir - 0.005, (unmasked.background.ir, c4.background.ir)
 
 
+@pytest.mark.full
 def test_categories_of_the_synthetic_families(synth, c4, scored_clip):
     assert c4.category.label == "C4" and c4.category.inputs["object_frames"]
     for cid, label in (("c1_static", "C1"), ("c2_rotation", "C2"), ("c3_translation", "C3"), ("c5_complex", "C5")):
@@ -162,6 +169,7 @@ def test_categories_of_the_synthetic_families(synth, c4, scored_clip):
         assert rec.category.label == label, (cid, rec.category)
 
 
+@pytest.mark.full
 def test_stress_category_reads_the_adjacent_pairs_at_full_scale(synth, scored_clip):
     """A fast camera empties its long-gap pairs and a small clip its half-size pairs: neither is
     a stress scene. Only failing adjacent pairs at full scale make it C6."""
@@ -185,6 +193,7 @@ def test_stress_category_reads_the_adjacent_pairs_at_full_scale(synth, scored_cl
     assert category.label == "C6" and category.rule.startswith("stress: fewer than half"), category
 
 
+@pytest.mark.full
 def test_external_masks_and_json_objects(synth, tmp_path):
     gt = load_ground_truth(synth / "c4_objects.gt.json")
     runner = CliRunner()
@@ -215,6 +224,7 @@ def test_external_masks_and_json_objects(synth, tmp_path):
     assert wmse == pytest.approx(e.d_t, rel=1e-4, abs=1e-6)
 
 
+@pytest.mark.full
 def test_rescoring_with_objects_is_byte_identical(synth, c4, tmp_path):
     write_record(c4, tmp_path / "a")
     write_record(score_clip(synth / "c4_objects.mp4", FAST), tmp_path / "b")

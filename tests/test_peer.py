@@ -29,6 +29,7 @@ def _warped_copy(clip, folder, amplitude: float, frames: int) -> None:
         cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.remap(bgr, xx + dx, yy + dy, cv2.INTER_LINEAR))
 
 
+@pytest.mark.full
 def test_peer_keeps_a_rigid_scene_and_drops_a_melting_one(synth_dir, tmp_path):
     clip = synth_dir / "c3_translation.mp4"  # a lateral truck past a rendered rigid scene
     rigid = peer_keep_rate(clip, 12)

@@ -183,6 +183,7 @@ def test_both_clips_are_encoded_like_the_source(planted):
     assert 0.8 < ratio < 1.25, ratio
 
 
+@pytest.mark.full
 def test_the_clean_clip_scores_like_the_source(tmp_path):
     """Preset ``audit`` on the whole 16-frame clip and on its clean re-encode: the same verdict and a
     background IR within 0.01."""
@@ -197,6 +198,7 @@ def test_the_clean_clip_scores_like_the_source(tmp_path):
     assert abs(clean.background.ir - original.background.ir) <= 0.01
 
 
+@pytest.mark.full
 def test_the_same_seed_gives_the_same_bytes(tmp_path):
     first = plant_clip(CLIP, "morph", "high", 7, tmp_path / "a", frames=6)
     again = plant_clip(CLIP, "morph", "high", 7, tmp_path / "b", frames=6)

@@ -148,6 +148,7 @@ def rotations() -> list[dict]:
     return cases
 
 
+@pytest.mark.full
 def test_translation_sweep_matches_ground_truth(sweep):
     bad = []
     for c in sweep:
@@ -166,6 +167,7 @@ def test_translation_sweep_matches_ground_truth(sweep):
     assert not bad, "t_inf outside max(0.01, 30 %) of the truth:\n" + "\n".join(bad)
 
 
+@pytest.mark.full
 def test_unit_scale_pose_is_consistent(sweep):
     """t_inf is the max-abs translation of the returned pose, whose rotation is a rotation."""
     for c in sweep:
@@ -186,6 +188,7 @@ def test_pure_rotation_gives_zero_translation(rotations):
         assert np.all(e.T_cam0_camT[:3, 3] == 0.0)
 
 
+@pytest.mark.full
 def test_wrong_field_of_view_keeps_clear_decisions(sweep, rotations):
     """Intrinsics assumed with a 48 or 72 degree field of view while the truth is 60: the
     hysteresis decision is unchanged where the truth is clear (rotation only, t_inf = 0, or
@@ -242,6 +245,7 @@ def test_zoom_is_a_focal_change_not_a_translation(zooms):
         )
 
 
+@pytest.mark.full
 def test_fit_zoom_keeps_translation_decisions(sweep, rotations):
     """Free zoom does not swallow real parallax: on the translation sweep and the pure rotations
     (true K) the hysteresis label is the same as without zoom, and t_inf stays within the sweep's
@@ -294,6 +298,7 @@ def test_degenerate_input_is_a_result_not_an_exception():
         backend.estimate(np.zeros((40, 2)), np.zeros((41, 2)), K)
 
 
+@pytest.mark.full
 def test_estimate_is_deterministic(sweep):
     backend = ClassicalPose()
     for c in (sweep[4], sweep[-4]):  # lateral t=0.05, forward+rot t=0.05
@@ -305,6 +310,7 @@ def test_estimate_is_deterministic(sweep):
         assert other.t_inf == pytest.approx(a.t_inf, rel=0.05)
 
 
+@pytest.mark.full
 def test_pose_estimate_round_trips_through_json(sweep):
     for e in (
         sweep[5]["est"][60.0],

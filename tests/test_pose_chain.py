@@ -105,6 +105,7 @@ def test_realestate10k_chains_decide_the_gate_where_first_last_fails():
     assert decided >= 4 and agree >= decided - 1, "\n".join(lines)
 
 
+@pytest.mark.full
 def test_the_scorer_gates_a_real_dolly_through_the_chain():
     """A RealEstate10K dolly (16 frames, 384x256; true first-last t_inf 0.61): its first and last
     frames keep too few matches for a pose; the audit preset's chain gates it F, and says so."""

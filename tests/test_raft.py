@@ -52,6 +52,7 @@ def test_parameters_have_the_released_names_and_shapes(reference):
     assert mine == dict(zip(keys, shapes, strict=True))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("prefix", ["", "module."])
 def test_flow_equals_the_reference_implementation(reference, tmp_path, prefix):
     keys, shapes, f0, f1, expected = reference
@@ -84,6 +85,7 @@ def _random_checkpoint(reference, path: Path) -> Path:
     return path
 
 
+@pytest.mark.full
 def test_scoring_with_raft_runs_end_to_end(reference, tmp_path):
     """Plumbing only: with random weights the flow means nothing, so this checks that the raft
     backend carries the objects' rigidity through to a valid record (shapes, ids, values), not
@@ -125,6 +127,7 @@ def test_cli_raft_options_are_checked_before_decoding(reference, tmp_path):
     assert res.exit_code == 2 and "unknown flow backend 'farneback'; valid: dis, raft" in res.stderr
 
 
+@pytest.mark.full
 def test_batched_pairs_give_the_per_pair_fields(reference, tmp_path):
     """``RaftFlow.compute_both_many`` (several pairs per network call, a last batch that is not
     full) equals ``compute_both`` pair by pair: flow to 1e-4 px, the same reliability where the

@@ -138,12 +138,14 @@ def test_tick_label_check_finds_crowded_names_and_the_fix_removes_them(tmp_path)
     assert b.figures[-1].overlaps == [] and (tmp_path / "figures" / "crowded.png").is_file()
 
 
+@pytest.mark.full
 def test_no_report_figure_has_overlapping_tick_labels(report):
     assert set(QUESTIONS) <= set(report.overlaps)
     assert {name: o for name, o in report.overlaps.items() if o} == {}
     assert not [w for w in report.res.warnings if "tick labels" in w]
 
 
+@pytest.mark.full
 def test_first_screen_is_one_figure_per_question_before_any_table(report):
     page = report.page
     assert page.index("<img") < page.index("<table")
@@ -162,6 +164,7 @@ def test_first_screen_is_one_figure_per_question_before_any_table(report):
     assert rf.platform_order(sb) == ["clean", "breathing"]
 
 
+@pytest.mark.full
 def test_tables_are_sortable_and_filterable_offline(report):
     page = report.page
     p = _parse(page)
@@ -179,6 +182,7 @@ def test_tables_are_sortable_and_filterable_offline(report):
     assert not [r for r in refs if r.startswith(("http:", "https:", "//"))]
 
 
+@pytest.mark.full
 def test_every_flagged_clip_has_a_strip_of_thumbnails(report):
     p = _parse(report.page)
     c3 = report.clips.set_index("clip_id").loc["breathing-c3_translation-s0"]
@@ -197,6 +201,7 @@ def test_every_flagged_clip_has_a_strip_of_thumbnails(report):
     assert "worst pair" in report.page and "IR" in report.page
 
 
+@pytest.mark.full
 def test_a_clip_flagged_on_a_reading_shows_where_it_fires(report, tmp_path):
     from geocon_core.signals import READING_LABELS
 
@@ -215,6 +220,7 @@ def test_a_clip_flagged_on_a_reading_shows_where_it_fires(report, tmp_path):
     assert "the reading the clip score leans on most" in ct.thumbs[1].title
 
 
+@pytest.mark.full
 def test_a_clip_that_cannot_be_read_gets_a_note_instead(report, tmp_path):
     folder = report.root / "results" / "clips" / "breathing-c1_static-s0"
     video = next((report.root / "data" / "breathing").rglob("c1_static*.mp4"))
@@ -262,6 +268,7 @@ def _find(shot: np.ndarray, figure: np.ndarray) -> tuple[float, int, int]:
     return score, oy + y, oy + y + round(figure.shape[0] * s)
 
 
+@pytest.mark.full
 def test_first_screen_in_chromium_shows_the_three_figures(report, tmp_path):
     from geocon_viewer.capture.chromium import find_chromium
     from geocon_viewer.capture.screenshot import screenshot_url

@@ -81,6 +81,7 @@ def audit_run(synth_dir: Path, tmp_path_factory) -> tuple:
     return record, folder, _rows(folder / "live.rrd")
 
 
+@pytest.mark.full
 def test_the_reading_maps_are_the_records_and_the_card_says_where_to_look(audit_run):
     import cv2
 
@@ -416,6 +417,7 @@ def test_flow_hue_is_one_frame_sized_layer_inside_the_masks(objects_run):
     assert shape[:2] == tuple(record.video.working_size[::-1])
 
 
+@pytest.mark.full
 def test_a_flagged_clip_opens_on_its_evidence(synth_dir, tmp_path):
     """`geocon view` of a clip the model flags on a pictured reading: the recording's layout opens
     that map's tab, and the start frame is where the reading is strongest."""

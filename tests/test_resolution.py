@@ -32,6 +32,7 @@ def _score(path: Path):
     return score_clip(path, preset("audit").with_(masks="none", gaps=(1, 8), scales=(0.25, 0.5, 1.0)))
 
 
+@pytest.mark.full
 def test_a_clean_scene_reads_the_same_at_every_size(clips):
     small, large = _score(clips["clean", 256]), _score(clips["clean", 720])
     assert small.video.scale == 1.0 and small.video.working_size == (448, 256)  # not upscaled
@@ -43,6 +44,7 @@ def test_a_clean_scene_reads_the_same_at_every_size(clips):
     assert all(g.judged for g in small.background.chosen.per_gap)
 
 
+@pytest.mark.full
 def test_a_breathing_background_stays_detected_at_every_size(clips):
     for h in (256, 720):
         rec = _score(clips["breathing", h])
@@ -60,6 +62,7 @@ def test_the_default_canvas_keeps_the_long_side_at_1280_px(tmp_path):
         assert info.scale == pytest.approx(canvas[0] / w, abs=1e-3)
 
 
+@pytest.mark.full
 def test_a_resized_clip_says_so_and_gives_its_ge_in_source_pixels(clips):
     """The record of a clip resized at decode names both sizes and converts the background's GE
     (working px) to source px with the decode scale; an unresized clip says nothing."""

@@ -59,6 +59,7 @@ def _one_sentence(res: subprocess.CompletedProcess, words: str) -> None:
     assert words in lines[0], lines[0]
 
 
+@pytest.mark.full
 def test_a_full_disk_keeps_the_previous_record(disk):
     work, mount = disk
     first = _geocon(["score", "clip.mp4", "--preset", "fast", "--out", str(mount / "rec")], work)
@@ -119,6 +120,7 @@ def test_an_address_space_too_small_for_the_native_libraries_is_refused_up_front
     assert not (tmp_path / "rec").exists()
 
 
+@pytest.mark.full
 def test_kill_during_scoring_leaves_the_previous_record_and_no_partial_files(tmp_path):
     """``kill`` (SIGTERM) stops a run as cleanly as Ctrl-C: exit 130 within the grace period, the
     previous record and its recording unchanged; a temporary folder left by a clean-up cut short is
@@ -161,6 +163,7 @@ main()
 """
 
 
+@pytest.mark.full
 def test_a_disk_that_fills_while_the_record_is_written_keeps_the_previous_one(tmp_path):
     """The same promise where no tmpfs can be mounted: a file-system shim fails the record's write."""
     write_video(tmp_path / "clip.mp4", pan_frames(160, 90, 12, seed=1))

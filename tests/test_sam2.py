@@ -320,6 +320,7 @@ def _real_run(checkpoint, info, movers) -> tuple[np.ndarray, Sam2Masks]:
     return labels, src
 
 
+@pytest.mark.full
 def test_the_real_predictor_tracks_prompted_movers_per_shot(checkpoint) -> None:
     info = clip_info(num_frames=7, cuts=(4,))
     movers = {1: (1, 6, (40, 40, 90, 90)), 2: (2, 3, (200, 60, 260, 120)), 3: (5, 6, (220, 40, 260, 100))}
@@ -343,6 +344,7 @@ def test_the_real_predictor_keeps_only_the_memory_it_can_reach(checkpoint) -> No
     assert kept == [list(range(23 - session.keep, 24))]  # type: ignore[union-attr]
 
 
+@pytest.mark.full
 def test_score_masks_sam2_end_to_end(checkpoint, synth_clips, tmp_path) -> None:
     from geocon_core.record import read_record
     from geocon_core.synth import ClipPlan

@@ -33,6 +33,7 @@ def scored(clips) -> dict:
     return {cid: score_clip(clips / f"{cid}.mp4", TWO_SCALES) for cid in ("c1_static", "c2_rotation", "c3_translation")}
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("cid", ["c1_static", "c2_rotation"])
 def test_static_and_rotation_gate_h_and_are_consistent(scored, clips, cid):
     rec = scored[cid]
@@ -45,6 +46,7 @@ def test_static_and_rotation_gate_h_and_are_consistent(scored, clips, cid):
     assert rec.video.duplicates == () and rec.video.cuts == ()
 
 
+@pytest.mark.full
 def test_translation_gates_f(scored, clips):
     rec = scored["c3_translation"]
     gt = load_ground_truth(clips / "c3_translation.gt.json")
@@ -56,6 +58,7 @@ def test_translation_gates_f(scored, clips):
     assert rec.background.tau_f_px > 5
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("cid", ["c1_static", "c2_rotation", "c3_translation"])
 def test_fast_preset_keeps_the_gate_and_the_verdict(scored, clips, cid):
     gt = load_ground_truth(clips / f"{cid}.gt.json")
@@ -92,6 +95,7 @@ def test_gate_decisions_survive_a_wrong_field_of_view(clips, scored, fov):
         assert rec.gate.label == scored[cid].gate.label, (cid, fov, rec.gate.t_inf)
 
 
+@pytest.mark.full
 def test_record_round_trips_and_rescoring_is_byte_identical(clips, scored, tmp_path):
     rec = scored["c3_translation"]
     write_record(rec, tmp_path / "a")

@@ -70,6 +70,7 @@ def _local_listeners(port: int) -> list[str]:
 # --- live re-gating ------------------------------------------------------------------------------
 
 
+@pytest.mark.full
 def test_tau_h_from_the_scan_gives_exactly_the_scans_ir(app, results):
     sens = read_tables(results)["sensitivity"]
     h = sens[(sens["family"] == "H") & ~sens["is_default"]]
@@ -90,6 +91,7 @@ def test_tau_h_from_the_scan_gives_exactly_the_scans_ir(app, results):
     assert "tau_H (px) 3 (recorded" in app.thresholds_md.content
 
 
+@pytest.mark.full
 def test_tau_f_from_the_scan_gives_exactly_the_scans_ir_and_reset_restores_the_record(app, results):
     sens = read_tables(results)["sensitivity"]
     tau = 0.2
@@ -110,6 +112,7 @@ def test_tau_f_from_the_scan_gives_exactly_the_scans_ir_and_reset_restores_the_r
         assert row.verdict.consistent == bool(clips.loc[row.clip_id, "consistent"])
 
 
+@pytest.mark.full
 def test_report_gate_reorders_the_list_by_verdict(app):
     # At the recorded gates every synthetic clip passes and the unscorable one comes first;
     # a GE gate below every clip's GE fails them all, deepest failure (largest GE) first.
@@ -129,6 +132,7 @@ def test_report_gate_reorders_the_list_by_verdict(app):
     assert app.thresholds_md.content.startswith("⚠")
 
 
+@pytest.mark.full
 def test_triage_filters_and_severity_order(app, results):
     index = app.index
     rows = index.triage()
@@ -155,6 +159,7 @@ def test_triage_filters_and_severity_order(app, results):
 # --- the selected clip ------------------------------------------------------------------------------
 
 
+@pytest.mark.full
 def test_selecting_a_clip_loads_its_point_cloud_and_frames(app, results):
     for clip_id in ("clean-c3_translation-s0", "elastic-c3_translation-s0"):
         app.clip.value = clip_id
@@ -177,6 +182,7 @@ def test_selecting_a_clip_loads_its_point_cloud_and_frames(app, results):
         assert abs(float(handle.image.mean()) - float(frame.mean())) < 2.0, "the camera shows its own frame"
 
 
+@pytest.mark.full
 def test_switching_clips_while_frames_decode_raises_in_no_thread(app, monkeypatch):
     """Clips switched again and again while their frames decode: the decoder of a clip that is no
     longer selected stops and never writes into the scene the switch rebuilt; the last clip is
@@ -202,6 +208,7 @@ def test_switching_clips_while_frames_decode_raises_in_no_thread(app, monkeypatc
     assert all(handle.image is not None for handle in view.frustums.values()), "the shown cameras got their frames"
 
 
+@pytest.mark.full
 def test_frame_slider_shows_the_pairs_inliers_under_the_thresholds(app, results):
     app.clip.value = "clean-c3_translation-s0"
     record = app.view.record
@@ -230,6 +237,7 @@ def test_frame_slider_shows_the_pairs_inliers_under_the_thresholds(app, results)
     assert not np.array_equal(img, app.view.frames[7])  # the overlay is drawn
 
 
+@pytest.mark.full
 def test_plots_follow_the_regated_pairs(app):
     app.clip.value = "elastic-c1_static-s0"
     x, ir, gate = app.ir_plot.data
@@ -243,6 +251,7 @@ def test_plots_follow_the_regated_pairs(app):
     assert len(app.obj_plot.data) >= 2 and len(app.gate_plot.data) == 5
 
 
+@pytest.mark.full
 def test_rrd_button_writes_the_recording(app, results):
     pytest.importorskip("rerun")
     app.clip.value = "elastic-c3_translation-s0"
@@ -256,6 +265,7 @@ def test_rrd_button_writes_the_recording(app, results):
 # --- the server ---------------------------------------------------------------------------------
 
 
+@pytest.mark.full
 def test_binds_to_localhost_only_and_frees_its_port(results):
     audit = AuditApp(results, port=0, preload=True)
     port = audit.port
@@ -283,6 +293,7 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("sig, inherited_ignore", [("SIGINT", False), ("SIGINT", True), ("SIGTERM", False)])
 def test_cli_serves_until_ctrl_c_then_frees_its_port(results, sig, inherited_ignore):
     """``inherited_ignore``: started as a background job of a non-interactive shell is, with
@@ -317,6 +328,7 @@ def test_cli_serves_until_ctrl_c_then_frees_its_port(results, sig, inherited_ign
         s.bind(("127.0.0.1", port))
 
 
+@pytest.mark.full
 def test_preload_reads_every_residual(results):
     index = ResultsIndex.open(results)
     seen = []
@@ -328,6 +340,7 @@ def test_preload_reads_every_residual(results):
             assert index.verdict(c.clip_id, th).ir_h == regate_family(read_record(c.folder), "H", 1.0).ir
 
 
+@pytest.mark.full
 def test_a_single_record_folder_opens(results, tmp_path):
     folder = tmp_path / "one"
     shutil.copytree(results / "clips" / "clean-c1_static-s0", folder)
@@ -470,6 +483,7 @@ def test_the_scene_shows_the_dense_cloud_of_the_pair_picked_with_its_legend(dens
         audit.stop()
 
 
+@pytest.mark.full
 def test_a_flagged_clip_opens_on_the_reading_its_score_leans_on(results, tmp_path):
     """The record's readings say the clip's appearance changes along the flow, strongest at a known
     frame and only inside a known patch: the app opens on that map and that frame, and paints the patch."""

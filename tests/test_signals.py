@@ -93,6 +93,7 @@ def test_the_moving_share_follows_the_objects_that_move(scenes):
     assert r["interior_failure"] < 0.25 * r["flow_failure"]
 
 
+@pytest.mark.full
 def test_a_planted_breathing_background_moves_on_its_own_and_is_not_explained(scenes, tmp_path):
     from geocon_core.plant import plant_clip
 
@@ -102,6 +103,7 @@ def test_a_planted_breathing_background_moves_on_its_own_and_is_not_explained(sc
     assert planted["unexplained_appearance"] > clean["unexplained_appearance"] + 0.01
 
 
+@pytest.mark.full
 @pytest.mark.parametrize(
     "kind", ["morph", pytest.param("slide", marks=pytest.mark.slow), pytest.param("redraw", marks=pytest.mark.slow)]
 )
@@ -198,6 +200,7 @@ def test_the_shipped_model_is_the_one_the_default_config_pins():
     assert all(t.weight >= 0 for t in model.terms) and 0 < model.threshold < 1
 
 
+@pytest.mark.full
 def test_readings_made_while_scoring_equal_those_read_again(scenes, scored_clip, tmp_path):
     from geocon_core.record import read_record, write_record
     from geocon_core.scoring import read_readings
@@ -291,6 +294,7 @@ def test_validate_fit_refuses_what_it_cannot_fit(tmp_path, args, words):
     assert result.exit_code != 0 and words in " ".join(result.output.split()), result.output
 
 
+@pytest.mark.full
 def test_a_new_clip_model_reads_readings_and_keeps_the_background_fit(tmp_path, monkeypatch):
     """validate does not score a case again when only ``signals`` changed: the record gets the
     readings a fresh score would make and keeps its background fit; any other change scores again."""

@@ -69,6 +69,7 @@ def _shown_label(app: TeachApp) -> str:
     return m.group(1)
 
 
+@pytest.mark.full
 def test_translation_across_the_band_flips_the_gate_from_H_to_F(app, capsys):
     assert app.host == "127.0.0.1"
     before = _at(app, capsys, TeachParams(translation=0.02))
@@ -81,6 +82,7 @@ def test_translation_across_the_band_flips_the_gate_from_H_to_F(app, capsys):
     assert after.clip is not None and abs(after.clip.t_inf_truth - 0.07) < 0.005  # the path rendered
 
 
+@pytest.mark.full
 def test_breathing_lowers_the_strict_ir_shown(app, capsys):
     before = _at(app, capsys, TeachParams())
     after = _move(app, capsys, "breathing_px", 12.0)
@@ -90,6 +92,7 @@ def test_breathing_lowers_the_strict_ir_shown(app, capsys):
     assert after.explanation.startswith("Background breathing 12 px")
 
 
+@pytest.mark.full
 def test_the_slide_slider_flags_the_clip_through_the_one_camera_check(app, capsys):
     before = _at(app, capsys, TeachParams(rotation_deg=3.0))
     assert before.record is not None and before.record.multiview is not None
@@ -103,6 +106,7 @@ def test_the_slide_slider_flags_the_clip_through_the_one_camera_check(app, capsy
     assert app.server.scene  # the reconstruction's points are drawn beside the two-view cloud
 
 
+@pytest.mark.full
 def test_elasticity_raises_the_objects_adadfrc(app, capsys):
     before = _at(app, capsys, TeachParams())
     after = _move(app, capsys, "elastic_px", 20.0)
@@ -116,6 +120,7 @@ def test_elasticity_raises_the_objects_adadfrc(app, capsys):
     assert img.shape[1] == 640 and img.std() > 20
 
 
+@pytest.mark.full
 def test_a_newer_change_supersedes_an_older_one(app, capsys):
     _at(app, capsys, TeachParams())
     shown = len(app.updates)
@@ -180,6 +185,7 @@ def _number(text: str, pattern: str) -> float:
     return float(m.group(1))
 
 
+@pytest.mark.full
 def test_headless_chromium_drives_the_sliders(app, capsys):
     """A user's browser: typing into the sliders' number boxes moves the translation across the
     band (the gate label shown flips from H to F), raises breathing (the strict IR shown falls) and

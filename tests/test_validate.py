@@ -289,6 +289,7 @@ def test_footage_is_filled_from_a_clone_and_checked(tmp_path):
     assert {i.annotation.clip: i.state for i in footage_status(notes, cache)}["real/ok.mp4"] == "present"
 
 
+@pytest.mark.full
 def test_worst_pair_note_names_the_lowest_ir_pair_and_how_far_its_outliers_lie(synth_dir, scored_clip):
     from geocon_core.config import preset
     from geocon_core.validation.results import worst_pair_note

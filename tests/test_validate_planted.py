@@ -171,6 +171,7 @@ def test_planted_rows_pair_each_planted_clip_with_its_own_clean_reencode():
     assert ff.n == 6
 
 
+@pytest.mark.full
 @pytest.mark.skipif(not WALK.is_file(), reason="needs ../shared/data")
 def test_planted_run_scores_planted_and_clean_cases_once_and_reports_them(tmp_path):
     data = tmp_path / "data"

@@ -256,6 +256,7 @@ def test_a_failing_background_of_moving_matches_is_not_judged_and_a_passing_one_
     assert got is not None and got.consistent is None and got.untrusted
 
 
+@pytest.mark.full
 def test_a_bench_of_the_default_flags_on_the_clip_models_verdict(tmp_path):
     """`geocon bench` with the default preset: the clips table, the results index (from the table
     and from record.json alone) and each record carry the same clip-model verdict, and the triage

@@ -40,6 +40,7 @@ def _summary(rec) -> dict:
     return d
 
 
+@pytest.mark.full
 def test_a_pair_is_matched_once_and_hops_wait_for_a_failed_pose(synth_dir, monkeypatch):
     """C3 (a translating camera, 24 frames): the first-last pose succeeds, so no hop pose is
     estimated; every gap-1 pair at the top scale is matched once though the chain asks for it too."""
@@ -72,6 +73,7 @@ def test_a_failed_first_last_pose_estimates_its_hops(monkeypatch):
     assert max(v for k, v in calls.items() if k[0] == "match") == 1
 
 
+@pytest.mark.full
 def test_objects_at_the_top_scale_keep_the_headline_scores(synth_dir, scored_clip):
     """``object_scales = "top"`` scores objects at the largest scale only: the objects, their
     headline AdaDFRC, AdaP90 and every other number of the record are those of scoring all scales."""
