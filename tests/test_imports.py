@@ -261,6 +261,28 @@ def test_each_package_declares_its_public_names(package):
             assert owner == package or name in importlib.import_module(owner).__all__, name
 
 
+SCORING_FLOW = ("schedule", "rigidity", "verdict", "category", "judge", "regate", "assemble", "scorer")
+"""The modules of ``geocon_core.scoring`` in the order a clip goes through them (docs/layout.md):
+each imports only modules before it, so scoring flows one way."""
+
+
+def test_scoring_flows_one_way():
+    modules = {p.stem for p in (ROOT / "geocon_core" / "scoring").glob("*.py")} - {"__init__"}
+    assert modules == set(SCORING_FLOW), (
+        f"scoring modules and SCORING_FLOW differ: {sorted(modules ^ set(SCORING_FLOW))}"
+    )
+    graph = _graph()
+    back = []
+    for i, name in enumerate(SCORING_FLOW):
+        for dep in graph[f"geocon_core.scoring.{name}"]:
+            if dep.startswith("geocon_core.scoring.") and SCORING_FLOW.index(dep.rsplit(".", 1)[1]) >= i:
+                back.append(f"{name} -> {dep}")
+    assert not back, back
+    page = (ROOT / "docs" / "layout.md").read_text()
+    places = [page.find(f"`{name}.py`", page.find("How a clip goes through")) for name in SCORING_FLOW]
+    assert min(places) > 0 and places == sorted(places), "docs/layout.md lists the scoring modules in another order"
+
+
 def test_the_layout_page_names_every_package():
     page = (ROOT / "docs" / "layout.md").read_text()
     missing = [p for p in [*_core_packages(), *_packages("geocon_viewer")] if f"`{p}/`" not in page]

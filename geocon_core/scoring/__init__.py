@@ -1,25 +1,31 @@
 """Scoring a clip: the stages' composition, its schedule and every verdict rule.
 
 :func:`score_clip` (:mod:`.scorer`) composes the named stages under the streaming schedule of
-:mod:`.schedule`; :mod:`.rigidity` scores moving objects (AdaDFRC-W2); :mod:`.category` names the
-clip's category; :mod:`.assemble` builds the record. :mod:`.verdict` is the one home of every
-verdict rule (the translation gate, gap and scale aggregation, model choice, the report gate,
-:func:`is_flagged`); :mod:`.regate` re-gates stored residuals under other thresholds.
+:mod:`.schedule`; :mod:`.rigidity` scores moving objects (AdaDFRC-W2). Once the stages are done,
+:mod:`.judge` decides the background's verdict (the pair fits, then the multi-view check's
+drift), :mod:`.assemble` builds the record from the finished parts and :mod:`.category` names
+its category. :mod:`.verdict` is the one home of every verdict rule (the translation gate, gap and
+scale aggregation, model choice, the report gate, :func:`is_flagged`); :mod:`.regate` re-gates
+stored residuals under other thresholds. Imports among these modules run one way, in the order
+the layout page gives (``tests/test_imports.py`` keeps it).
 """
 
 from __future__ import annotations
 
 from .assemble import (
-    add_objects,
+    ObjectParts,
     assemble_record,
     fit_summary,
     object_entries,
+    object_parts,
+    pair_tables,
     software_versions,
 )
 from .category import (
     categorize,
     categorize_record,
 )
+from .judge import INVALID_TEXT, BackgroundJudgement, coverage_note, judge_background, judge_drift
 from .regate import (
     Regated,
     ResidualArrays,
@@ -145,10 +151,17 @@ __all__ = [
     "Stages",
     "StreamSchedule",
     "gate_windows",
-    "add_objects",
+    "ObjectParts",
     "assemble_record",
     "fit_summary",
     "object_entries",
+    "object_parts",
+    "pair_tables",
     "software_versions",
+    "BackgroundJudgement",
+    "INVALID_TEXT",
+    "coverage_note",
+    "judge_background",
+    "judge_drift",
     "score_clip",
 ]

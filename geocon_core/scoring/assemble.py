@@ -1,11 +1,12 @@
-"""From the stages' results to a :class:`~geocon_core.record.ClipRecord`: the background
-(both families, the verdict, the gate and its timeline), the pairs with their per-match arrays,
-then the objects, the masked share and the category."""
+"""The record, assembled last from finished parts: the pairs with their per-match arrays
+(:func:`pair_tables`), the objects (:func:`object_parts`), then :func:`assemble_record`, which
+puts them beside the background's judgement (:mod:`.judge`), the gate and its timeline, the
+multi-view check, the readings and the clouds, and reads the category off the finished record."""
 
 from __future__ import annotations
 
 import platform
-from dataclasses import fields, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -18,34 +19,35 @@ from ..geometry import FAMILIES, ModelFit, PairFits
 from ..masks import MaskSource
 from ..media import ClipInfo
 from ..pose import PoseEstimate
+from ..reconstruction import MultiViewResult, WindowCloud
 from ..record import (
-    BackgroundSummary,
     CellArrays,
     ClipRecord,
-    FamilySummary,
     FitSummary,
     GateRecord,
     GateWindow,
     MatchArrays,
     ObjectEntry,
+    ObjectSummary,
     PairRecord,
-    ShotRecord,
+    PointCloud,
+    PointMaps,
 )
+from ..signals import ClipReadings
 from .category import categorize_record
+from .judge import BackgroundJudgement, coverage_note
 from .rigidity import MASK_JUMP, ObjectPairScore, object_summaries
-from .verdict import (
-    ClipVerdict,
-    Thresholds,
-    combine_shots,
-    deciding_shot,
-    family_verdict,
-    gate_decision,
-    gate_shot,
-    summarize_family,
-    window_t_inf,
-)
+from .verdict import ClipVerdict, gate_decision
 
-__all__ = ["software_versions", "fit_summary", "assemble_record", "add_objects", "object_entries"]
+__all__ = [
+    "ObjectParts",
+    "assemble_record",
+    "fit_summary",
+    "object_entries",
+    "object_parts",
+    "pair_tables",
+    "software_versions",
+]
 
 
 def software_versions() -> dict[str, str]:
@@ -93,147 +95,6 @@ def _gate_record(
     )
 
 
-INVALID_TEXT = {
-    "independent_motion": "more than half of the background matches move on their own (movers the masks did not "
-    "cover whole, or a dynamic background)",
-    "too_few_inliers": "too few matches fit the background model",
-    "too_few_matches": "too few matches (little texture, a fast camera or a dynamic background)",
-    "model_failed": "no background model could be fitted",
-}
-"""Why pairs could not be judged, in words, by reason code (the codes of ``invalid_reasons``)."""
-
-
-def coverage_note(summary: FamilySummary, min_coverage: float) -> str | None:
-    """Why a family's background cannot be judged, or which gaps the coverage rule left out of
-    its headline (None when every gap was judged); the commonest reason a pair was invalid is
-    named in words."""
-    reasons = {k: v for k, v in summary.invalid_reasons.items() if k in INVALID_TEXT}
-    why = f"; most invalid pairs: {INVALID_TEXT[max(reasons, key=lambda k: reasons[k])]}" if reasons else ""
-    if summary.valid_pairs == 0:
-        return f"no valid pair: the background could not be judged{why}"
-    out = [g for g in summary.per_gap if not g.judged and g.judgeable_pairs]  # a gap longer than the clip: no pair
-    if not out:
-        return None
-    parts = ", ".join(f"gap {g.gap}: {g.valid_pairs} of {g.judgeable_pairs}" for g in out)
-    head = "the background could not be judged" if summary.ir is None else "left out of the headline"
-    return f"too few valid pair-scales ({parts}; the coverage rule needs {min_coverage:.0%}{why}): {head}"
-
-
-def _background(
-    cfg: ScoreConfig, v: ClipVerdict, fam: dict[str, FamilySummary], pose: PoseEstimate, t_window: float | None = None
-) -> BackgroundSummary:
-    if fam[v.model].ir is None:
-        note = coverage_note(fam[v.model], cfg.min_coverage) or "the background could not be judged"
-    elif v.untrusted:
-        note = (
-            f"the background could not be judged: {fam[v.model].independent_share:.0%} of its matches (median over "
-            f"the pairs) move on their own (movers the masks did not cover whole), and the {v.model} fit failed "
-            f"(IR {v.ir:.3f}, GE {v.ge:.2f} px) where they leak; a failure there says nothing about the scene"
-        )
-    elif not pose.pose_present:
-        note = f"no pose ({pose.reason}): gated F by the fail->F policy"
-    elif v.label == "U":
-        why = (
-            f" (t_inf {pose.t_inf:.4f}, but a gate window reads {t_window:.4f} > {cfg.tau_t_window:g})"
-            if pose.t_inf is not None and pose.t_inf <= cfg.tau_t_low and t_window is not None
-            else ""
-        )
-        irs = ", ".join(f"IR {k} " + ("-" if fam[k].ir is None else f"{fam[k].ir:.3f}") for k in ("H", "F"))
-        note = f"gray zone{why}: both families fitted, kept {v.model} ({irs})"
-    else:
-        note = f"t_inf {pose.t_inf:.4f} -> {v.label}" + (f" ({pose.note})" if pose.note else "")
-    chosen = fam[v.model]
-    other = next(f for name, f in fam.items() if name != v.model)
-    return BackgroundSummary(
-        model=v.model,
-        ir=chosen.ir,
-        ge=chosen.ge,
-        valid_pairs=chosen.valid_pairs,
-        total_pairs=chosen.total_pairs,
-        consistent=v.consistent,
-        tau_f_px=fam["F"].per_scale[list(cfg.scales).index(max(cfg.scales))].tau_f_px,
-        chosen=chosen,
-        other=other,
-        choice_note=note,
-    )
-
-
-def _judge_span(
-    cfg: ScoreConfig,
-    thresholds: Thresholds,
-    scored: list[PairFits],
-    pose: PoseEstimate,
-    timeline_poses: Sequence[tuple[tuple[int, int], PoseEstimate]],
-    span: tuple[int, int],
-) -> tuple[dict[str, FamilySummary], ClipVerdict, float | None]:
-    """Both families over ``scored`` (the pairs of frames ``span``) and their verdict under the
-    gate of ``pose`` and of the gate windows inside ``span``; the largest window too."""
-    fam = {name: summarize_family(name, scored, cfg) for name in FAMILIES}
-    rows = [(s, e, est.t_inf, est.pose_present) for (s, e), est in timeline_poses]
-    t_window = window_t_inf(rows, span)
-    verdict = family_verdict(
-        fam["H"],
-        fam["F"],
-        t_inf=pose.t_inf,
-        pose_present=pose.pose_present,
-        thresholds=thresholds,
-        tau_t=cfg.tau_t,
-        t_window=t_window,
-    )
-    return fam, verdict, t_window
-
-
-def _judge_shots(
-    cfg: ScoreConfig,
-    thresholds: Thresholds,
-    shot_poses: Sequence[tuple[tuple[int, int], PoseEstimate]],
-    scored: list[PairFits],
-    timeline_poses: Sequence[tuple[tuple[int, int], PoseEstimate]] = (),
-) -> tuple[ClipVerdict, dict[str, FamilySummary], PoseEstimate, tuple[ShotRecord, ...]]:
-    """Each shot judged on its own pairs with its own gate (and the gate windows inside it); the
-    combined verdict, the families and pose of the shot that decides, and the shots' records."""
-    verdicts, families, records = [], [], []
-    for (start, end), est in shot_poses:
-        mine = [r for r in scored if start <= r.t0 and r.t1 <= end]
-        fam, v, t_window = _judge_span(cfg, thresholds, mine, est, timeline_poses, (start, end))
-        note = (
-            "a single frame: nothing to judge" if end == start else _background(cfg, v, fam, est, t_window).choice_note
-        )
-        verdicts.append(v)
-        families.append(fam)
-        records.append(
-            ShotRecord(
-                start=start,
-                end=end,
-                label=v.label if est.pose_present else None,
-                t_inf=est.t_inf,
-                pose_present=est.pose_present,
-                pose_method=est.method if est.pose_present else None,
-                model=v.model,
-                ir=v.ir,
-                ge=v.ge,
-                consistent=v.consistent,
-                note=note,
-            )
-        )
-    gate = gate_shot([w for w, _ in shot_poses])
-    decides = deciding_shot(verdicts)
-    return combine_shots(verdicts, gate), families[decides], shot_poses[decides][1], tuple(records)
-
-
-def _shots_note(shots: tuple[ShotRecord, ...], verdict: ClipVerdict) -> str:
-    """The background's note for a clip with cuts: which shot decided, and how each one fared."""
-    judged = [s for s in shots if s.consistent is not None]
-    if not judged:
-        return f"none of the {len(shots)} shots could be judged (cuts split the clip)"
-    decides = next(s for s in shots if s.consistent == verdict.consistent and s.ir == verdict.ir and s.ge == verdict.ge)
-    state = {True: "consistent", False: "inconsistent"}[bool(verdict.consistent)]
-    return (
-        f"{len(shots)} shots judged on their own ({len(judged)} judged); shot {decides.start}-{decides.end} "
-        f"decides: {state} ({decides.note})"
-    )
-
-
 def _pair_record(i: int, r: PairFits) -> tuple[PairRecord, dict[str, np.ndarray]]:
     """A scored pair's record entry and its per-match arrays (zeros where a family has no fit)."""
     m = len(r.x1)
@@ -261,36 +122,19 @@ def _pair_record(i: int, r: PairFits) -> tuple[PairRecord, dict[str, np.ndarray]
     return pair, arrays
 
 
-def assemble_record(
-    clip: str,
-    info: ClipInfo,
-    cfg: ScoreConfig,
-    K: np.ndarray,
-    backend: str,
-    pose: PoseEstimate,
-    timeline_poses: list[tuple[tuple[int, int], PoseEstimate]],
-    windows: list[tuple[int, int]],
-    scored: list[PairFits],
-    shot_poses: Sequence[tuple[tuple[int, int], PoseEstimate]] = (),
-) -> ClipRecord:
-    """The record of a clip's background: both families summarised over ``scored`` (sorted by
-    gap, frame, scale), the verdict (:func:`~geocon_core.scoring.verdict.family_verdict`), the gate with
-    its timeline (``timeline_poses`` of the ``windows``; the whole-clip window uses ``pose``), the
-    pairs and their per-match arrays, and the warnings; no objects or category yet.
+def pair_tables(scored: Sequence[PairFits]) -> tuple[tuple[PairRecord, ...], MatchArrays]:
+    """The record's pairs (``scored`` sorted by gap, frame, scale, indexed in that order) and their
+    per-match arrays, concatenated."""
+    pairs, arrays = zip(*(_pair_record(i, r) for i, r in enumerate(scored)), strict=True) if scored else ((), ())
+    return tuple(pairs), MatchArrays.concatenate(list(arrays))
 
-    A clip with hard cuts gives ``shot_poses``, the pose of each shot's first and last frame: each
-    shot is then judged on its own (its gate, its pairs), the clip's gate is that of its first
-    shot of two frames or more and its background that of the shot that decides
-    (:func:`~geocon_core.scoring.verdict.combine_shots`); the shots are in :attr:`ClipRecord.shots`."""
-    thresholds = Thresholds.of(cfg)
-    shots: tuple[ShotRecord, ...] = ()
-    if len(shot_poses) > 1:
-        verdict, fam, pose, shots = _judge_shots(cfg, thresholds, shot_poses, scored, timeline_poses)
-        background = replace(_background(cfg, verdict, fam, pose), choice_note=_shots_note(shots, verdict))
-    else:
-        fam, verdict, t_window = _judge_span(cfg, thresholds, scored, pose, timeline_poses, (0, info.num_frames - 1))
-        background = _background(cfg, verdict, fam, pose, t_window)
-    warnings: list[str] = list(info.warnings)  # frames lost to a damaged file, from the reader
+
+def _background_warnings(info: ClipInfo, cfg: ScoreConfig, judgement: BackgroundJudgement) -> list[str]:
+    """What the record warns of about its background: frames lost to a damaged file (from the
+    reader), a missing or chained pose, the coverage rule, independent motion, duplicated frames,
+    fades and cuts."""
+    pose, fam, verdict = judgement.pose, judgement.families, judgement.verdict
+    warnings: list[str] = list(info.warnings)
     if not pose.pose_present:
         warnings.append(f"the first-last pose could not be recovered ({pose.reason}); the clip is gated F")
     elif pose.method == "chain":
@@ -316,23 +160,81 @@ def assemble_record(
             f"{len(info.cuts)} hard cut(s) at frame(s) {list(info.cuts)}: pairs across them are not scored, and "
             f"each of the {len(info.shots)} shots is judged on its own"
         )
-    pairs, arrays = zip(*(_pair_record(i, r) for i, r in enumerate(scored)), strict=True) if scored else ((), ())
-    gate_pose = shot_poses[gate_shot([w for w, _ in shot_poses])][1] if shots else pose
-    return ClipRecord(
+    return warnings
+
+
+@dataclass(frozen=True)
+class ObjectParts:
+    """What a record keeps of the moving objects: ``entries`` (AdaDFRC per object, frame pair and
+    scale) with their ``cells``, the per-object ``summaries``, the mask source's name
+    (``masks_source``), the masked and dynamic shares per frame and the ``warnings`` they raise."""
+
+    entries: tuple[ObjectEntry, ...] = ()
+    cells: CellArrays | None = None
+    summaries: tuple[ObjectSummary, ...] = ()
+    masks_source: str = "none"
+    masked_share: tuple[float, ...] = ()
+    dynamic_share: tuple[float, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+
+def assemble_record(
+    clip: str,
+    info: ClipInfo,
+    cfg: ScoreConfig,
+    K: np.ndarray,
+    backend: str,
+    judgement: BackgroundJudgement,
+    timeline_poses: list[tuple[tuple[int, int], PoseEstimate]],
+    windows: list[tuple[int, int]],
+    tables: tuple[tuple[PairRecord, ...], MatchArrays],
+    objects: ObjectParts,
+    *,
+    notes: Sequence[str] = (),
+    multiview: MultiViewResult | None = None,
+    readings: ClipReadings | None = None,
+    dense: tuple[WindowCloud, ...] = (),
+    cloud: PointCloud | None = None,
+    pointmaps: PointMaps | None = None,
+) -> ClipRecord:
+    """The record of a clip, made once from finished parts: the background's ``judgement``
+    (:mod:`.judge`, the multi-view check's drift included), the gate with its timeline
+    (``timeline_poses`` of the ``windows``; the whole-clip window uses the judgement's gate pose),
+    the pairs and their per-match arrays (``tables``, :func:`pair_tables`), the ``objects``
+    (:func:`object_parts`), the multi-view check's ``multiview``, the ``readings`` and the clouds;
+    its warnings are the background's, then ``notes`` (the scorer's), then the objects'. The
+    category (:func:`~geocon_core.scoring.category.categorize_record`) is read off the finished
+    record last."""
+    pairs, matches = tables
+    record = ClipRecord(
         clip=clip,
         video=info,
         config=cfg,
         config_hash=config_hash(cfg),
         versions=software_versions(),
-        gate=_gate_record(cfg, verdict, backend, gate_pose, windows, timeline_poses, info.num_frames),
-        background=background,
-        shots=shots,
-        pairs=tuple(pairs),
-        matches=MatchArrays.concatenate(list(arrays)),
+        gate=_gate_record(
+            cfg, judgement.verdict, backend, judgement.gate_pose, windows, timeline_poses, info.num_frames
+        ),
+        background=judgement.background,
+        shots=judgement.shots,
+        pairs=pairs,
+        matches=matches,
         intrinsics=[[float(v) for v in row] for row in K],
         category=None,
-        warnings=tuple(warnings),
+        warnings=(*_background_warnings(info, cfg, judgement), *notes, *objects.warnings),
+        masks_source=objects.masks_source,
+        masked_share=objects.masked_share,
+        dynamic_share=objects.dynamic_share,
+        objects=objects.summaries,
+        object_entries=objects.entries,
+        cells=objects.cells,
+        cloud=cloud,
+        pointmaps=pointmaps,
+        dense=dense,
+        multiview=multiview,
+        readings=readings,
     )
+    return replace(record, category=categorize_record(record, [o.frames for o in objects.summaries]))
 
 
 def object_entries(scores: Sequence[ObjectPairScore]) -> tuple[list[ObjectEntry], list[dict[str, Any] | None]]:
@@ -380,8 +282,8 @@ def _dynamic_share(mask_source: MaskSource | None, n: int) -> tuple[float, ...]:
     return tuple(float(dynamic.get(t, 0.0)) for t in range(n))
 
 
-def add_objects(
-    record: ClipRecord,
+def object_parts(
+    cfg: ScoreConfig,
     scores: list[ObjectPairScore],
     *,
     scales: Sequence[float],
@@ -389,17 +291,16 @@ def add_objects(
     object_share: dict[int, dict[int, float]],
     mask_source: MaskSource | None,
     masks_path: str | Path | None,
-) -> ClipRecord:
-    """Add object entries (``scores`` sorted by object, frame, scale), per-object summaries
-    (:func:`~geocon_core.scoring.rigidity.object_summaries`), the masked share per frame, the mask
-    source's warnings and the category (:func:`~geocon_core.scoring.category.categorize_record`)."""
+) -> ObjectParts:
+    """The objects' part of a record: entries (``scores`` sorted by object, frame, scale), per-object
+    summaries (:func:`~geocon_core.scoring.rigidity.object_summaries`), the masked share per frame,
+    the dynamic share, and the warnings of the mask source and of the objects."""
     entries, cells = object_entries(scores)
-    cfg = record.config
     min_pairs = cfg.min_object_pairs
     summaries = object_summaries(
         entries, scales, object_share, min_pairs=min_pairs, jump_window=cfg.mask_jump_window, max_jump=cfg.max_mask_jump
     )
-    warnings = list(record.warnings) + (list(mask_source.warnings) if mask_source is not None else [])
+    warnings = list(mask_source.warnings) if mask_source is not None else []
     s_max = max(scales)
     jumped = {
         o.object_id: p.skipped[MASK_JUMP]
@@ -427,14 +328,12 @@ def add_objects(
     source = (
         "none" if mask_source is None else (f"external:{masks_path}" if masks_path is not None else mask_source.name)
     )
-    return replace(
-        record,
+    return ObjectParts(
+        entries=tuple(entries),
+        cells=CellArrays.concatenate(cells),
+        summaries=tuple(summaries),
         masks_source=source,
         masked_share=tuple(float(v) for v in masked_share),
         dynamic_share=dynamic,
-        objects=tuple(summaries),
-        object_entries=tuple(entries),
-        cells=CellArrays.concatenate(cells),
         warnings=tuple(warnings),
-        category=categorize_record(record, [o.frames for o in summaries]),
     )

@@ -64,10 +64,19 @@ from ..pose import (
     still_share,
 )
 from ..pose import failure as pose_failure
-from ..reconstruction import DenseCloudBuilder, DenseCloudConfig, LongTracks, TrackObservations, reconstruct
-from ..record import ClipRecord, FrameDiagnostics, ObjectFlow, PointCloud, PointMaps
+from ..reconstruction import (
+    DenseCloudBuilder,
+    DenseCloudConfig,
+    LongTracks,
+    MultiViewResult,
+    TrackObservations,
+    WindowCloud,
+    reconstruct,
+)
+from ..record import ClipRecord, FrameDiagnostics, MatchArrays, ObjectFlow, PairRecord, PointCloud, PointMaps
 from ..signals import ClipReadings, appearance_reading, content_gray, plan_pairs, unkept_share
-from .assemble import add_objects, assemble_record, software_versions
+from .assemble import assemble_record, object_parts, pair_tables, software_versions
+from .judge import judge_background, judge_drift
 from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, quiet_pot_backends, refine_object_mask
 from .schedule import StreamSchedule, gate_windows
 
@@ -574,12 +583,13 @@ def _mask_source(
     return None
 
 
-def _with_multiview(record: ClipRecord, obs: TrackObservations, K: np.ndarray, cfg: ScoreConfig) -> ClipRecord:
-    """The record with its multi-view check (:mod:`geocon_core.reconstruction.multiview`): one reconstruction
-    per shot under the model its gate chose; a drifting layer fails the background. With cuts,
-    the result kept is that of the first shot with a drifting layer, else of the longest shot."""
-    info = record.video
-    spans = [(s.start, s.end, s.model) for s in record.shots] or [(0, info.num_frames - 1, record.background.model)]
+def _multiview(
+    obs: TrackObservations, K: np.ndarray, cfg: ScoreConfig, info: ClipInfo, spans: list[tuple[int, int, str]]
+) -> MultiViewResult:
+    """The multi-view check (:mod:`geocon_core.reconstruction.multiview`): one reconstruction per
+    span (each shot, or the whole clip; ``(start, end, model)``) under the model its gate chose.
+    With cuts, the result kept is that of the first shot with a drifting layer, else of the
+    longest shot."""
     results = []
     for start, end, model in spans:
         keep = [i for i, t in enumerate(obs.frames) if start <= t <= end]
@@ -593,13 +603,7 @@ def _with_multiview(record: ClipRecord, obs: TrackObservations, K: np.ndarray, c
             )
         )
     flagged = [r for _, r in results if r.flagged]
-    result = flagged[0] if flagged else max(results, key=lambda lr: lr[0])[1]
-    record = replace(record, multiview=result)
-    if result.flagged and record.background.consistent is not False:
-        bg = record.background
-        note = f"{bg.choice_note}; the multi-view check: {result.layers[0].describe()}".lstrip("; ")
-        record = replace(record, background=replace(bg, consistent=False, choice_note=note))
-    return record
+    return flagged[0] if flagged else max(results, key=lambda lr: lr[0])[1]
 
 
 def _import_aside(module: str) -> None:
@@ -770,32 +774,51 @@ def score_clip(
     if stages.still_frames:
         shot_poses = [(shot, stages.still_test(shot, est, K)) for shot, est in shot_poses]
     scored = _keep_still(sorted(out.pairs, key=lambda r: (r.gap, r.t0, r.scale)), stages.still_maps, info, cfg)
-    objects = sorted(out.objects, key=lambda r: r.key)
-    record = assemble_record(str(path), info, cfg, K, backend.name, pose, timeline, windows, scored, shot_poses)
-    if object_gap < cfg.object_gap and mask_source is not None:
-        record = replace(
-            record,
-            warnings=record.warnings
-            + (f"objects scored on frames {object_gap} apart: the clip has {n} frames, fewer than object_gap + 1",),
-        )
-    if builder is not None:
-        start = time.perf_counter()
-        resolved = {w: est for w, est in by_window.items() if not isinstance(est, _DeferredPose)}
-        record = replace(record, dense=builder.clouds(K, {**resolved, (0, n - 1): pose}))
-        timer.add("dense", start)
+    # the verdicts, read once from the finished stages; the record is assembled last
+    judgement = judge_background(cfg, n, pose, timeline, scored, shot_poses)
+    multiview = None
     if stages.tracks is not None:
         start = time.perf_counter()
-        record = _with_multiview(record, stages.tracks.observations, K, cfg)
+        multiview = _multiview(stages.tracks.observations, K, cfg, info, judgement.spans(n))
+        judgement = judge_drift(judgement, multiview)
         timer.add("multiview", start)
-    record = _with_readings(record, stages.reading_frames, cfg, timer)
-    return add_objects(
-        replace(record, cloud=cloud, pointmaps=stages.pointmaps),
-        objects,
+    tables = pair_tables(scored)
+    readings = _readings(stages.reading_frames, tables, info, cfg, timer)
+    objects = object_parts(
+        cfg,
+        sorted(out.objects, key=lambda r: r.key),
         scales=stages.object_scales,
         masked_share=stages.masked_share,
         object_share=stages.object_share,
         mask_source=mask_source,
         masks_path=masks,
+    )
+    notes = []
+    if object_gap < cfg.object_gap and mask_source is not None:
+        notes.append(f"objects scored on frames {object_gap} apart: the clip has {n} frames, fewer than object_gap + 1")
+    clouds: tuple[WindowCloud, ...] = ()
+    if builder is not None:
+        start = time.perf_counter()
+        resolved = {w: est for w, est in by_window.items() if not isinstance(est, _DeferredPose)}
+        clouds = builder.clouds(K, {**resolved, (0, n - 1): pose})
+        timer.add("dense", start)
+    return assemble_record(
+        str(path),
+        info,
+        cfg,
+        K,
+        backend.name,
+        judgement,
+        timeline,
+        windows,
+        tables,
+        objects,
+        notes=notes,
+        multiview=multiview,
+        readings=readings,
+        dense=clouds,
+        cloud=cloud,
+        pointmaps=stages.pointmaps,
     )
 
 
@@ -816,22 +839,29 @@ def read_readings(record: ClipRecord, record_dir: str | Path, config: ScoreConfi
             frames[frame.index] = content_gray(frame.gray, info.content_box, cfg.signals)
         if len(frames) == len(needed):
             break
-    return _with_readings(record, frames, cfg, _Timer(None))
+    return replace(record, readings=_readings(frames, (record.pairs, record.matches), record.video, cfg, _Timer(None)))
 
 
-def _with_readings(record: ClipRecord, frames: dict[int, np.ndarray], cfg: ScoreConfig, timer: _Timer) -> ClipRecord:
-    """The record with its readings beside the background fit (:mod:`geocon_core.signals`), when
-    ``cfg.signals`` is on: the appearance readings of the frames kept for them and the keep reading
-    of the record's background matches."""
+def _readings(
+    frames: dict[int, np.ndarray],
+    tables: tuple[tuple[PairRecord, ...], MatchArrays],
+    video: ClipInfo,
+    cfg: ScoreConfig,
+    timer: _Timer,
+) -> ClipReadings | None:
+    """The readings beside the background fit (:mod:`geocon_core.signals`), when ``cfg.signals``
+    is on: the appearance readings of the frames kept for them and the keep reading of the
+    background matches (``tables``: the record's pairs and per-match arrays)."""
     if not cfg.signals.enabled:
-        return record
+        return None
     start = time.perf_counter()
-    n = record.video.num_frames
+    n = video.num_frames
     far, near = plan_pairs(n, cfg.signals)
     readable = all(t in frames for pair in (*far, *near) for t in pair) and bool(far or near)
     appearance = appearance_reading(frames, n, cfg.signals) if readable else None
-    offsets = record.matches.offsets
-    rows = [(p.gap, p.scale, int(offsets[p.index]), int(offsets[p.index + 1])) for p in record.pairs if p.skip is None]
-    unkept = unkept_share(rows, record.matches.f_res_px, record.video.working_size[0], cfg.signals)
+    pairs, matches = tables
+    offsets = matches.offsets
+    rows = [(p.gap, p.scale, int(offsets[p.index]), int(offsets[p.index + 1])) for p in pairs if p.skip is None]
+    unkept = unkept_share(rows, matches.f_res_px, video.working_size[0], cfg.signals)
     timer.add("signals", start)
-    return replace(record, readings=ClipReadings(appearance, unkept))
+    return ClipReadings(appearance, unkept)
