@@ -261,7 +261,7 @@ def test_each_package_declares_its_public_names(package):
             assert owner == package or name in importlib.import_module(owner).__all__, name
 
 
-SCORING_FLOW = ("schedule", "rigidity", "verdict", "category", "judge", "regate", "assemble", "scorer")
+SCORING_FLOW = ("schedule", "rigidity", "verdict", "category", "judge", "regate", "pipeline", "assemble", "scorer")
 """The modules of ``geocon_core.scoring`` in the order a clip goes through them (docs/layout.md):
 each imports only modules before it, so scoring flows one way."""
 

@@ -1,7 +1,7 @@
 """Scoring a clip: the stages' composition, its schedule and every verdict rule.
 
-:func:`score_clip` (:mod:`.scorer`) composes the named stages under the streaming schedule of
-:mod:`.schedule`; :mod:`.rigidity` scores moving objects (AdaDFRC-W2). Once the stages are done,
+:func:`score_clip` (:mod:`.scorer`) composes the named stages (:mod:`.pipeline`) under the streaming
+schedule of :mod:`.schedule`; :mod:`.rigidity` scores moving objects (AdaDFRC-W2). Once the stages are done,
 :mod:`.judge` decides the background's verdict (the pair fits, then the multi-view check's
 drift), :mod:`.assemble` builds the record from the finished parts and :mod:`.category` names
 its category. :mod:`.verdict` is the one home of every verdict rule (the translation gate, gap and
