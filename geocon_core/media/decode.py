@@ -38,6 +38,7 @@ __all__ = [
     "ClipKind",
     "DEFAULT_FPS",
     "MAX_FPS",
+    "DisplayTurn",
     "FrameCount",
     "FrameTiming",
     "GifCut",
@@ -46,6 +47,7 @@ __all__ = [
     "SHORTFALL_EXACT",
     "SHORTFALL_ESTIMATED",
     "container_frame_count",
+    "display_turn",
     "frame_timing",
     "frame_number_gaps",
     "timing_note",
@@ -553,6 +555,43 @@ def video_tracks(name: str) -> tuple[tuple[int, int], ...]:
     when PyAV cannot open the file."""
     peek = _pyav_peek(name)
     return () if peek is None else peek.tracks
+
+
+@dataclass(frozen=True)
+class DisplayTurn:
+    """How a video's display matrix (FFmpeg's ``DISPLAYMATRIX`` side data, a phone's orientation)
+    shows its stored frames: turned ``degrees`` counter-clockwise, in (-180, 180], and ``mirrored``
+    (a flip) or not."""
+
+    degrees: float
+    mirrored: bool
+
+    def quarter_turns(self, tolerance_deg: float) -> int | None:
+        """The counter-clockwise quarter turns (0 to 3) that the turn is, to within ``tolerance_deg``
+        degrees; None when it is no multiple of 90 degrees."""
+        turns = round(self.degrees / 90.0)
+        return turns % 4 if abs(self.degrees - 90.0 * turns) <= tolerance_deg else None
+
+
+def display_turn(frame: Any) -> DisplayTurn | None:
+    """The :class:`DisplayTurn` of a decoded PyAV video ``frame`` (read before any reformat, which
+    drops side data); None when it carries no display matrix. The angle is FFmpeg's
+    ``av_display_rotation_get`` (the one OpenCV turns its frames by)."""
+    import struct
+
+    side = getattr(frame, "side_data", None)
+    if side is None:
+        return None
+    data = next((bytes(sd) for sd in side if "DISPLAYMATRIX" in str(sd.type)), None)
+    if data is None or len(data) < 36:
+        return None
+    m = struct.unpack("<9i", data[:36])
+    scale0, scale1 = math.hypot(m[0], m[3]), math.hypot(m[1], m[4])
+    if scale0 == 0 or scale1 == 0:
+        return None
+    degrees = -math.degrees(math.atan2(m[1] / scale1, m[0] / scale0))
+    degrees = 180.0 if degrees <= -180.0 else degrees
+    return DisplayTurn(degrees + 0.0, m[0] * m[4] - m[1] * m[3] < 0)
 
 
 class _LibraryFrames(Iterator[np.ndarray]):
