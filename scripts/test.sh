@@ -11,12 +11,25 @@
 # site is built (scripts/docs.sh, mkdocs --strict: a broken link fails it); then the wheel check
 # (scripts/wheel_check.sh: the built wheel alone in a fresh environment runs doctor and demo,
 # about two minutes; GEOCON_WHEEL_CHECK=0 skips it for a quick local run).
+# --quick may stand anywhere among the arguments (`-x --quick` is the quick tier too); every other
+# argument goes to pytest as it is. GEOCON_TEST_PLAN=1 prints the tier and the pytest arguments (one
+# a line) and stops there, before any set-up: what tests/test_test_script.py checks.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 quick=0
-if [ "${1:-}" = --quick ]; then
-    quick=1
-    shift
+args=()
+for arg in "$@"; do
+    if [ "$arg" = --quick ]; then
+        quick=1
+    else
+        args+=("$arg")
+    fi
+done
+set -- ${args[@]+"${args[@]}"}
+if [ "${GEOCON_TEST_PLAN:-0}" = 1 ]; then
+    if [ "$quick" = 1 ]; then echo "tier: quick"; else echo "tier: full"; fi
+    for arg in "$@"; do printf 'pytest arg: %s\n' "$arg"; done
+    exit 0
 fi
 bash scripts/bootstrap.sh viewer bench test neural distributed docs
 

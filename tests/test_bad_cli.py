@@ -400,6 +400,90 @@ def test_a_killed_bench_worker_and_resource_tracker_print_no_traceback(tmp_path)
     assert any("resource tracker" in n for n in notes), stderr
 
 
+TRACKER_LIMIT_S = 120
+"""A ``geocon bench`` of two small clips whose resource tracker is killed ends within this long."""
+KILL_TRACKER = """
+    import os, signal
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import resource_tracker
+    real_shutdown = ProcessPoolExecutor.shutdown
+    def shutdown(self, *args, **kwargs):  # the tracker killed after the last check, as the pool ends
+        tracker = resource_tracker._resource_tracker
+        if tracker._pid is not None:
+            os.kill(tracker._pid, signal.SIGKILL)
+            os.waitpid(tracker._pid, 0)
+        return real_shutdown(self, *args, **kwargs)
+    ProcessPoolExecutor.shutdown = shutdown
+"""
+"""Patched into a ``geocon bench`` run: the resource tracker is killed just before each worker pool
+shuts down (after the run's last look at it), when the pool's five semaphores are forgotten."""
+
+
+@pytest.mark.full
+def test_a_resource_tracker_killed_as_the_pool_ends_prints_no_traceback(tmp_path):
+    """The tracker killed once every clip is scored (``pkill -f resource_tracker`` at the end of a
+    run): the pool's shutdown starts a new one, quietly, and the run says so in one note; it printed
+    a warning and five ``KeyError`` tracebacks, one per semaphore the new tracker never knew."""
+    pytest.importorskip("pyarrow")
+    data = tmp_path / "ds"
+    (data / "p").mkdir(parents=True)
+    for name, seed in (("a", 1), ("b", 2)):
+        write_video(data / "p" / f"{name}.mp4", pan_frames(96, 64, 6, seed=seed))
+    script = "\n".join(
+        ["import sys", textwrap.dedent(KILL_TRACKER), "from geocon_viewer.cli import main",
+         f"sys.argv = ['geocon', 'bench', {str(data)!r}, '--out', 'res', '--preset', 'fast', '--workers', '2', "
+         "'--no-rrd']", "main()"]
+    )  # fmt: skip
+    res = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=TRACKER_LIMIT_S
+    )
+    assert res.returncode == 0, res.stderr
+    assert "Traceback" not in res.stderr and "KeyError" not in res.stderr and "Warning" not in res.stderr, res.stderr
+    assert "2 clips: 2 scored, 0 failed" in res.stdout, res.stdout
+    notes = [line for line in res.stderr.splitlines() if "resource tracker" in line]
+    assert notes == ["note: the worker pool's resource tracker process had died; a new one was started"], res.stderr
+
+
+QUIET_BLOCK = """
+    import gc, os, signal, sys
+    import multiprocessing
+    from multiprocessing import resource_tracker
+    from geocon_core.files import quiet_tracker_restarts
+    lock = multiprocessing.get_context("spawn").Lock()  # a named semaphore, registered with the tracker
+    tracker = resource_tracker._resource_tracker
+    os.kill(tracker._pid, signal.SIGKILL)
+    os.waitpid(tracker._pid, 0)
+    if sys.argv[1] == "quiet":
+        with quiet_tracker_restarts() as restarted:
+            del lock
+            gc.collect()
+        print("restarted" if restarted else "not restarted")
+    else:
+        del lock
+        gc.collect()
+    os.close(tracker._fd)  # the new tracker reads the end of its pipe and exits
+    os.waitpid(tracker._pid, 0)  # once it has printed what it prints
+    tracker._fd = tracker._pid = None
+"""
+"""A semaphore forgotten after its tracker was killed (its new tracker ends with this process)."""
+
+
+@pytest.mark.parametrize("mode", ["quiet", "plain"])
+def test_a_tracker_started_again_inside_the_quiet_block_prints_nothing(tmp_path, mode):
+    """Inside :func:`~geocon_core.files.quiet_tracker_restarts` the new tracker's traceback and
+    multiprocessing's warning go nowhere, and the block says a tracker was started again; outside
+    it (``plain``, the check that the scene is real) both reach the terminal."""
+    res = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(QUIET_BLOCK), mode],
+        cwd=tmp_path, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    if mode == "quiet":
+        assert res.stdout.strip() == "restarted" and res.stderr == "", res.stderr
+    else:
+        assert "KeyError" in res.stderr and "relaunching" in res.stderr, res.stderr
+
+
 # --- a terminal that shows ASCII only -------------------------------------------------------------
 
 ASCII_ENV = {"LANG": "C", "LC_ALL": "C", "PYTHONIOENCODING": "ascii"}

@@ -144,15 +144,67 @@ def test_truncated_webm_warns_against_its_duration(clips, tmp_path):
 
 
 def test_variable_frame_rate_estimate_is_not_a_truncation(tmp_path):
-    # 12 frames at 33 ms then 12 at 80 ms: duration x average rate says 32 frames, 24 decode
+    # 12 frames at 33 ms then 12 at 80 ms: duration x average rate would say 32 frames; the packets
+    # of a variable rate are counted instead, and cover the duration: 24, as decode
     pts = [33 * t if t < 12 else 33 * 12 + 80 * (t - 12) for t in range(T)]
     path = encode(tmp_path / "vfr.mkv", pan(), container="matroska", pts_ms=pts)
     from geocon_core.media import container_frame_count
 
-    assert container_frame_count(str(path)) == FrameCount(32, exact=False)
+    assert container_frame_count(str(path)) == FrameCount(T, exact=False)
     info = probe_clip(path)
     assert info.num_frames == T and len(info.warnings) == 1  # no truncation: the variable rate is named
     assert info.warnings[0].startswith("variable frame rate: frames are 33 to 80 ms apart")
+
+
+PAUSING_MS = [33 * t + (500 if t >= 8 else 0) + (900 if t >= 16 else 0) for t in range(T)]
+"""A screen recording that stops twice (for 0.5 s, then 0.9 s): duration x its stated rate
+promises 53 frames of the 24 it holds."""
+
+
+@pytest.mark.parametrize(
+    ("container", "codec", "name"),
+    [("matroska", "libx264", "pausing.mkv"), ("webm", "libvpx-vp9", "pausing.webm")],
+)
+def test_a_complete_clip_that_pauses_is_not_taken_for_a_truncation(tmp_path, container, codec, name):
+    path = encode(tmp_path / name, pan(), container=container, codec=codec, pts_ms=PAUSING_MS)
+    from geocon_core.media import container_frame_count
+
+    assert container_frame_count(str(path)) == FrameCount(T, exact=False)
+    info = probe_clip(path)
+    assert info.num_frames == T and len(info.warnings) == 1, info.warnings  # the variable rate, no truncation
+    assert info.warnings[0].startswith("variable frame rate: frames are 33 to 933 ms apart")
+
+
+def test_a_complete_clip_that_slows_to_one_frame_a_second_is_not_truncated(tmp_path):
+    pts = [33 * t if t < 12 else 33 * 12 + 1000 * (t - 11) for t in range(T)]
+    path = encode(tmp_path / "slow.mkv", pan(), container="matroska", pts_ms=pts)
+    info = probe_clip(path)
+    assert info.num_frames == T and not any("truncated" in w for w in info.warnings), info.warnings
+
+
+def test_a_truncated_clip_of_variable_rate_is_still_warned(tmp_path):
+    # variable from its first frames on (33 and 66 ms apart in turn); the second half cut off: the
+    # packets left cover half the duration, so the estimate doubles them
+    pts = list(np.cumsum([0] + [33 if t % 2 else 66 for t in range(T - 1)]))
+    full = encode(tmp_path / "vfr.mkv", pan(), container="matroska", pts_ms=[int(v) for v in pts])
+    half = cut(full, tmp_path / "half.mkv", len(full.read_bytes()) // 2)
+    from geocon_core.media import container_frame_count
+
+    promise = container_frame_count(str(half))
+    assert promise is not None and not promise.exact and promise.frames >= T - 1, promise
+    info = probe_clip(half)
+    assert info.num_frames < T * 2 / 3
+    assert any(w.startswith("the container's duration implies about") and "truncated" in w for w in info.warnings)
+
+
+def test_a_steady_matroska_keeps_its_duration_estimate(tmp_path):
+    path = encode(tmp_path / "steady.mkv", pan(), container="matroska")
+    from geocon_core.media import container_frame_count
+
+    assert container_frame_count(str(path)) == FrameCount(T, exact=False)
+    half = cut(path, tmp_path / "half.mkv", len(path.read_bytes()) // 2)
+    info = probe_clip(half)
+    assert any("implies about 24 frames" in w for w in info.warnings), info.warnings
 
 
 def test_edit_list_hiding_frames_is_not_a_truncation(clips, tmp_path):

@@ -28,7 +28,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from ..config import ScoreConfig, config_hash
-from ..files import FolderLock, LockHeld, check_out_dir, clear_stale_parts, die_with_parent, quiet_resource_tracker
+from ..files import (
+    FolderLock,
+    LockHeld,
+    check_out_dir,
+    clear_stale_parts,
+    die_with_parent,
+    quiet_resource_tracker,
+    quiet_tracker_restarts,
+)
 from ..media import clip_fingerprint
 from .clip import (
     MAX_CRASHES,
@@ -472,7 +480,10 @@ def _score_all(
             pool.shutdown(wait=False, cancel_futures=True)
             raise
         _tracker_checked(note)  # before the pool's semaphores are forgotten by a tracker started anew
-        pool.shutdown(wait=True)
+        with quiet_tracker_restarts() as restarted:  # the semaphores are forgotten here: a tracker killed since
+            pool.shutdown(wait=True)  # the check is started again quietly
+        if restarted:
+            note(TRACKER_RESTARTED)
 
 
 TERMINATE_WAIT_S = 5.0
@@ -516,7 +527,11 @@ def _named(clip_ids: list[str], most: int = 5) -> str:
     return shown + (f" and {len(clip_ids) - most} more" if len(clip_ids) > most else "")
 
 
+TRACKER_RESTARTED = "the worker pool's resource tracker process had died; a new one was started"
+"""What a run says when it found multiprocessing's resource tracker killed and started it again."""
+
+
 def _tracker_checked(note: Callable[[str], None]) -> None:
     """Start multiprocessing's resource tracker again, quietly, if it was killed; ``note`` says so."""
     if quiet_resource_tracker():
-        note("the worker pool's resource tracker process had died; a new one was started")
+        note(TRACKER_RESTARTED)

@@ -51,6 +51,7 @@ from .procs import (
     die_with_parent,
     pid_alive,
     quiet_resource_tracker,
+    quiet_tracker_restarts,
     reap_when_gone,
     start_reaper,
 )
@@ -62,6 +63,7 @@ __all__ = [
     "PARENT_POLL_S",
     "die_with_parent",
     "quiet_resource_tracker",
+    "quiet_tracker_restarts",
     "pid_alive",
     "reap_when_gone",
     "start_reaper",

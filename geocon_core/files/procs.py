@@ -14,6 +14,8 @@ The multiprocessing resource tracker exits by itself once the last process holdi
 parent and the workers) is gone. Killed with the workers (``pkill -f multiprocessing``), it is
 started again by :func:`quiet_resource_tracker`, silently: multiprocessing would start it again
 itself, with a warning and a traceback for every semaphore of the old pool it is told to forget.
+A pool forgets its semaphores as it shuts down, so a tracker killed after the last check (the
+clips all scored) is started again there: :func:`quiet_tracker_restarts` keeps that start quiet too.
 """
 
 from __future__ import annotations
@@ -27,8 +29,18 @@ import sys
 import threading
 import time
 import warnings
+from collections.abc import Iterator
+from typing import Any
 
-__all__ = ["PARENT_POLL_S", "die_with_parent", "pid_alive", "quiet_resource_tracker", "reap_when_gone", "start_reaper"]
+__all__ = [
+    "PARENT_POLL_S",
+    "die_with_parent",
+    "pid_alive",
+    "quiet_resource_tracker",
+    "quiet_tracker_restarts",
+    "reap_when_gone",
+    "start_reaper",
+]
 
 PARENT_POLL_S = 0.5
 """Seconds between two checks of the watchdog thread that the parent is still alive."""
@@ -68,32 +80,68 @@ def _watch_parent(parent_pid: int, poll_s: float) -> None:
 def quiet_resource_tracker() -> bool:
     """Make sure multiprocessing's resource tracker runs, starting it (again, when it died) with
     its stderr on the null device; whether a tracker that had been running was found dead. Call it
-    before a process pool starts and before it shuts down: a tracker started again by
-    multiprocessing itself prints a warning, and a traceback for each semaphore of the old pool it
-    is told to forget, on the terminal of a run that recovered. A no-op where multiprocessing has
-    no resource tracker (Windows)."""
+    before a process pool starts: a tracker started again by multiprocessing itself prints a
+    warning, and a traceback for each semaphore of the old pool it is told to forget, on the
+    terminal of a run that recovered. A no-op where multiprocessing has no resource tracker
+    (Windows)."""
+    tracker = _tracker()
+    if tracker is None:
+        return False
+    was_started = getattr(tracker, "_fd", None) is not None
+    if was_started and tracker._check_alive():
+        return False
+    with _stderr_on_null():
+        tracker.ensure_running()
+    return was_started
+
+
+@contextlib.contextmanager
+def quiet_tracker_restarts() -> Iterator[list[bool]]:
+    """For the block: a resource tracker that multiprocessing starts again, finding the one it had
+    dead (to forget the semaphores of a pool that shuts down, say), starts with its stderr on the
+    null device and without multiprocessing's warning, so the tracebacks it prints for semaphores
+    it never knew go nowhere. Yields a list that holds True after the block when a tracker was
+    started again. Everything this process writes to its stderr (descriptor 2) meanwhile goes to
+    the null device too: keep the block to the calls that forget semaphores (a pool's
+    ``shutdown``), which print nothing of their own."""
+    tracker = _tracker()
+    restarted: list[bool] = []
+    before = getattr(tracker, "_pid", None)
+    with _stderr_on_null():
+        yield restarted
+    after = getattr(tracker, "_pid", None)
+    if before is not None and after != before:
+        restarted.append(True)
+
+
+def _tracker() -> Any:
+    """multiprocessing's resource tracker of this process; None where there is none (Windows)."""
     try:
         from multiprocessing import resource_tracker
     except ImportError:
-        return False
-    tracker = resource_tracker._resource_tracker
-    was_started = getattr(tracker, "_fd", None) is not None
-    if was_started and tracker._check_alive():  # type: ignore[attr-defined]
-        return False
+        return None
+    return resource_tracker._resource_tracker
+
+
+@contextlib.contextmanager
+def _stderr_on_null() -> Iterator[None]:
+    """For the block, descriptor 2 (which a started process inherits as its stderr) on the null
+    device, and warnings not shown."""
     with contextlib.suppress(ValueError, OSError):
         sys.stderr.flush()
     saved = os.dup(2)
     devnull = os.open(os.devnull, os.O_WRONLY)
     try:
-        os.dup2(devnull, 2)  # the tracker inherits this descriptor as its stderr
+        os.dup2(devnull, 2)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            tracker.ensure_running()
+            yield
     finally:
+        with contextlib.suppress(ValueError, OSError):
+            sys.stderr.flush()
         os.dup2(saved, 2)
         os.close(saved)
         os.close(devnull)
-    return was_started
 
 
 def pid_alive(pid: int) -> bool:

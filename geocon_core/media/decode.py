@@ -38,13 +38,17 @@ __all__ = [
     "ClipKind",
     "DEFAULT_FPS",
     "MAX_FPS",
+    "DisplayTurn",
     "FrameCount",
+    "FrameTiming",
     "GifCut",
     "IMAGE_SUFFIXES",
     "VIDEO_FILE_SUFFIXES",
     "SHORTFALL_EXACT",
     "SHORTFALL_ESTIMATED",
     "container_frame_count",
+    "display_turn",
+    "frame_timing",
     "frame_number_gaps",
     "timing_note",
     "video_tracks",
@@ -152,8 +156,8 @@ SHORTFALL_EXACT = 0.05
 warning; a shortfall of one frame is never warned about. Warning-only: it changes no score."""
 SHORTFALL_ESTIMATED = 1 / 3
 """Share of a duration-based estimate (a container without a frame count: webm, mkv) that may fail
-to decode without a warning: the estimate is duration x average frame rate, which a variable
-frame rate overstates (a VFR mkv estimated at 32 frames holds 24). Warning-only."""
+to decode without a warning: the estimate is duration x average frame rate (for a variable frame
+rate, the packets counted and scaled to the duration: :func:`container_frame_count`). Warning-only."""
 VIDEO_FILE_SUFFIXES: frozenset[str] = frozenset(
     {".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv", ".m4v", ".mpg", ".mpeg", ".ts", ".mts", ".m2ts"}
 )
@@ -553,6 +557,43 @@ def video_tracks(name: str) -> tuple[tuple[int, int], ...]:
     return () if peek is None else peek.tracks
 
 
+@dataclass(frozen=True)
+class DisplayTurn:
+    """How a video's display matrix (FFmpeg's ``DISPLAYMATRIX`` side data, a phone's orientation)
+    shows its stored frames: turned ``degrees`` counter-clockwise, in (-180, 180], and ``mirrored``
+    (a flip) or not."""
+
+    degrees: float
+    mirrored: bool
+
+    def quarter_turns(self, tolerance_deg: float) -> int | None:
+        """The counter-clockwise quarter turns (0 to 3) that the turn is, to within ``tolerance_deg``
+        degrees; None when it is no multiple of 90 degrees."""
+        turns = round(self.degrees / 90.0)
+        return turns % 4 if abs(self.degrees - 90.0 * turns) <= tolerance_deg else None
+
+
+def display_turn(frame: Any) -> DisplayTurn | None:
+    """The :class:`DisplayTurn` of a decoded PyAV video ``frame`` (read before any reformat, which
+    drops side data); None when it carries no display matrix. The angle is FFmpeg's
+    ``av_display_rotation_get`` (the one OpenCV turns its frames by)."""
+    import struct
+
+    side = getattr(frame, "side_data", None)
+    if side is None:
+        return None
+    data = next((bytes(sd) for sd in side if "DISPLAYMATRIX" in str(sd.type)), None)
+    if data is None or len(data) < 36:
+        return None
+    m = struct.unpack("<9i", data[:36])
+    scale0, scale1 = math.hypot(m[0], m[3]), math.hypot(m[1], m[4])
+    if scale0 == 0 or scale1 == 0:
+        return None
+    degrees = -math.degrees(math.atan2(m[1] / scale1, m[0] / scale0))
+    degrees = 180.0 if degrees <= -180.0 else degrees
+    return DisplayTurn(degrees + 0.0, m[0] * m[4] - m[1] * m[3] < 0)
+
+
 class _LibraryFrames(Iterator[np.ndarray]):
     """What :class:`PyAVFrames` and :class:`PillowFrames` share: the count of decoded frames, the
     error that ended the stream after the first one, and closing."""
@@ -747,12 +788,48 @@ TIMING_TOLERANCE = 0.25
 from the stated frame rate by more) are reported (:func:`timing_note`)."""
 
 
+@dataclass(frozen=True)
+class FrameTiming:
+    """The intervals between the presentation times of a video's frames, in seconds."""
+
+    median: float
+    low: float
+    """The shortest interval."""
+    high: float
+    """The longest interval."""
+    mean: float
+    """The mean interval (exact where timestamps are rounded: Matroska's millisecond stamps put a
+    29.97 frames/s clip's frames 33 or 34 ms apart)."""
+
+    @property
+    def variable(self) -> bool:
+        """A variable frame rate: an interval differs from the median by more than :data:`TIMING_TOLERANCE`."""
+        return self.high > self.median * (1 + TIMING_TOLERANCE) or self.low < self.median * (1 - TIMING_TOLERANCE)
+
+    def keeps(self, fps: float) -> bool:
+        """Whether the median interval is that of ``fps`` frames/s, to within :data:`TIMING_TOLERANCE`."""
+        return abs(1.0 / self.median - fps) <= TIMING_TOLERANCE * fps
+
+
+def frame_timing(stamps: Sequence[int | None], time_base: Any) -> FrameTiming | None:
+    """The :class:`FrameTiming` of frames stamped ``stamps`` (in units of ``time_base``, any order,
+    None for a frame without a time); None when fewer than 3 frames carry a time or fewer than two
+    intervals are positive."""
+    pts = sorted(t for t in stamps if t is not None)
+    if time_base is None or len(pts) < 3:
+        return None
+    gaps = np.diff(np.asarray(pts, dtype=np.float64)) * float(time_base)
+    gaps = gaps[gaps > 0]
+    if len(gaps) < 2:
+        return None
+    return FrameTiming(float(np.median(gaps)), float(gaps.min()), float(gaps.max()), float(gaps.mean()))
+
+
 def timing_note(name: str, fps: float) -> str | None:
     """One sentence when the container's timestamps disagree with a steady ``fps``: a variable
-    frame rate (intervals that differ from their median by more than :data:`TIMING_TOLERANCE`), or
-    a stated rate the timestamps do not keep. Reads packet timestamps only (no decoding); None when
-    they agree or cannot be read. A stated rate that ``fps`` replaced (one of :data:`MAX_FPS` or
-    more) is named as such, whatever the timestamps say."""
+    frame rate (:attr:`FrameTiming.variable`), or a stated rate the timestamps do not keep. Reads
+    packet timestamps only (no decoding); None when they agree or cannot be read. A stated rate that
+    ``fps`` replaced (one of :data:`MAX_FPS` or more) is named as such, whatever the timestamps say."""
     import av
 
     try:
@@ -766,8 +843,7 @@ def timing_note(name: str, fps: float) -> str | None:
             stamps = [p.pts for p in itertools.islice(container.demux(stream), TIMING_PACKETS)]
     except (av.FFmpegError, OSError, ValueError, UnicodeError):
         return None
-    pts = sorted(t for t in stamps if t is not None)
-    if len(stamps) >= 2 and not pts:
+    if len(stamps) >= 2 and all(t is None for t in stamps):
         return (
             f"the file stores no timestamps (a bare {codec} stream, outside any container such as MP4), so no frame "
             f"rate: durations in the record use {fps:g} frames/s"
@@ -778,22 +854,19 @@ def timing_note(name: str, fps: float) -> str | None:
             f"the container states {stated:g} frames/s, which GeoCon does not take as a frame rate (it reads rates "
             f"below {MAX_FPS:g} frames/s); durations in the record use {fps:g} frames/s"
         )
-    if base is None or len(pts) < 3:
+    timing = frame_timing(stamps, base)
+    if timing is None:
         return None
-    gaps = np.diff(np.asarray(pts, dtype=np.float64)) * float(base)
-    gaps = gaps[gaps > 0]
-    if len(gaps) < 2:
-        return None
-    median, low, high = float(np.median(gaps)), float(gaps.min()), float(gaps.max())
-    if high > median * (1 + TIMING_TOLERANCE) or low < median * (1 - TIMING_TOLERANCE):
+    if timing.variable:
         return (
-            f"variable frame rate: frames are {1000 * low:.0f} to {1000 * high:.0f} ms apart (the container states "
-            f"{fps:g} frames/s); frame pairs are taken frame by frame, so a gap of g frames is not a fixed time"
+            f"variable frame rate: frames are {1000 * timing.low:.0f} to {1000 * timing.high:.0f} ms apart (the "
+            f"container states {fps:g} frames/s); frame pairs are taken frame by frame, so a gap of g frames is not a "
+            "fixed time"
         )
-    if abs(1.0 / median - fps) > TIMING_TOLERANCE * fps:
+    if not timing.keeps(fps):
         return (
-            f"the container states {fps:g} frames/s but its timestamps are {1000 * median:.0f} ms apart "
-            f"({1.0 / median:.3g} frames/s); durations in the record use the stated rate"
+            f"the container states {fps:g} frames/s but its timestamps are {1000 * timing.median:.0f} ms apart "
+            f"({1.0 / timing.median:.3g} frames/s); durations in the record use the stated rate"
         )
     return None
 
@@ -817,12 +890,34 @@ def container_frame_count(name: str) -> FrameCount | None:
                 seconds = float(duration * time_base)
             else:  # Matroska stores no per-stream duration: its track tag, else the container's
                 seconds = _track_seconds(container, stream)
+            by_duration = round(seconds * float(rate)) if rate and seconds > 0 and math.isfinite(seconds) else 0
+            if index == 0 and by_duration > 0:
+                by_stamps = _variable_rate_estimate(container, stream, seconds)
+                if by_stamps is not None:
+                    return by_stamps
     except (av.error.FFmpegError, OSError, ValueError, ZeroDivisionError):
         return None
-    by_duration = round(seconds * float(rate)) if rate and seconds > 0 and math.isfinite(seconds) else 0
     if index > 0:
         return FrameCount(min(index, by_duration) if own and by_duration > 0 else index, exact=True)
     return FrameCount(by_duration, exact=False) if by_duration > 0 else None
+
+
+def _variable_rate_estimate(container: Any, stream: Any, seconds: float) -> FrameCount | None:
+    """For a stream without a frame count whose first :data:`TIMING_PACKETS` packets are stamped at
+    a variable frame rate (:attr:`FrameTiming.variable`): the frames its packets hold, scaled up by
+    the share of the duration ``seconds`` they leave uncovered (a file cut short holds packets up to
+    the cut only); None for a steady rate, whose duration x rate stands. Duration x average rate
+    would take the rate of the first frames for the whole clip (a clip that slows down after a
+    second would promise several times the frames it holds). Reads packets only (no decoding)."""
+    packets = container.demux(stream)
+    stamps = [p.pts for p in itertools.islice(packets, TIMING_PACKETS) if p.size]
+    timing = frame_timing(stamps, stream.time_base)
+    if timing is None or not timing.variable:
+        return None
+    stamps += [p.pts for p in packets if p.size]
+    pts = [t for t in stamps if t is not None]
+    covered = (max(pts) - min(pts)) * float(stream.time_base) + timing.median  # the last frame lasts a median interval
+    return FrameCount(max(len(pts), round(len(pts) * seconds / covered)), exact=False)
 
 
 def _hms(text: str) -> float | None:

@@ -48,13 +48,15 @@ PLANT_FORMAT = "geocon-plant-gt/1"
 @dataclass(frozen=True)
 class PlantResult:
     """What :func:`plant_clip` wrote: the ground truth (the ``.gt.json`` as a dict), the paths of the
-    planted clip, the clean clip and the ground truth, and the :class:`~.fields.Planting`."""
+    planted clip, the clean clip and the ground truth, the :class:`~.fields.Planting`, and the
+    ``warnings`` a user should read (one sentence each: the frames re-timed to a constant rate)."""
 
     truth: dict[str, Any]
     planted: Path
     clean: Path
     ground_truth: Path
     planting: Planting
+    warnings: tuple[str, ...] = ()
 
 
 def plant_names(clip: Path, kind: str, level: str, seed: int) -> dict[str, str]:
@@ -134,7 +136,8 @@ def plant_clip(
         finally:
             for part in parts.values():
                 part.unlink(missing_ok=True)
-    return PlantResult(truth, targets["planted"], targets["clean"], targets["truth"], planting)
+    warnings = () if source.retiming is None else (source.retiming,)
+    return PlantResult(truth, targets["planted"], targets["clean"], targets["truth"], planting, warnings)
 
 
 def write_clean_clip(clip: str | Path, target: str | Path, *, frames: int | None = None) -> dict[str, Any]:
@@ -214,6 +217,8 @@ def _truth(
             "rate": str(source.rate),
             "frames_used": source.frames,
             "bits_per_pixel": round(source.bits_per_pixel, 6),
+            "display_rotation": _rotation_entry(source),
+            "timing": source.timing_entry(),
         },
         "planted": {
             "video": names["planted"],
@@ -239,6 +244,17 @@ def _truth(
             "both": "the planted and the clean clip: the same decoded frames, encoder, quantiser, options, pixel "
             "format, rate",
         },
+    }
+
+
+def _rotation_entry(source: Any) -> dict[str, Any]:
+    """What the ground truth's ``source.display_rotation`` says: the counter-clockwise turn (degrees)
+    the source's display matrix gives its stored frames, their stored size, and that both clips
+    hold the frames upright (``size``) with no display matrix."""
+    return {
+        "degrees": source.rotation,
+        "stored_size": list(source.stored_size),
+        "written": "upright, no display matrix" if source.rotation else "as stored (the source has no turn)",
     }
 
 

@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from .console import fail, out
+from .console import err, fail, out
 
 __all__ = ["plant"]
 
@@ -49,6 +49,8 @@ def plant(
     except (ClipError, ValueError) as exc:
         raise fail(str(exc)) from None
     truth = result.truth
+    for warning in result.warnings:
+        err.print(f"warning: {warning}", soft_wrap=True, highlight=False, markup=False)
     if as_json:
         summary = {
             key: truth[key]
@@ -59,6 +61,9 @@ def plant(
             clean=str(result.clean),
             ground_truth=str(result.ground_truth),
             encoding={k: truth["encoding"][k] for k in ("codec", "encoder", "quality", "pix_fmt", "rate")},
+            display_rotation=truth["source"]["display_rotation"]["degrees"],
+            timing=truth["source"]["timing"],
+            warnings=list(result.warnings),
         )
         sys.stdout.write(json.dumps(summary, indent=1) + "\n")
         return
@@ -71,6 +76,14 @@ def plant(
         f"{clip} ({truth['source']['frames_used']} frames)",
         soft_wrap=True,
     )
+    turned = truth["source"]["display_rotation"]
+    if turned["degrees"]:
+        (w, h), (sw, sh) = truth["source"]["size"], turned["stored_size"]
+        out.print(
+            f"  the source's display matrix turns its {sw}x{sh} frames {turned['degrees']} degrees "
+            f"counter-clockwise: planted and written upright ({w}x{h}), as geocon score reads it",
+            soft_wrap=True,
+        )
     out.print(f"  planted clip: {result.planted}", soft_wrap=True)
     out.print(f"  clean clip:   {result.clean}", soft_wrap=True)
     out.print(f"  ground truth: {result.ground_truth}", soft_wrap=True)
