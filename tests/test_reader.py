@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from geocon_core.config import ScoreConfig
+from geocon_core.config import ScoreConfig, preset
 from geocon_core.media import ClipError, ClipInfo, Frame, Mp4Writer, iter_frames, probe_clip
 from geocon_core.synth import ClipPlan, load_ground_truth, write_clip
 
@@ -300,6 +300,32 @@ def test_hard_cut_at_the_junction_of_two_clips(clips, tmp_path):
     assert info.num_frames == 16 and info.cuts == (8,)
     assert info.pair_skip_reason(7, 8) == "hard_cut" and info.pair_skip_reason(5, 10) == "hard_cut"
     assert info.pair_skip_reason(6, 7) is None and info.pair_skip_reason(8, 15) is None
+
+
+def _first_frames(path: Path, n: int) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while len(frames) < n:
+        ok, bgr = cap.read()
+        assert ok, f"{path} has fewer than {n} frames"
+        frames.append(bgr)
+    cap.release()
+    return frames
+
+
+def test_a_cut_after_a_change_of_exposure_is_found(tmp_path):
+    """Two RealEstate10K walk-throughs joined: the last pair of the first shot changes exposure, so
+    the histogram distance of the cut is not twice its neighbour's; the picture difference is."""
+    first = _first_frames(shared("real/realestate10k/0f47577ab3441480.mp4"), 16)
+    second = _first_frames(shared("real/realestate10k/0bf152ef84195293.mp4"), 16)
+    folder = tmp_path / "joined"
+    folder.mkdir()
+    for i, bgr in enumerate(first + second):
+        cv2.imwrite(str(folder / f"{i:05d}.png"), bgr)
+    for cfg in (ScoreConfig(), preset("audit")):
+        info = probe_clip(folder, cfg)
+        assert info.cuts == (16,), info.cuts
+        assert info.shots == ((0, 15), (16, 31))
 
 
 @pytest.mark.parametrize("key", ["C2", "C3", "C4"])

@@ -64,8 +64,10 @@ class CutConfig:
     median_factor: float = 2.5
     """The distance must exceed this many times the median distance of the clip's other pairs."""
     neighbour_factor: float = 2.0
-    """The distance must exceed this many times the larger distance of the adjacent pairs (a cut is an
-    isolated spike; a fast pan or a passing occluder raises several consecutive distances)."""
+    """The distance, or the mean absolute difference, must exceed this many times the larger one of the
+    adjacent pairs (a cut is an isolated spike; a fast pan or a passing occluder raises several
+    consecutive distances, and a change of exposure just before a cut raises the histogram distance
+    of the pair before it but not its picture difference)."""
     lone_distance: float = 0.35
     """The distance a pair needs when the clip has no other pair to compare it with."""
     fade_frames: int = 0

@@ -718,8 +718,10 @@ def _hard_cuts(dist: np.ndarray, mad: np.ndarray, duplicate: np.ndarray, config:
             continue
         if dist[i] <= config.median_factor * float(np.median(dist[others])):
             continue
-        neighbours = [dist[j] for j in (i - 1, i + 1) if 0 <= j < dist.size and valid[j]]
-        if neighbours and dist[i] <= config.neighbour_factor * float(max(neighbours)):
+        near = [j for j in (i - 1, i + 1) if 0 <= j < dist.size and valid[j]]
+        # an isolated spike of the histogram distance or of the picture difference: a change of
+        # exposure just before a cut raises the histogram distance of its neighbour, not its picture
+        if near and not any(v[i] > config.neighbour_factor * float(max(v[j] for j in near)) for v in (dist, mad)):
             continue
         cuts.append(int(i) + 1)
     return tuple(cuts)
