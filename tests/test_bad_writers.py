@@ -641,3 +641,16 @@ def test_the_rules_table_names_what_each_owner_writes():
     formats = (RECORD_FORMAT, OVERLAYS_FORMAT, layout.BENCH_FORMAT, layout.STATUS_FORMAT, pose.POSE_LOG_FORMAT,
                synth.truth.GT_FORMAT, plant.PLANT_FORMAT, MODEL_FORMAT, "geocon-validation/1")  # fmt: skip
     assert {f.split("/")[0] for f in formats} == set(FORMATS)
+
+
+def test_a_screenshot_is_saved_as_geocons_so_the_next_one_may_replace_it(tmp_path: Path):
+    from geocon_viewer.capture.chromium import save_png
+
+    png = cv2.imencode(".png", np.full((6, 8, 3), 40, np.uint8))[1].tobytes()
+    (tmp_path / "photo.png").write_bytes(png)
+    with pytest.raises(OutPathError, match="PNG image GeoCon did not make"):
+        claim("--screenshot", tmp_path / "photo.png", "png")
+    save_png(png, tmp_path / "shot.png")
+    claim("--screenshot", tmp_path / "shot.png", "png")  # its own earlier screenshot
+    save_png(png, tmp_path / "shot.png")
+    assert held(tmp_path / "shot.png").geocon and sorted(os.listdir(tmp_path)) == ["photo.png", "shot.png"]

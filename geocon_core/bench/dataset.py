@@ -1132,7 +1132,7 @@ def sidecar_owner(entry: ClipEntry) -> Callable[[Any], str | None]:
         except (OSError, UnicodeError):
             text = ""
         if text not in (sidecar_text(data), sidecar_text(data, ascii_only=True)):
-            return "a sidecar written by hand (it is not laid out as GeoCon writes one), which --force keeps"
+            return "a sidecar written by hand (it is not laid out as GeoCon writes one), which --force does not replace"
         video = data.get("video")
         if isinstance(video, str):
             named = there.path.parent / video

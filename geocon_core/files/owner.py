@@ -346,8 +346,8 @@ def claim(
     other = mine(there) if mine is not None else None
     if other is not None:
         raise _refusal(
-            f"{option} {path} holds {other}; GeoCon replaces its own output only for the same input: choose another "
-            f"path (or remove {path})"
+            f"{option} {path} holds {other}; GeoCon replaces only its own earlier output for the same input: "
+            f"choose another path (or remove {path})"
         )
 
 
@@ -361,7 +361,7 @@ def _want_phrase(want: str) -> str:
         return "a Markdown page GeoCon wrote"
     if fmt:
         return f"GeoCon's {FORMATS.get(fmt, fmt)}"
-    return "a file of GeoCon's"
+    return "a JSON file GeoCon wrote"
 
 
 def _claim_folder(option: str, path: Path, want: str, there: Held, mine: Mine | None) -> None:
@@ -392,13 +392,13 @@ def _claim_folder(option: str, path: Path, want: str, there: Held, mine: Mine | 
         other = mine(there)
         if other is not None:
             raise _refusal(
-                f"{option} {path} holds {other}; GeoCon replaces its own output only for the same input: choose "
-                f"another {option} (or remove {path})"
+                f"{option} {path} holds {other}; GeoCon replaces only its own earlier output for the same input: "
+                f"choose another {option} (or remove {path})"
             )
 
 
 def _folder_phrase(want: str) -> str:
-    return FOLDER_KINDS[want].phrase if want in FOLDER_KINDS else "a folder of files"
+    return FOLDER_KINDS[want].phrase if want in FOLDER_KINDS else "a folder for this command's files"
 
 
 def stamp_png(data: bytes) -> bytes:
