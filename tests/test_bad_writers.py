@@ -371,6 +371,8 @@ VALIDATE = [
     Case("validate-cache-is-a-record-folder", lambda c: c.record("recA"),
          ("validate", *QUICK_VALIDATION, "--out", "v", "--cache", "recA"), 2, ("--cache recA", "record.json")),
     Case("validate-report-only-again", validated("out"), ("validate", *QUICK_VALIDATION, "--out", "out"), 0),
+    Case("validate-shares-another-validations-cache", validated("v1"),
+         ("validate", *QUICK_VALIDATION, "--out", "out", "--cache", "v1/cache"), 0),
     Case("validate-fit-over-a-users-clip-model", build_all(validated("v"), write("v/clip_model.json", '{"w": 1}')),
          ("validate", "--fit", "--no-real", "--out", "v"), 2, ("--out v/clip_model.json", "clip model")),
     Case("footage-fill-into-a-record-folder", build_all(lambda c: c.record("recA"), mkdir("clones")),

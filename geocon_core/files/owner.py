@@ -105,13 +105,15 @@ FOLDER_KINDS: dict[str, FolderKind] = {
     "report": FolderKind("report.html", None, "a report of `geocon report`"),
     "validation": FolderKind(
         "validation.json",
-        ("validation.md", "validation.json", "cases", "cache", "clip_model.json", "fit.md"),
+        ("validation.md", "validation.json", "cases", "clip_model.json", "fit.md"),
         "a validation folder of `geocon validate`",
     ),
 }
 """GeoCon's output folders, by kind. A record is marked by its ``record.json``, results by their
 ``bench.json`` (written first), a report by a ``report.html`` that GeoCon wrote, a validation by
-its ``validation.json`` or, before that is written, a ``cases/`` folder of scored cases."""
+its ``validation.json`` or, before that is written, a ``cases/`` folder of scored cases. A
+validation's ``cache/`` is no part: its entries are keyed by what they hold, and another
+validation may share it (``--cache OTHER/cache``)."""
 
 _REPORT_TITLE = b"<title>GeoCon benchmark report</title>"
 
