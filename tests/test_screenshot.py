@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from geocon_core.files import stamp_png
 from geocon_viewer.capture import screenshot
 from geocon_viewer.capture.screenshot import (
     MIN_SHARE,
@@ -259,7 +260,7 @@ def test_native_path_polls_the_viewer_until_the_frame_is_shown(tmp_path: Path, m
     rrd.write_bytes(b"not read by the stand-ins")
     with caplog.at_level(logging.INFO, logger="geocon_viewer.capture.screenshot"):
         out = screenshot_native(rrd, tmp_path / "native.png", at="frame@3", settle_s=0.0, timeout_s=30.0)
-    assert out.read_bytes() == shots[4]  # the second screenshot of the shown frame
+    assert out.read_bytes() == stamp_png(shots[4])  # the second screenshot of the shown frame, stamped as GeoCon's
     assert calls[:2] == [("open", "clip.rrd"), ("set_time", "frame", 3, "paused")] and len(calls) == 2 + 5
     assert any("clip.rrd (native viewer): the viewer showed a video frame after" in m for m in caplog.messages)
 

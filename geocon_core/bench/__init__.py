@@ -38,6 +38,8 @@ from .dataset import (
     sanitise_clip_id,
     scan_dataset,
     scene_ids,
+    sidecar_owner,
+    sidecar_text,
     write_sidecars,
 )
 from .layout import (
@@ -128,6 +130,8 @@ __all__ = [
     "sanitise_clip_id",
     "scan_dataset",
     "scene_ids",
+    "sidecar_owner",
+    "sidecar_text",
     "write_sidecars",
     "COLUMNS",
     "TABLES",

@@ -1099,6 +1099,51 @@ def load_dataset(root: str | Path, *, check_clips: bool = True) -> list[ClipEntr
     return list(scan_dataset(root, check_clips=check_clips).entries)
 
 
+def sidecar_text(meta: dict[str, Any], *, ascii_only: bool = False) -> str:
+    """A sidecar's text as GeoCon writes it: the object as JSON indented by one space, and a line
+    break (``geocon dataset --write`` keeps non-ASCII characters; ``geocon synth`` and ``geocon
+    plant`` write them escaped, ``ascii_only``)."""
+    return json.dumps(meta, indent=1, ensure_ascii=ascii_only, allow_nan=False) + "\n"
+
+
+def _sidecar_says(sidecar: Path, meta: dict[str, Any]) -> bool:
+    """``sidecar`` exists and holds exactly ``meta`` (read as JSON; nothing to write)."""
+    try:
+        return sidecar.is_file() and json.loads(sidecar.read_text(encoding="utf-8")) == meta
+    except (OSError, UnicodeError, ValueError, RecursionError):
+        return False
+
+
+def sidecar_owner(entry: ClipEntry) -> Callable[[Any], str | None]:
+    """The ``mine`` test (:func:`geocon_core.files.claim`) of an existing sidecar that ``geocon
+    dataset --write --force`` may replace: one GeoCon wrote (its text is exactly
+    :func:`sidecar_text` of its content: GeoCon's own layout; a sidecar written or reformatted by
+    hand is kept from harm) and of ``entry``'s clip (the clip file its ``video`` names, or the clip
+    of its stem beside it). A sidecar that already holds ``entry.meta`` is not written at all."""
+
+    def mine(there: Any) -> str | None:
+        data = there.data
+        if not isinstance(data, dict):
+            return "a JSON file that is not a sidecar (no JSON object)"
+        if data == entry.meta:
+            return None
+        try:
+            text = there.path.read_text(encoding="utf-8")
+        except (OSError, UnicodeError):
+            text = ""
+        if text not in (sidecar_text(data), sidecar_text(data, ascii_only=True)):
+            return "a sidecar written by hand (it is not laid out as GeoCon writes one), which --force does not replace"
+        video = data.get("video")
+        if isinstance(video, str):
+            named = there.path.parent / video
+            with suppress(OSError):
+                if not (named.exists() and os.path.samefile(named, entry.video)):
+                    return f"the sidecar of {video}, not of {entry.video.name}"
+        return None
+
+    return mine
+
+
 @dataclass(frozen=True)
 class SidecarsWritten:
     """What :func:`write_sidecars` did: the sidecars written, and those that existed and were kept."""
@@ -1109,30 +1154,30 @@ class SidecarsWritten:
 
 def write_sidecars(dataset: Dataset, *, force: bool = False) -> SidecarsWritten:
     """Write each entry's metadata as its sidecar (``<stem>.meta.json`` beside the clip file); an
-    existing sidecar is kept unless ``force``. All are written or none: each is written beside its
+    existing sidecar is kept unless ``force`` (and one that already holds the entry's metadata is
+    kept even then). All are written or none: each is written beside its
     place first, and they are renamed into place only when every one is complete (a full disk or a
     read-only folder halfway would leave a dataset of some sidecars, which reads as a sidecar
     dataset without the other clips). Reading the dataset again then gives the same entries, now
     from their sidecars."""
-    from ..files import deferred_signals, part_path, replace_file
+    from ..files import commit_together, part_path
 
     todo: list[Path] = []
     kept: list[Path] = []
     for e in dataset.entries:
-        (kept if e.sidecar.exists() and not force else todo).append(e.sidecar)
+        keep = e.sidecar.exists() and (not force or _sidecar_says(e.sidecar, e.meta))
+        (kept if keep else todo).append(e.sidecar)
     staged: list[tuple[Path, Path]] = []
     try:
         for e in dataset.entries:
             if e.sidecar in todo:
                 staged.append((part_path(e.sidecar), e.sidecar))
-                text = json.dumps(e.meta, indent=1, ensure_ascii=False, allow_nan=False) + "\n"
+                text = sidecar_text(e.meta)
                 try:
                     staged[-1][0].write_text(text, encoding="utf-8")
                 except OSError as exc:  # named by the sidecar, not its temporary name
                     raise OSError(exc.errno, exc.strerror, str(e.sidecar)) from None
-        with deferred_signals():
-            for tmp, target in staged:
-                replace_file(tmp, target)
+        commit_together(staged)  # a rename that fails midway puts back every sidecar it replaced
     except BaseException:
         for tmp, _ in staged:
             with suppress(OSError):  # a read-only folder has none to remove

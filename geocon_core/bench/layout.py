@@ -78,12 +78,12 @@ _NEVER = {
 def output_kind(folder: Path) -> OutputKind | None:
     """What ``folder`` holds: the results of ``geocon bench`` (``"results"``: its ``bench.json``,
     written before anything else), one clip's record (``"record"``: its ``record.json``), or
-    neither (None, also for a folder that does not exist)."""
-    if (folder / MANIFEST_NAME).is_file():
-        return "results"
-    if (folder / RECORD_NAME).is_file():
-        return "record"
-    return None
+    neither (None, also for a folder that does not exist); told as every writer tells it
+    (:func:`geocon_core.files.folder_kind`)."""
+    from ..files import folder_kind
+
+    kind = folder_kind(folder)
+    return "results" if kind == "results" else ("record" if kind == "record" else None)
 
 
 def check_output_kind(folder: Path, kind: OutputKind, option: str = "--out") -> None:

@@ -1,11 +1,13 @@
 """Files on disk, read and written safely.
 
 :mod:`.paths` (output folders checked before work, outputs kept apart from inputs, whole-folder
-replacement, signals held during a commit), :mod:`.lockfile` (one writer per results folder),
-:mod:`.procs` (worker processes that do not outlive their parent), :mod:`.alloc` (the C allocator
-of a long scoring process), :mod:`.jsonin` (strict JSON for
-sidecars and pose logs), :mod:`.npz` (the errors a damaged archive raises, and what a file that is none is) and
-:mod:`.checkpoint` (the one reader of user-given network weights).
+replacement, signals held during a commit), :mod:`.owner` (what a path holds, and the one rule of
+every writer: only its own files, replaced only by its own kind for the same input),
+:mod:`.commit` (outputs of several files checked whole and committed together),
+:mod:`.lockfile` (one writer per results folder), :mod:`.procs` (worker processes that do not
+outlive their parent), :mod:`.alloc` (the C allocator of a long scoring process), :mod:`.jsonin`
+(strict JSON for sidecars and pose logs), :mod:`.npz` (the errors a damaged archive raises, and
+what a file that is none is) and :mod:`.checkpoint` (the one reader of user-given network weights).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from .alloc import ARENAS, MMAP_THRESHOLD, tune_allocator
 from .checkpoint import (
     read_checkpoint_file,
 )
+from .commit import check_targets, commit_together
 from .jsonin import (
     MAX_NUMBER_CHARS,
     strict_json,
@@ -26,6 +29,17 @@ from .lockfile import (
 from .npz import (
     NPZ_ERRORS,
     npz_problem,
+)
+from .owner import (
+    FOLDER_KINDS,
+    FORMATS,
+    FolderKind,
+    Held,
+    claim,
+    folder_kind,
+    folders_above,
+    held,
+    stamp_png,
 )
 from .paths import (
     PROTECTED_PARTS,
@@ -92,4 +106,15 @@ __all__ = [
     "NPZ_ERRORS",
     "npz_problem",
     "read_checkpoint_file",
+    "check_targets",
+    "commit_together",
+    "FOLDER_KINDS",
+    "FORMATS",
+    "FolderKind",
+    "Held",
+    "claim",
+    "folder_kind",
+    "folders_above",
+    "held",
+    "stamp_png",
 ]

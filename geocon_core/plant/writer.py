@@ -11,8 +11,12 @@ For ``CLIP`` = ``<stem>.<ext>``, ``FAILURE`` = ``<kind>-<level>-s<seed>``, the f
   platforms ``geocon-plant/<kind>`` and ``geocon-plant/clean``, one ``scene_id``, the source's stem,
   so a report pairs each planted clip with its clean twin).
 
-Everything is written beside its place and renamed into it at the end: a run that fails or is
-stopped leaves the folder as it was.
+Nothing in the folder that is not an earlier planting of the same source is replaced: a file of
+one of these names that a user put there, or the clean twin of another source with the same stem
+(or of the same source cut to other frames), is refused before any frame is encoded. Everything
+is written beside its place, every target checked, and the five files are committed together
+(:func:`geocon_core.files.commit_together`): a run that fails or is stopped, even midway through
+the renames, leaves the folder as it was.
 """
 
 from __future__ import annotations
@@ -26,13 +30,24 @@ from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
-from ..files import check_apart, check_out_dir, deferred_signals, parents_made, part_path, replace_file
+from ..files import (
+    check_apart,
+    check_out_dir,
+    check_targets,
+    claim,
+    commit_together,
+    held,
+    parents_made,
+    part_path,
+    replace_file,
+)
 from .encode import MATCH_FRAMES, decode_planes, file_sha256, match_quality, plane_writer, probe_source
 from .fields import Planting, plan_planting
 from .kinds import amplitude_of
 
 __all__ = [
     "PLANT_FORMAT",
+    "PlantTargetError",
     "PlantResult",
     "plant_clip",
     "plant_names",
@@ -89,7 +104,8 @@ def plant_clip(
     ``on_frame(t)`` is called after each frame is written.
 
     Raises ValueError (one sentence) for an unknown kind or level, a negative seed, an output
-    folder that cannot be used or an output that would be the clip; :class:`~geocon_core.media.ClipError`
+    folder that cannot be used, an output that would be the clip or a file in it that is not this
+    planting's own (:class:`PlantTargetError`); :class:`~geocon_core.media.ClipError`
     for a clip that is no readable video; ValueError when the clip is too small for the level."""
     clip, out_dir = Path(clip), Path(out_dir)
     amplitude_of(kind, level)
@@ -97,10 +113,13 @@ def plant_clip(
         raise ValueError(f"the seed must be 0 or more, got {seed}")
     names = plant_names(clip, kind, level, seed)
     check_out_dir(out_dir, "--out")
+    claim("--out", out_dir, "folder")
     targets = {key: out_dir / name for key, name in names.items()}
     check_apart([("--out", path) for path in targets.values()], [("clip", clip)])
+    check_targets([(path, False) for path in targets.values()])
 
     source = probe_source(clip, frames)
+    twins = _check_plant_targets(out_dir, targets, source.sha256, source.frames)
     sample: list[list[np.ndarray]] = []
 
     def lumas() -> Iterator[np.ndarray]:
@@ -127,17 +146,116 @@ def plant_clip(
             truth = _truth(
                 source, planting, names, quality, parts, 8.0 * clean.bytes / pixels, 8.0 * planted.bytes / pixels
             )
+            stale = [p for p, sha in twins if sha != truth["clean"]["sha256"]]
+            if stale:
+                raise PlantTargetError(
+                    f"{targets['clean']}: the clean twin this run encodes differs from the one {stale[0].name} names "
+                    "(made by another version of GeoCon or FFmpeg?), which it would leave pointing at bytes that are "
+                    "gone; plant into another --out"
+                )
             _write_json(parts["truth"], truth)
             _write_json(parts["planted_meta"], _sidecar(truth, planted=True))
             _write_json(parts["clean_meta"], _sidecar(truth, planted=False))
-            with deferred_signals():
-                for key, part in parts.items():
-                    replace_file(part, targets[key])
+            commit_together([(part, targets[key]) for key, part in parts.items()])  # all five, or none
         finally:
             for part in parts.values():
                 part.unlink(missing_ok=True)
     warnings = () if source.retiming is None else (source.retiming,)
     return PlantResult(truth, targets["planted"], targets["clean"], targets["truth"], planting, warnings)
+
+
+class PlantTargetError(ValueError):
+    """A file in ``--out`` that a planting would replace and that is not its own (one sentence)."""
+
+
+def _check_plant_targets(out_dir: Path, targets: Mapping[str, Path], sha: str, frames: int) -> list[tuple[Path, str]]:
+    """Refuse (:class:`PlantTargetError`, before any frame is encoded) to write a planting of the
+    source of SHA-256 ``sha`` (its first ``frames`` frames) where a file is not its own earlier
+    output: the case's files (planted clip, ground truth, sidecar) must be absent or an earlier
+    planting of the same source (its ground truth says so); the clean twin ``<stem>.clean.mp4``
+    and its sidecar must be absent or the twin the ground truths in ``out_dir`` name (the same
+    bytes), each of them made from the same source and the same frames (another source with the
+    same stem, or the same source cut to other frames, would leave their ground truths naming a
+    SHA-256 the twin no longer has). Returns the other ground truths that name the twin, with the
+    SHA-256 each names (the new twin must be those bytes)."""
+    own = _check_case(targets, sha)
+    twins = _check_twin(out_dir, targets, sha, frames)
+    named = {digest for _, digest in twins}
+    if own is not None:
+        named.add(str(_part(own, "clean").get("sha256")))
+    for key in ("clean", "clean_meta"):
+        if os.path.lexists(targets[key]) and (not named or (key == "clean" and file_sha256(targets[key]) not in named)):
+            raise PlantTargetError(
+                f"{targets[key]} exists and is {held(targets[key]).describe()}, not the clean twin an earlier planting "
+                "of this clip made (no ground truth in the folder names its bytes); move it away or choose another "
+                "--out"
+            )
+    return twins
+
+
+def _part(truth: Mapping[str, Any], key: str) -> Mapping[str, Any]:
+    """The ``key`` entry of a ground truth (``source``, ``planted``, ``clean``), empty when it is none."""
+    value = truth.get(key)
+    return value if isinstance(value, dict) else {}
+
+
+def _other_source(path: Path, truth: Mapping[str, Any], sha: str, what: str) -> PlantTargetError:
+    source = _part(truth, "source")
+    return PlantTargetError(
+        f"{path} is {what} of another clip named {source.get('name')} (its source's SHA-256 is "
+        f"{str(source.get('sha256'))[:12]}..., this clip's {sha[:12]}...); plant each source into a folder of its own, "
+        "or rename one"
+    )
+
+
+def _check_case(targets: Mapping[str, Path], sha: str) -> dict[str, Any] | None:
+    """The case's own earlier ground truth (None when there is none), once it and the case's
+    planted clip and sidecar are known to be an earlier planting of the same source."""
+    own = held(targets["truth"])
+    was = own.data if _is_truth(own) else None
+    if own.kind != "nothing" and was is None:
+        raise PlantTargetError(
+            f"{targets['truth']} exists and is {own.describe()}, not the ground truth of an earlier planting; move it "
+            "away or choose another --out"
+        )
+    if was is not None and _part(was, "source").get("sha256") != sha:
+        raise _other_source(targets["truth"], was, sha, "the ground truth of a planting")
+    for key in ("planted", "planted_meta"):
+        if not os.path.lexists(targets[key]):
+            continue
+        if was is None or (key == "planted" and file_sha256(targets[key]) != _part(was, "planted").get("sha256")):
+            raise PlantTargetError(
+                f"{targets[key]} exists and is {held(targets[key]).describe()}, not part of an earlier planting (the "
+                f"ground truth {targets['truth'].name} does not name it); move it away or choose another --out"
+            )
+    return was
+
+
+def _check_twin(out_dir: Path, targets: Mapping[str, Path], sha: str, frames: int) -> list[tuple[Path, str]]:
+    """The other ground truths in ``out_dir`` that name the clean twin, with the SHA-256 each
+    names, once each is known to be of the same source and the same frames."""
+    clean = targets["clean"]
+    twins: list[tuple[Path, str]] = []
+    for path in sorted(out_dir.glob("*.gt.json")) if out_dir.is_dir() else []:
+        other = held(path)
+        data = other.data if _is_truth(other) else None
+        if data is None or _part(data, "clean").get("video") != clean.name:
+            continue
+        if _part(data, "source").get("sha256") != sha:
+            raise _other_source(clean, data, sha, f"the clean twin (its ground truth {path.name} says so)")
+        used = _part(data, "source").get("frames_used")
+        if path != targets["truth"] and used != frames:
+            raise PlantTargetError(
+                f"{clean} is the clean twin of the first {used} frames of this clip, which {path.name} names, and this "
+                f"run uses {frames}; plant with --frames {used}, or into another --out"
+            )
+        if path != targets["truth"]:
+            twins.append((path, str(_part(data, "clean").get("sha256"))))
+    return twins
+
+
+def _is_truth(there: Any) -> bool:
+    return there.kind == "json" and (there.format or "").split("/")[0] == PLANT_FORMAT.split("/")[0]
 
 
 def write_clean_clip(clip: str | Path, target: str | Path, *, frames: int | None = None) -> dict[str, Any]:

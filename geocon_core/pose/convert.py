@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..files import NPZ_ERRORS, npz_problem, part_path, replace_file
+from ..files import NPZ_ERRORS, npz_problem, parents_made, part_path, replace_file
 from .log import POSE_LOG_FORMAT, PoseLog
 
 __all__ = ["from_colmap", "from_dust3r", "write_pose_log", "rotation_from_quaternion"]
@@ -197,14 +197,15 @@ def write_pose_log(log: dict[str, Any], out: str | Path) -> Path:
     onto a device, :func:`~geocon_core.files.replace_file`); a failed write leaves no partial file."""
     out = Path(out)
     tmp = part_path(out)
-    try:
-        tmp.write_text(json.dumps(log, indent=1) + "\n", encoding="utf-8")
-        PoseLog(tmp)
-    except ValueError as exc:
-        tmp.unlink(missing_ok=True)
-        raise ValueError(str(exc).replace(str(tmp), str(out))) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    replace_file(tmp, out)
+    with parents_made(out.parent):  # a folder it makes is removed again when the write fails
+        try:
+            tmp.write_text(json.dumps(log, indent=1) + "\n", encoding="utf-8")
+            PoseLog(tmp)
+        except ValueError as exc:
+            tmp.unlink(missing_ok=True)
+            raise ValueError(str(exc).replace(str(tmp), str(out))) from None
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        replace_file(tmp, out)
     return out

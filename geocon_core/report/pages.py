@@ -38,7 +38,7 @@ import pandas as pd
 
 from ..bench import checked_manifest, lock_path, read_tables
 from ..config import ScoreConfig
-from ..files import check_out_dir, lock_holder, replace_dir
+from ..files import check_out_dir, claim, lock_holder, replace_dir
 from ..results import ClipThumbs, many_clip_thumbs, thumbs_html
 from ..scoring import flag_reasons
 from . import stats
@@ -296,6 +296,7 @@ def _read_results(base: Path, target: Path, option: str) -> tuple[dict[str, Any]
                 f"{option} {target} holds files that are not part of a report ({', '.join(other[:3])}"
                 f"{', ...' if len(other) > 3 else ''}), so it is not replaced; choose a new or empty folder"
             )
+    claim(option, target, "report", own=[base])  # never into another output, nor over a user's own report.html
     try:
         bench = checked_manifest(base)
     except (OSError, ValueError) as exc:

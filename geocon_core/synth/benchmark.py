@@ -16,15 +16,14 @@ worst on AdaDFRC, and the t_inf gate separates the H families (C1, C2, C4) from 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
 from .families import FAMILIES, family_info
-from .writer import ClipPlan, write_clip
+from .writer import ClipPlan, check_clip_targets, clip_targets, write_clip
 
-__all__ = ["PLATFORMS", "BenchClip", "plan_benchmark", "write_benchmark"]
+__all__ = ["PLATFORMS", "BenchClip", "check_benchmark_targets", "plan_benchmark", "write_benchmark"]
 
 PLATFORMS = ("clean", "breathing", "elastic")
 _OBJECT_FAMILIES = ("C4", "C6")
@@ -102,10 +101,11 @@ def write_benchmark(
     """Render ``clips`` into ``out_dir/<platform>/<scene_id>/`` and rewrite each sidecar with the
     benchmark's clip id, platform (``model``) and scene id. Returns the sidecar paths."""
     root = Path(out_dir)
+    check_benchmark_targets(root, clips)
     sidecars = []
     for clip in clips:
         folder = root / clip.platform / clip.scene_id
-        gt = write_clip(
+        write_clip(
             clip.plan,
             folder,
             seed=clip.seed,
@@ -114,10 +114,13 @@ def write_benchmark(
             num_frames=num_frames,
             fps=fps,
             on_frame=on_frame,
+            sidecar={"clip_id": clip.clip_id, "model": clip.platform, "scene_id": clip.scene_id},
         )
-        sidecar = folder / f"{gt.clip_id}.meta.json"
-        meta = json.loads(sidecar.read_text())
-        meta.update(clip_id=clip.clip_id, model=clip.platform, scene_id=clip.scene_id)
-        sidecar.write_text(json.dumps(meta, indent=1) + "\n")
-        sidecars.append(sidecar)
+        sidecars.append(clip_targets(clip.plan, folder)["meta"])
     return sidecars
+
+
+def check_benchmark_targets(out_dir: str | Path, clips: Sequence[BenchClip]) -> None:
+    """Every clip's files checked (:func:`~.writer.check_clip_targets`) before the first is rendered."""
+    for clip in clips:
+        check_clip_targets(clip.plan, Path(out_dir) / clip.platform / clip.scene_id)

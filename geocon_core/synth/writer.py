@@ -16,15 +16,17 @@ never leaves a clip that looks finished.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Any, Callable, Literal, Mapping
 
 import cv2
 import numpy as np
 
 from .._version import __version__
+from ..files import commit_together, part_path
 from ..geometry import relative_pose, rotation_angle_deg, t_inf_from_pose
 from ..media import imwrite_any
 from ..scoring import binary_gate, hysteresis_gate
@@ -32,7 +34,7 @@ from .failures import FAILURES, failure_spec, make_failure
 from .families import FAMILIES, build_scene, family_info
 from .render import render_frame
 from .scene import Scene
-from .truth import FailureTruth, GroundTruth, ObjectTruth
+from .truth import GT_FORMAT, FailureTruth, GroundTruth, ObjectTruth
 
 __all__ = [
     "ClipPlan",
@@ -41,6 +43,8 @@ __all__ = [
     "MAX_NOISE",
     "plan_clips",
     "write_clip",
+    "clip_targets",
+    "check_clip_targets",
     "mean_scene_distance",
 ]
 
@@ -135,12 +139,18 @@ def write_clip(
     on_frame: Callable[[int], None] | None = None,
     codec: Codec = "h264",
     crf: int = 12,
+    sidecar: Mapping[str, Any] | None = None,
 ) -> GroundTruth:
     """Render ``plan`` into ``out_dir`` and return its ground truth. ``noise`` is the standard
     deviation (grey levels) of seeded Gaussian sensor noise added to every frame, so that no
     two frames are bit-identical (as with any real camera or generator). ``on_frame(t)`` is
     called after each frame (progress reporting). ``codec`` and ``crf`` (H.264 quality, 0-51,
-    lower is better) choose how the frames are stored (see the module docstring)."""
+    lower is better) choose how the frames are stored (see the module docstring). ``sidecar``:
+    fields that replace those of the clip's sidecar (a benchmark's clip id, platform and scene).
+
+    Nothing is written where a file is not an earlier rendering of the same clip
+    (:func:`check_clip_targets`, before any frame is rendered); the clip, its masks, its ground
+    truth and its sidecar are committed together."""
     if not 0 <= noise <= MAX_NOISE:  # NaN fails too
         raise ValueError(f"noise must be a standard deviation of 0 to {MAX_NOISE:g} grey levels, got {noise:g}")
     if codec not in ("h264", "png"):
@@ -148,18 +158,13 @@ def write_clip(
     from ..media import Mp4Writer, PngSequenceWriter
 
     out = Path(out_dir)
+    check_clip_targets(plan, out, codec)
     out.mkdir(parents=True, exist_ok=True)
     scene = build_scene(plan.family, seed=seed, width=width, height=height, num_frames=num_frames, fps=fps)
     failure = make_failure(plan.failure, scene, plan.severity) if plan.failure else None
-    cid = plan.clip_id
-    suffix = ".mp4" if codec == "h264" else ".frames"
-    video, masks, gt_path, meta_path = (
-        out / f"{cid}{suffix}",
-        out / f"{cid}.masks",
-        out / f"{cid}.gt.json",
-        out / f"{cid}.meta.json",
-    )
-    tmp_video, tmp_masks = out / f".{cid}{suffix}.part", out / f".{cid}.masks.part"
+    targets = clip_targets(plan, out, codec)
+    video, masks, gt_path, meta_path = targets["video"], targets["masks"], targets["truth"], targets["meta"]
+    tmp_video, tmp_masks = out / f".{video.name}.part", out / f".{masks.name}.part"
     for tmp in (tmp_masks, tmp_video):
         _remove(tmp)
     tmp_masks.mkdir()
@@ -197,14 +202,54 @@ def write_clip(
 
     assert first_depth is not None
     gt = _ground_truth(scene, plan, failure, first_depth, masked_share, visible, content, video.name, masks.name, noise)
-    shutil.rmtree(masks, ignore_errors=True)
-    tmp_masks.rename(masks)
-    if video.is_dir():
-        _remove(video)
-    tmp_video.replace(video)
-    gt.write(gt_path)
-    meta_path.write_text(json.dumps(_sidecar(gt, scene), indent=1) + "\n")
+    tmp_gt, tmp_meta = part_path(gt_path), part_path(meta_path)
+    moves = [(tmp_masks, masks), (tmp_video, video), (tmp_gt, gt_path), (tmp_meta, meta_path)]
+    try:
+        gt.write(tmp_gt)
+        tmp_meta.write_text(json.dumps({**_sidecar(gt, scene), **(sidecar or {})}, indent=1) + "\n")
+    except BaseException:
+        for tmp, _ in moves:
+            _remove(tmp)
+        raise
+    commit_together(moves)  # the clip, its masks, its truth and its sidecar: all four or none
     return gt
+
+
+def clip_targets(plan: ClipPlan, out_dir: str | Path, codec: Codec = "h264") -> dict[str, Path]:
+    """The paths :func:`write_clip` writes for ``plan`` in ``out_dir``: ``video`` (``.mp4``, or a
+    ``.frames`` folder of PNGs), ``masks`` (a folder), ``truth`` (``.gt.json``) and ``meta``
+    (``.meta.json``)."""
+    out, cid = Path(out_dir), plan.clip_id
+    suffix = ".mp4" if codec == "h264" else ".frames"
+    return {
+        "video": out / f"{cid}{suffix}",
+        "masks": out / f"{cid}.masks",
+        "truth": out / f"{cid}.gt.json",
+        "meta": out / f"{cid}.meta.json",
+    }
+
+
+def check_clip_targets(plan: ClipPlan, out_dir: str | Path, codec: Codec = "h264") -> None:
+    """Refuse (:class:`~geocon_core.files.OutPathError`, one sentence), before anything is
+    rendered, to write ``plan`` where its files would replace what is not an earlier rendering of
+    the same clip by GeoCon: a file of that name beside no ground truth of this clip (a user's
+    clip, masks folder or sidecar), a ground truth of another kind or clip, a folder where a file
+    goes (or a file where a folder goes), a device. An earlier rendering of the clip (its
+    ``.gt.json`` names it) is replaced whole."""
+    from ..files import OutPathError, check_targets, held
+
+    targets = clip_targets(plan, out_dir, codec)
+    truth = held(targets["truth"])
+    data = truth.data or {}
+    ours = (truth.format or "").startswith(f"{GT_FORMAT.split('/')[0]}/") and data.get("clip_id") == plan.clip_id
+    for path in targets.values():
+        if os.path.lexists(path) and not ours:
+            what = held(path).describe()
+            raise OutPathError(
+                f"{path} exists and is {what}, not an earlier rendering of {plan.clip_id} by GeoCon (no ground truth "
+                f"of it beside); move it away or choose another --out"
+            )
+    check_targets([(path, key == "masks" or (key == "video" and codec == "png")) for key, path in targets.items()])
 
 
 def _remove(path: Path) -> None:

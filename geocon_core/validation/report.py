@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import ScoreConfig, config_hash
+from ..files import commit_together, part_path
 from ..intervals import RESAMPLES, SEED
 from .cases import Annotation, ValidationPlan, plan_cases
 from .metrics import MetricRow, auc_text, compute_metrics, share_text
@@ -231,7 +232,8 @@ def metric_cells(row: MetricRow) -> list[str]:
 
 
 def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
-    """Write ``validation.md`` and ``validation.json`` into ``out``."""
+    """Write ``validation.md`` and ``validation.json`` into ``out``, committed together (a failure
+    leaves the earlier pair as it was)."""
     out.mkdir(parents=True, exist_ok=True)
     p = report.plan
     planted = (
@@ -259,8 +261,8 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         *_md_table(_CASE_COLUMNS, [_case_cells(r) for r in report.cases]),
         "",
     ]
-    md = out / REPORT_MD
-    md.write_text("\n".join(lines))
+    md, js = out / REPORT_MD, out / REPORT_JSON
+    md_part, js_part = part_path(md), part_path(js)
     plan = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(p).items()}
     doc = {
         "format": "geocon-validation/1",
@@ -274,6 +276,12 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         "planted": None if report.planted is None else asdict(report.planted),
         "cases": [asdict(r) for r in report.cases],
     }
-    js = out / REPORT_JSON
-    js.write_text(json.dumps(doc, indent=1) + "\n")
+    try:
+        md_part.write_text("\n".join(lines))
+        js_part.write_text(json.dumps(doc, indent=1) + "\n")
+    except BaseException:
+        md_part.unlink(missing_ok=True)
+        js_part.unlink(missing_ok=True)
+        raise
+    commit_together([(md_part, md), (js_part, js)])  # the table and its data: both or neither
     return md, js

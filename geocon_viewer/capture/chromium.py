@@ -20,7 +20,23 @@ from typing import Any, Callable
 
 from .processes import ScreenshotError, kill_group, log_tail, private_env
 
-__all__ = ["Page", "find_chromium", "start_chromium", "check_capture", "capture", "open_page"]
+__all__ = ["Page", "find_chromium", "start_chromium", "check_capture", "capture", "open_page", "save_png"]
+
+
+def save_png(data: bytes, png_path: Path) -> None:
+    """Save the screenshot ``data`` at ``png_path``, stamped as GeoCon's (its ``tEXt`` chunk, so a
+    later screenshot may replace it, :func:`geocon_core.files.claim`), written beside its place and
+    renamed into it (never onto a device)."""
+    from geocon_core.files import part_path, replace_file, stamp_png
+
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    part = part_path(png_path)
+    try:
+        part.write_bytes(stamp_png(data))
+        replace_file(part, png_path)
+    finally:
+        part.unlink(missing_ok=True)
+
 
 _CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
 
@@ -321,8 +337,7 @@ def capture(
             return png
 
         data = take() if wait is None else wait(take)
-        png_path.parent.mkdir(parents=True, exist_ok=True)
-        png_path.write_bytes(data)
+        save_png(data, png_path)
     except ScreenshotError:
         raise
     except (OSError, KeyError, ValueError) as exc:

@@ -35,7 +35,7 @@ from typing import Callable, Literal, TypedDict, Unpack
 import cv2
 import numpy as np
 
-from .chromium import capture, check_capture, find_chromium
+from .chromium import capture, check_capture, find_chromium, save_png
 from .processes import (
     ScreenshotError,
     find_rerun_binary,
@@ -306,8 +306,7 @@ def screenshot_native(
         except Exception as exc:  # the client raises plain RuntimeErrors and timeouts
             tail = log_tail(log_path, 300)
             raise ScreenshotError(f"The headless viewer could not take the screenshot ({exc}). {tail}".strip()) from exc
-        png_path.parent.mkdir(parents=True, exist_ok=True)
-        png_path.write_bytes(data)
+        save_png(data, png_path)
         _log_ready(f"{rrd_path.name} (native viewer)", wait_for, started, taken)
         return png_path
     finally:

@@ -186,7 +186,7 @@ def _check_bench_out(dataset: Path, out_dir: Path) -> None:
     nor a record folder of ``geocon score`` or inside one; a manifest file given as the dataset is
     never the results folder either (:func:`~geocon_core.files.check_apart`)."""
     from geocon_core.bench import check_output_kind
-    from geocon_core.files import OutPathError, check_apart
+    from geocon_core.files import OutPathError, check_apart, claim
 
     if dataset.is_file():
         check_apart([("--out", out_dir)], [("dataset manifest", dataset)])
@@ -195,6 +195,7 @@ def _check_bench_out(dataset: Path, out_dir: Path) -> None:
             f"--out {out_dir} is the dataset folder; the results go into a folder of their own (e.g. {dataset}/results)"
         )
     check_output_kind(out_dir, "results")
+    claim("--out", out_dir, "results")  # results moved with their dataset, or of another, are taken over (and said)
 
 
 def _ray_options(executor: str, address: str | None, workers: int, cpus: float, gpus: float | None) -> Any:

@@ -71,6 +71,11 @@ def dataset(
                 bar.stop()
     except DatasetError as exc:
         raise fail(str(exc)) from None
+    if write:
+        try:
+            _check_sidecars(found, force)  # before anything is said: a refusal is its one sentence
+        except ValueError as exc:
+            raise fail(str(exc)) from None
     out.print(_table(found))
     for sentence in found.notes:
         err.print(f"note: {sentence}", soft_wrap=True, highlight=False, markup=False)
@@ -87,10 +92,6 @@ def dataset(
             out.print(f"to edit these values: geocon dataset {path} --write", soft_wrap=True, highlight=False)
         return
     try:
-        _check_sidecars(found)
-    except ValueError as exc:
-        raise fail(str(exc)) from None
-    try:
         done = write_sidecars(found, force=force)
     except OSError as exc:
         from . import RESOURCE_ERRORS
@@ -106,22 +107,41 @@ def dataset(
             highlight=False,
         )
     if done.kept:
+        said = (
+            f"kept {len(done.kept)} sidecar(s) that already hold these values (e.g. {done.kept[0]})"
+            if force
+            else f"kept {len(done.kept)} existing sidecar(s) (e.g. {done.kept[0]}); --force replaces them"
+        )
         out.print(
-            f"kept {len(done.kept)} existing sidecar(s) (e.g. {done.kept[0]}); --force replaces them",
+            said,
             soft_wrap=True,
             highlight=False,
         )
 
 
-def _check_sidecars(found: Dataset) -> None:
-    """No sidecar ``--write`` would write is its own clip or masks, lies inside them, or is a
-    device or a FIFO (a sidecar is replaced by renaming; ``ValueError`` with one sentence)."""
-    from geocon_core.files import check_apart, refuse_special
+def _check_sidecars(found: Dataset, force: bool) -> None:
+    """No sidecar ``--write`` would write is its own clip or masks, lies inside them, is a device
+    or a FIFO (a sidecar is replaced by renaming), the sidecar of two clips, or lands on another
+    output of GeoCon's; with ``force``, one it replaces is a sidecar GeoCon wrote for the same clip
+    (:func:`geocon_core.bench.sidecar_owner`), never a file written by hand (``ValueError`` with
+    one sentence)."""
+    from geocon_core.bench import sidecar_owner
+    from geocon_core.files import check_apart, claim, refuse_special
 
+    seen: dict[str, Path] = {}
     for e in found.entries:
         inputs = [("clip", e.video)] + ([] if e.masks is None else [("masks", e.masks)])
         check_apart([("--write", e.sidecar)], inputs)
         refuse_special(e.sidecar, "--write")
+        key = os.path.realpath(e.sidecar)
+        if key in seen:
+            raise ValueError(
+                f"{seen[key]} and {e.video} would both have the sidecar {e.sidecar} (one name beside two clips); "
+                "rename one of the clips"
+            )
+        seen[key] = e.video
+        if force or not e.sidecar.exists():
+            claim("--write", e.sidecar, "json", mine=sidecar_owner(e))
 
 
 def _cell(entry: ClipEntry, key: str) -> str:

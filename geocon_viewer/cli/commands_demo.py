@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from ..shared import fmt
-from .commands_score import print_record, score_with_progress
+from .commands_score import check_inputs, print_record, score_with_progress
 from .commands_synth import check_render_out, render_plans
 from .console import MAX_SEED, fail, has_viewer_extra, out, rerun_version
 
@@ -23,13 +23,16 @@ def demo(
     """Run the built-in demo: render a static-camera scene with two moving objects, one of
     which deforms non-rigidly, print what the clip contains, then score it."""
     from geocon_core.config import ScoreConfig
-    from geocon_core.synth import ClipPlan
+    from geocon_core.synth import ClipPlan, clip_targets
 
+    plan = ClipPlan("C4", "elastic", 4.0)
+    target, rrd = out_dir / "record", (out_dir / "demo.rrd" if has_viewer_extra("rerun") else None)
     try:
         check_render_out(out_dir)
+        clip_file = clip_targets(plan, out_dir)["video"]
+        check_inputs(target, rrd=rrd, clip=clip_file)  # the record and the recording: the demo's own, or new
     except ValueError as exc:
         raise fail(str(exc)) from None
-    plan = ClipPlan("C4", "elastic", 4.0)
     (gt,) = render_plans([plan], out_dir, seed=seed, width=640, height=360, frames=48, fps=24.0, quiet=False)
     table = Table(title="what the demo clip contains", title_justify="left", show_header=False)
     table.add_column(style="bold")
@@ -51,7 +54,6 @@ def demo(
     out.print(table)
     clip = out_dir / gt.video_path
     # the clip ships its object masks (as a benchmark dataset does through masks_path)
-    target, rrd = out_dir / "record", (out_dir / "demo.rrd" if has_viewer_extra("rerun") else None)
     record = score_with_progress(clip, ScoreConfig(), out_dir=target, masks=out_dir / gt.masks_path, rrd=rrd)
     print_record(record, target)
     truth = {o.object_id: o for o in gt.objects}

@@ -15,7 +15,17 @@ import geocon_core
 from geocon_core.config import DEFAULT_PRESET
 
 from ..shared import fmt
-from .console import VIEWER_EXTRA, default_out, err, fail, has_viewer_extra, out, progress_bar, rerun_version
+from .console import (
+    VIEWER_EXTRA,
+    default_out,
+    err,
+    fail,
+    has_viewer_extra,
+    out,
+    progress_bar,
+    record_of,
+    rerun_version,
+)
 
 if TYPE_CHECKING:
     from geocon_core.config import ScoreConfig
@@ -320,7 +330,7 @@ def check_inputs(
     masks' layout and the recording's path, and that no output would write over an input or into
     the record's own files (``ValueError`` with one sentence)."""
     from geocon_core.bench import check_output_kind
-    from geocon_core.files import check_apart, check_out_dir, check_out_file
+    from geocon_core.files import check_apart, check_out_dir, check_out_file, claim
     from geocon_core.masks import check_masks_path
     from geocon_core.pose import load_pose_log
 
@@ -329,12 +339,14 @@ def check_inputs(
     check_apart(outputs, inputs, records=[out_dir])
     check_out_dir(out_dir, "--out")
     check_output_kind(out_dir, "record")
+    claim("--out", out_dir, "record", mine=None if clip is None else record_of(clip))
     if pose_log is not None:
         load_pose_log(pose_log)
     if masks is not None:
         check_masks_path(masks)
     if rrd is not None:
         check_out_file(rrd, "--rrd")
+        claim("--rrd", rrd, "recording", own=[out_dir])
 
 
 def score(

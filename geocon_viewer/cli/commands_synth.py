@@ -21,11 +21,13 @@ __all__ = ["check_render_out", "render_plans", "synth", "synth_failures", "synth
 
 def check_render_out(out_dir: Path) -> None:
     """``--out`` can take rendered clips (:func:`~geocon_core.files.check_out_dir`: a folder, or one
-    that can be made; ``ValueError`` with one sentence). Rendering reads no file, so no output can
-    write over an input."""
-    from geocon_core.files import check_out_dir
+    that can be made, and :func:`~geocon_core.files.claim`: not a record, results, report or
+    validation folder of GeoCon's, nor inside a part of one; ``ValueError`` with one sentence).
+    Rendering reads no file, so no output can write over an input."""
+    from geocon_core.files import check_out_dir, claim
 
     check_out_dir(out_dir, "--out")
+    claim("--out", out_dir, "folder")
 
 
 def render_plans(
@@ -41,8 +43,10 @@ def render_plans(
     noise: float = 2.0,
 ) -> list[GroundTruth]:
     from geocon_core.files import parents_made
-    from geocon_core.synth import write_clip
+    from geocon_core.synth import check_clip_targets, write_clip
 
+    for plan in plans:  # every clip's files checked before the first is rendered
+        check_clip_targets(plan, out_dir)
     results = []
     with (
         parents_made(out_dir),
@@ -184,7 +188,7 @@ def synth_bench(
     """Render a synthetic benchmark dataset for `geocon bench`: the same scenes from three
     "platforms" (clean, breathing background, elastic objects), with sidecar metadata."""
     from geocon_core.files import parents_made
-    from geocon_core.synth import plan_benchmark, write_benchmark
+    from geocon_core.synth import check_benchmark_targets, plan_benchmark, write_benchmark
 
     width, height = parse_size(size)
     names = [f.strip() for f in families.split(",") if f.strip()]
@@ -193,6 +197,7 @@ def synth_bench(
     try:
         check_render_out(out_dir)
         clips = plan_benchmark(families=names, scenes=scenes)
+        check_benchmark_targets(out_dir, clips)
     except ValueError as exc:
         raise fail(str(exc)) from None
     with parents_made(out_dir), progress_bar("rendering", "frames", eta=False) as bar:

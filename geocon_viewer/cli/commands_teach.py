@@ -55,10 +55,11 @@ def teach(
     if not has_viewer_extra("viser"):
         raise fail(f"geocon teach needs the viewer extra: {VIEWER_EXTRA}")
     if screenshot is not None:
-        from geocon_core.files import OutPathError, check_out_file
+        from geocon_core.files import OutPathError, check_out_file, claim
 
         try:
             check_out_file(screenshot, "--screenshot", "screenshot.png")  # before the server starts
+            claim("--screenshot", screenshot, "png")
         except OutPathError as exc:
             raise fail(str(exc)) from None
     from ..teach import TeachApp, TeachParams, TeachUpdate

@@ -253,7 +253,7 @@ def validate(
             planted=planted,
         )
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
-        _check_outputs(out_dir, cache, plan, annotations, footage_from)
+        _check_outputs(out_dir, cache, plan, annotations, footage_from, fit=fit)
     except (ValueError, OSError) as exc:
         raise fail(str(exc)) from None
     if roots and not data.is_dir():
@@ -291,7 +291,7 @@ def _fit(
 
     from rich.progress import TaskID
 
-    from geocon_core.files import part_path, replace_file
+    from geocon_core.files import commit_together, part_path
     from geocon_core.validation import ANNOTATIONS_PATH, FitCase, fit_cases, fit_markdown, fit_model, model_json
 
     out_dir = folders[0]
@@ -327,10 +327,16 @@ def _fit(
         )
     except ValueError as exc:
         raise fail(str(exc)) from None
-    for name, text in (("clip_model.json", model_json(report.model)), ("fit.md", fit_markdown(report))):
-        part = part_path(out_dir / name)
-        part.write_text(text)
-        replace_file(part, out_dir / name)
+    moves = []
+    try:
+        for name, text in (("clip_model.json", model_json(report.model)), ("fit.md", fit_markdown(report))):
+            moves.append((part_path(out_dir / name), out_dir / name))
+            moves[-1][0].write_text(text)
+    except BaseException:
+        for part, _ in moves:
+            part.unlink(missing_ok=True)
+        raise
+    commit_together(moves)  # the model and the page that reports it: both or neither
     out.print(fit_markdown(report))
     out.print(
         f"model: {out_dir / 'clip_model.json'} (digest {report.model.digest()}); report: {out_dir / 'fit.md'}; "
@@ -345,12 +351,20 @@ def _minutes(seconds: float) -> str:
 
 
 def _check_outputs(
-    out_dir: Path, cache: Path | None, plan: ValidationPlan, annotations: Path | None, footage_from: Path | None
+    out_dir: Path,
+    cache: Path | None,
+    plan: ValidationPlan,
+    annotations: Path | None,
+    footage_from: Path | None,
+    *,
+    fit: bool = False,
 ) -> None:
     """``--out`` and ``--cache`` are folders that can be written and lie apart from everything the
     run reads: the real clips' folders, the footage cache, the annotations and the clones the
-    footage cache is filled from (``ValueError`` with one sentence)."""
-    from geocon_core.files import check_apart, check_out_dir
+    footage cache is filled from; ``--out`` is a validation folder (or a new one), and the files
+    this run writes at its top (the report, or with ``fit`` the model and its page) replace only
+    GeoCon's own (``ValueError`` with one sentence)."""
+    from geocon_core.files import check_apart, check_out_dir, claim
 
     outputs = [("--out", out_dir)] + ([] if cache is None else [("--cache", cache)])
     read = [("--data folder", plan.data), ("--real2 folder", plan.real2), ("footage cache", plan.footage)]
@@ -361,6 +375,20 @@ def _check_outputs(
         check_apart([("--footage", plan.footage)], [("--footage-from folder", footage_from)])
     for option, path in outputs:
         check_out_dir(path, option)
+    claim("--out", out_dir, "validation")  # never a record, results or report folder, nor a user's cases/
+    for name, kind in _FIT_FILES if fit else _REPORT_FILES:
+        claim("--out", out_dir / name, kind, own=[out_dir])
+    if cache is not None:
+        claim("--cache", cache, "folder", own=[out_dir])
+    if footage_from is not None and plan.footage is not None:
+        claim("--footage", plan.footage, "folder")
+
+
+_REPORT_FILES = (("validation.md", "markdown"), ("validation.json", "json:geocon-validation"))
+"""The files ``geocon validate`` writes at the top of ``--out``, and their kinds: each replaces only
+GeoCon's own earlier one (:func:`geocon_core.files.claim`)."""
+_FIT_FILES = (("clip_model.json", "json:geocon-clip-model"), ("fit.md", "markdown"))
+"""The files ``geocon validate --fit`` writes at the top of ``--out`` (instead of the report)."""
 
 
 def _say_missing(plan: ValidationPlan, notes: dict[str, Annotation]) -> None:
@@ -424,12 +452,13 @@ def footage(
     if action == "fill":
         if sources is None:
             raise fail("fill needs --from DIR: a folder of clones of the annotated repositories")
-        from geocon_core.files import check_apart, check_out_dir
+        from geocon_core.files import check_apart, check_out_dir, claim
 
         read = [("--from folder", sources)] + ([] if annotations is None else [("annotation file", annotations)])
         try:
             check_apart([("--footage", cache_dir)], read)
             check_out_dir(cache_dir, "--footage")
+            claim("--footage", cache_dir, "folder")
         except ValueError as exc:
             raise fail(str(exc)) from None
         _fill(notes, cache_dir, sources, "--from")

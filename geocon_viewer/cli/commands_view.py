@@ -94,14 +94,16 @@ def _say_where_the_clip_is(record: Any, folder: Path) -> None:
 
 def _check_outputs(record: Any, folder: Path, rrd: Path, screenshot: Path | None) -> None:
     """The recording and the screenshot never replace the clip, the masks or the record's own files."""
-    from geocon_core.files import check_apart, check_out_file
+    from geocon_core.files import check_apart, check_out_file, claim
 
     inputs = [("clip", Path(record.video.path))]
     outputs = [("--save", rrd)] + ([] if screenshot is None else [("--screenshot", screenshot)])
     check_apart(outputs, inputs, records=[folder])
     check_out_file(rrd, "--save")
+    claim("--save", rrd, "recording", own=[folder])
     if screenshot is not None:
         check_out_file(screenshot, "--screenshot", "screenshot.png")
+        claim("--screenshot", screenshot, "png", own=[folder])
 
 
 def _check_connect(url: str | None) -> None:
@@ -298,10 +300,11 @@ def serve(
     if not has_viewer_extra("viser"):
         raise fail(f"geocon serve needs the viewer extra: {VIEWER_EXTRA}")
     if screenshot is not None:
-        from geocon_core.files import OutPathError, check_out_file
+        from geocon_core.files import OutPathError, check_out_file, claim
 
         try:
             check_out_file(screenshot, "--screenshot", "screenshot.png")  # before the server starts
+            claim("--screenshot", screenshot, "png")
         except OutPathError as exc:
             raise fail(str(exc)) from None
     from geocon_core.results import ResultsError, ResultsIndex

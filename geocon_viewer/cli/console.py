@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 import signal
 import time
+from contextlib import suppress
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -176,27 +177,63 @@ def has_viewer_extra(module: str = "rerun") -> bool:
     return importlib.util.find_spec(module) is not None
 
 
+def record_clip(folder: Path, clip: Path) -> str | None:
+    """None when the record in ``folder`` was scored on ``clip`` (the same file, where it lay when
+    scored or beside the record as it moved, or a clip of the same bytes), or when its
+    ``record.json`` cannot be read (a damaged record is scored again); else the other clip's name."""
+    import os
+
+    from geocon_core.media import clip_fingerprint
+    from geocon_core.record import read_record_json
+
+    try:
+        doc = read_record_json(folder)[1]
+    except ValueError:
+        return None
+    found = doc.get("video")
+    video: dict[str, Any] = found if isinstance(found, dict) else {}
+    if video.get("abs_path") == os.path.abspath(clip):  # scored from this very place
+        return None
+    places = [video.get("abs_path"), video.get("from_record")]
+    for place in places:
+        if isinstance(place, str) and place:
+            at = Path(os.path.normpath(folder.resolve().parent / place))
+            with suppress(OSError):
+                if at.exists() and clip.exists() and os.path.samefile(at, clip):
+                    return None
+    fingerprint = video.get("fingerprint")
+    if isinstance(fingerprint, str) and clip.exists() and clip_fingerprint(clip) == fingerprint:
+        return None
+    other = doc.get("clip")
+    return str(other) if isinstance(other, str) and other else "another clip"
+
+
+def record_of(clip: Path) -> Callable[[Any], str | None]:
+    """The ``mine`` test of :func:`geocon_core.files.claim` for a record folder: a record of
+    ``clip`` may be replaced, the record of another clip not (:func:`record_clip`)."""
+
+    def mine(there: Any) -> str | None:
+        other = record_clip(there.path, clip)
+        return None if other is None else f"the record of {other}, not of {clip}"
+
+    return mine
+
+
 def default_out(clip: Path, *, has_out: bool = True) -> Path:
     """Where ``geocon score`` writes the record of ``clip`` by default: ``geocon-out/<clip name>``.
     A folder there that holds the record of another clip with the same name is not used: the
     command refuses and asks for ``--out`` (``has_out``) or for a record folder of its own."""
     target = Path("geocon-out") / (clip.name if clip.is_dir() else clip.stem)
-    record = target / "record.json"
-    if not record.is_file():
+    if not (target / "record.json").is_file():
         return target
-    from geocon_core.record import read_record_json
-
-    try:
-        other = read_record_json(target)[1].get("clip")
-    except ValueError:  # unreadable or not a record: not this clip's either
-        other = None
-    if other is None or Path(other).resolve() != clip.resolve():
+    other = record_clip(target, clip)
+    if other is not None:
         remedy = (
             f"pass --out to choose a folder for {clip}"
             if has_out
             else f"score {clip} into a folder of its own (geocon score {clip} --out DIR) and give DIR"
         )
-        raise fail(f"{target} already holds the record of {other or 'another clip'}; {remedy} (or remove {target})")
+        raise fail(f"{target} already holds the record of {other}; {remedy} (or remove {target})")
     return target
 
 
