@@ -219,6 +219,7 @@ def validate(
     with injected failures, and the real clips in --data against the project's annotations; prints
     one table and writes validation.md and validation.json into --out."""
     from geocon_core.config import DEFAULT_PRESET, preset
+    from geocon_core.signals import configured_model
     from geocon_core.validation import DEFAULT_FOOTAGE, QUICK, ValidationPlan, read_annotations
 
     try:
@@ -254,6 +255,7 @@ def validate(
         )
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
         _check_outputs(out_dir, cache, plan, annotations, footage_from)
+        configured_model(cfg.signals)  # the clip model that decides the verdicts, before any work
     except (ValueError, OSError) as exc:
         raise fail(str(exc)) from None
     if roots and not data.is_dir():
