@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from .console import MAX_FRAMES, fail, out, progress_bar
@@ -263,8 +264,6 @@ def validate(
         raise fail(f"{data}: no such folder of real clips (give --data, or {leave})")
     if roots and footage_from is not None:
         _fill(notes, cache_dir, footage_from)
-    if roots:
-        _say_missing(plan, notes)
     if fit:
         _fit([out_dir, *(fit_with or [])], cfg, notes, annotations, fit_l2)
         return
@@ -280,6 +279,8 @@ def validate(
             "--cache, --seed and grid match the run that scored it)"
         )
     print_report(report)
+    for sentence in report.notes:
+        out.print(f"[yellow]note:[/] {escape(sentence)}", soft_wrap=True, highlight=False)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
     out.print(f"this run took {_minutes(took)} with {jobs} worker process{'es' if jobs > 1 else ''}")
 
@@ -363,18 +364,6 @@ def _check_outputs(
         check_apart([("--footage", plan.footage)], [("--footage-from folder", footage_from)])
     for option, path in outputs:
         check_out_dir(path, option)
-
-
-def _say_missing(plan: ValidationPlan, notes: dict[str, Annotation]) -> None:
-    from geocon_core.validation import missing_clips
-
-    missing = missing_clips(plan, notes)
-    if missing:
-        where = sorted({a.root for a in missing})
-        out.print(
-            f"[yellow]{len(missing)} annotated clips are not scored: not found in {', '.join(where)}[/] "
-            f"(fill the footage cache with `geocon footage fill --from DIR`; `geocon footage status` lists them)"
-        )
 
 
 def _fill(notes: dict[str, Annotation], cache: Path, sources: Path, option: str = "--footage-from") -> None:
