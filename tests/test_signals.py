@@ -135,8 +135,9 @@ def test_unkept_share_reads_neighbouring_pairs_at_the_largest_scale():
     assert unkept_share([], res, 854, CFG) is None
 
 
-def _model() -> ClipModel:
-    terms = (ModelTerm("a", "reading a", 0.5, 0.25, 2.0), ModelTerm("b", "reading b", 0.0, 1.0, 0.0))
+def _model(names: tuple[str, str] = ("a", "b")) -> ClipModel:
+    a, b = names
+    terms = (ModelTerm(a, "reading a", 0.5, 0.25, 2.0), ModelTerm(b, "reading b", 0.0, 1.0, 0.0))
     return ClipModel("test", -1.0, terms, 0.4, {})
 
 
@@ -147,21 +148,22 @@ def test_the_score_is_the_sum_of_its_contributions():
     assert m.score({"a": 1.0, "b": 3.0}) == pytest.approx(1 / (1 + math.exp(-3.0)))
     assert m.contributions({"a": None})["a"] == 0.0  # a missing reading says nothing
     assert m.score({"a": 0.9}) > m.score({"a": 0.6})  # monotone
-    back = ClipModel.from_dict(json.loads(json.dumps(m.to_dict())))
-    assert back == m and back.digest() == m.digest()
+    named = _model(("unkept", "flow_failure"))  # a model file names readings GeoCon makes
+    back = ClipModel.from_dict(json.loads(json.dumps(named.to_dict())))
+    assert back == named and back.digest() == named.digest()
 
 
 @pytest.mark.parametrize(
     ("change", "words"),
     [
         (lambda d: d.update(format="other/1"), "not a geocon-clip-model/1 file"),
-        (lambda d: d["terms"][0].update(weight=-1.0), "weight >= 0"),
-        (lambda d: d.update(threshold=1.5), "threshold must lie in (0, 1)"),
-        (lambda d: d.pop("terms"), "malformed"),
+        (lambda d: d["terms"][0].update(weight=-1.0), "terms[0] ('unkept') weight is -1.0, and it must be at least 0"),
+        (lambda d: d.update(threshold=1.5), "threshold is 1.5, outside (0, 1)"),
+        (lambda d: d.pop("terms"), "has no field 'terms'"),
     ],
 )
 def test_a_bad_model_file_is_refused_with_its_reason(change, words):
-    d = _model().to_dict()
+    d = _model(("unkept", "flow_failure")).to_dict()
     change(d)
     with pytest.raises(ValueError, match=__import__("re").escape(words)):
         ClipModel.from_dict(d)

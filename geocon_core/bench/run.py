@@ -38,6 +38,7 @@ from ..files import (
     quiet_tracker_restarts,
 )
 from ..media import clip_fingerprint
+from ..signals import ClipModelError, configured_model
 from .clip import (
     MAX_CRASHES,
     BenchError,
@@ -133,12 +134,17 @@ def _prepare_results(
                 "(a clip is kept where its id and its file's bytes are the same, the others are scored)"
             )
             write_manifest(results, {**old, "dataset": str(dataset.resolve())})
-        if old.get("config_hash") != digest:
-            raise BenchError(
-                f"{results} was scored with another configuration (hash {old.get('config_hash')}, preset "
-                f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another "
-                "--out"
+        if old.get("config_hash") != digest and _other_model_only(old.get("config"), cfg):
+            pinned = old["config"]["signals"].get("model_sha256")
+            note(
+                f"{results} was scored with the clip model {pinned}, and this run's is {cfg.signals.model_sha256} (an "
+                "earlier release's model, or one fitted anew): the clips made with it are scored again, and the "
+                "results hold this model's from now on"
             )
+            write_manifest(results, {**old, "config": cfg.to_dict(), "config_hash": digest})
+            return
+        if old.get("config_hash") != digest:
+            raise BenchError(_another_configuration(results, old))
         return
     results.mkdir(parents=True, exist_ok=True)
     (results / CLIPS_DIR).mkdir(exist_ok=True)
@@ -152,6 +158,23 @@ def _prepare_results(
             "versions": software_versions(),
         },
     )
+
+
+def _other_model_only(before: object, cfg: ScoreConfig) -> bool:
+    """Whether the configuration ``before`` (a ``bench.json``'s, as written) differs from ``cfg``
+    in the clip model alone (``signals.model`` and ``signals.model_sha256``), with the clip model on
+    in both: results of an earlier release, or of a model fitted anew, that this run resumes."""
+    import json
+
+    def without_model(d: Any) -> Any:
+        d = json.loads(json.dumps(d))  # compared as written: a setting one of them lacks is a difference
+        if isinstance(d, dict) and isinstance(d.get("signals"), dict):
+            d["signals"] = {k: v for k, v in d["signals"].items() if k not in ("model", "model_sha256")}
+        return d
+
+    now = cfg.to_dict()
+    on = isinstance(before, dict) and isinstance(before.get("signals"), dict) and before["signals"].get("enabled")
+    return bool(on) and cfg.signals.enabled and without_model(before) == without_model(now)
 
 
 def run_bench(
@@ -195,7 +218,11 @@ def run_bench(
         raise BenchError(f"--executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     note = on_note or (lambda _msg: None)
     data, out = Path(dataset), Path(results)
-    _check_out(out)
+    try:
+        configured_model(cfg.signals)  # the clip model that decides the verdicts, before anything is read
+    except ClipModelError as exc:
+        raise BenchError(str(exc)) from None
+    _check_out(out, cfg)
     dataset_read = scan_dataset(data, roots=roots)
     entries = list(dataset_read.entries)
     for sentence in dataset_read.notes:
@@ -221,7 +248,7 @@ def run_bench(
     try:
         _prepare_results(out, data, cfg, dataset_read.root, note)
         start = time.perf_counter()
-        todo, failed_before = _unfinished(entries, out, retry_failed, note)
+        todo, failed_before = _unfinished(entries, out, retry_failed, note, cfg)
         skipped = len(entries) - len(todo)
         if on_start is not None:
             on_start(len(todo), skipped)
@@ -281,10 +308,11 @@ def _write_tables(out: Path, entries: list[ClipEntry], note: Callable[[str], Non
         ) from None
 
 
-def _check_out(out: Path) -> None:
+def _check_out(out: Path, cfg: ScoreConfig) -> None:
     """Refuse, before the dataset is read, a results folder that cannot be one
     (:func:`~geocon_core.files.paths.check_out_dir`), is a record folder or lies in one, or holds
-    a ``bench.json`` that is damaged or of another format (:class:`BenchError`)."""
+    a ``bench.json`` that is damaged, of another format or of another configuration than ``cfg``
+    (other than its clip model: :func:`_other_model_only`) (:class:`BenchError`)."""
     try:
         check_out_dir(out)
         check_output_kind(out, "results")
@@ -292,9 +320,19 @@ def _check_out(out: Path) -> None:
         raise BenchError(str(exc)) from None
     if manifest_path(out).is_file():
         try:
-            checked_manifest(out)
+            old = checked_manifest(out)
         except ValueError as exc:
             raise BenchError(f"{exc}; choose another --out") from None
+        if old.get("config_hash") != config_hash(cfg) and not _other_model_only(old.get("config"), cfg):
+            raise BenchError(_another_configuration(out, old))
+
+
+def _another_configuration(results: Path, old: dict[str, Any]) -> str:
+    """The sentence for results scored with another configuration."""
+    return (
+        f"{results} was scored with another configuration (hash {old.get('config_hash')}, preset "
+        f"{old.get('config', {}).get('preset')}); rerun with the same settings to resume, or choose another --out"
+    )
 
 
 def _remove_if_empty(out: Path, created: bool) -> None:
@@ -316,15 +354,17 @@ def _busy(out: Path, held: LockHeld) -> str:
 
 
 def _unfinished(
-    entries: list[ClipEntry], out: Path, retry_failed: bool, note: Callable[[str], None]
+    entries: list[ClipEntry], out: Path, retry_failed: bool, note: Callable[[str], None], cfg: ScoreConfig
 ) -> tuple[list[ClipEntry], int]:
-    """The clips still to score (unfinished, failed when ``retry_failed``, or finished on a clip
-    file that was replaced since: its fingerprint changed) and how many failed clips are kept as
-    they are. A finished clip whose metadata changed takes the dataset's (its ``status.json``
-    rewritten) when its clip file and ``masks_path`` are those it was scored from; otherwise it
-    keeps its earlier metadata and scores, and ``note`` says so."""
+    """The clips still to score (unfinished, failed when ``retry_failed``, finished on a clip file
+    that was replaced since: its fingerprint changed, or made with another clip model than
+    ``cfg``'s: :func:`_other_model`) and how many failed clips are kept as they are. A finished
+    clip whose metadata changed takes the dataset's (its ``status.json`` rewritten) when its clip
+    file and ``masks_path`` are those it was scored from; otherwise it keeps its earlier metadata
+    and scores, and ``note`` says so."""
     todo, failed_before = [], 0
     refreshed, stale, replaced, damaged = 0, [], [], []
+    other_model: dict[str, list[str]] = {}  # digest -> the clips made with it
     for entry in entries:
         folder = clip_dir(out, entry.clip_id)
         status = read_status(folder)
@@ -336,6 +376,11 @@ def _unfinished(
         if status["status"] == "ok" and not _record_whole(folder):
             todo.append(entry)
             damaged.append(entry.clip_id)
+            continue
+        pinned = _other_model(folder, cfg) if status["status"] == "ok" else None
+        if pinned is not None:
+            todo.append(entry)
+            other_model.setdefault(pinned, []).append(entry.clip_id)
             continue
         scored_on = _scored_fingerprint(folder, status)
         if scored_on is not None and clip_fingerprint(entry.video) != scored_on:
@@ -366,6 +411,11 @@ def _unfinished(
             f"{len(replaced)} clip file(s) changed since they were scored (other bytes under the same name) and are "
             f"scored again: {shown}"
         )
+    for pinned, ids in other_model.items():
+        note(
+            f"{len(ids)} finished clip(s) were made with the clip model {pinned}, not this run's "
+            f"{cfg.signals.model_sha256}, and are scored again: {_named(ids, REPLACED_NAMED)}"
+        )
     if damaged:
         note(
             f"{len(damaged)} finished clip(s) have a damaged status.json, or a record.json or matches.npz that is "
@@ -375,18 +425,26 @@ def _unfinished(
 
 
 def _record_whole(folder: Path) -> bool:
-    """Whether the record of a finished clip is there to be read: its ``record.json`` parses as a
-    record and its ``matches.npz`` is a whole zip archive (its directory at its end: not cut short);
-    the tables read both."""
-    import zipfile
+    """Whether the record of a finished clip is there to be read (the tables read it):
+    :func:`~geocon_core.record.record_problem` finds nothing amiss."""
+    from ..record import record_problem
 
-    from ..record import RecordError, read_record_json
+    return record_problem(folder) is None
 
+
+def _other_model(folder: Path, cfg: ScoreConfig) -> str | None:
+    """The digest of the clip model a finished clip's record was made with, when the clip model
+    decided it and that is not the model ``cfg`` pins (:func:`~geocon_core.record.pinned_model`);
+    else None."""
+    from ..record import RecordError, pinned_model, read_record_json
+
+    if not cfg.signals.enabled:
+        return None
     try:
-        read_record_json(folder)
+        pinned = pinned_model(read_record_json(folder)[1])
     except RecordError:
-        return False
-    return (folder / "matches.npz").is_file() and zipfile.is_zipfile(folder / "matches.npz")
+        return None
+    return pinned if pinned is not None and pinned != cfg.signals.model_sha256 else None
 
 
 REPLACED_NAMED = 10

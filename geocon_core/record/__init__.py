@@ -13,10 +13,13 @@ from .clip import (
     ClipRecord,
     RecordError,
     pairs_from_json,
+    pinned_model,
     read_matches,
     read_record,
     read_record_json,
     record_id,
+    record_problem,
+    stored_finding,
     write_record,
 )
 from .finding import (
@@ -98,6 +101,9 @@ __all__ = [
     "read_matches",
     "read_record",
     "read_record_json",
+    "pinned_model",
+    "record_problem",
+    "stored_finding",
     "record_id",
     "write_record",
     "FlowSlice",

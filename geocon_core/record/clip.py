@@ -34,7 +34,7 @@ from ..reconstruction import ARRAY_NAMES as MV_ARRAYS
 from ..reconstruction import DenseCloud, MultiViewResult, WindowCloud
 from ..signals import MAP_ARRAYS, ClipReadings, load_clip_model
 from . import parts as record_parts
-from .finding import ClipFinding, clip_finding, model_finding, report_margin
+from .finding import VERDICT_WORDS, ClipFinding, clip_finding, model_finding, report_margin
 from .parts import (
     BackgroundSummary,
     Category,
@@ -68,6 +68,9 @@ __all__ = [
     "read_matches",
     "record_id",
     "RECORD_ID_ARRAY",
+    "pinned_model",
+    "record_problem",
+    "stored_finding",
 ]
 
 RECORD_FORMAT = "geocon-record/1"
@@ -157,6 +160,10 @@ class ClipRecord:
     """The id that ties ``record.json`` to its ``matches.npz`` and ``overlays/index.json``
     (:func:`record_id`), as read from ``record.json``; None for a record not yet written, or
     written before records had ids."""
+    made_with: ClipFinding | None = field(default=None, compare=False)
+    """The finding ``record.json``'s summary holds (the verdict, reason, clip score and "why" it
+    was written with), as read; None for a record not read from disk, or whose summary does not
+    hold one. It is the finding of a record made with another clip model (:meth:`other_model`)."""
 
     def finding(self) -> ClipFinding:
         """The clip-level finding: verdict, its reason and ``clip_score`` (:mod:`geocon_core.record.finding`):
@@ -169,10 +176,40 @@ class ClipRecord:
         background = self.background_finding()
         if not self.config.signals.enabled or self.readings is None:
             return background
+        if self.other_model() is not None and self.made_with is not None:
+            return self.made_with  # its own model is not here: the verdict it was made with
         signals = self.config.signals
         model = load_clip_model(signals.model, signals.model_sha256)
         drift = self.drift_finding() if signals.drift_fails_with_background else None
         return model_finding(background, self.reading_values(), model, signals.decisive_shortfall, drift)
+
+    def other_model(self) -> tuple[str, str] | None:
+        """(the digest the record's configuration pins, the digest of the model its
+        ``signals.model`` names here) when the record was made with another clip model than that
+        one (an earlier release's, a model fitted anew); None when the clip model does not decide
+        the record or is the one it pins. :class:`~geocon_core.signals.ClipModelError` for a model
+        file that cannot be used."""
+        return self._other_model
+
+    @cached_property
+    def _other_model(self) -> tuple[str, str] | None:
+        signals = self.config.signals
+        if not signals.enabled or self.readings is None or not signals.model_sha256:
+            return None
+        here = load_clip_model(signals.model).digest()
+        return None if here == signals.model_sha256 else (signals.model_sha256, here)
+
+    def model_note(self) -> str | None:
+        """One sentence when the record was made with another clip model (:meth:`other_model`):
+        which one, and that the verdict and clip score shown are those it was made with; else None."""
+        other = self.other_model()
+        if other is None:
+            return None
+        pinned, here = other
+        return (
+            f"made with the clip model {pinned}, not this GeoCon's {here}: the verdict and clip score are those it "
+            "was made with; score the clip again to judge it with this model"
+        )
 
     def model_verdict(self) -> str | None:
         """The clip model's verdict where it decides the clip (``config.signals`` on and readings
@@ -623,13 +660,21 @@ def read_record(path: str | Path) -> ClipRecord:
     )
     try:
         _check_counts(d, z, folder / "record.json")
-        return _record_from(d, z)
+        record = _record_from(d, z)
     except RecordError:
         raise
     except (KeyError, TypeError, ValueError, AttributeError) as exc:  # missing fields, wrong shapes or types
         raise RecordError(
             f"{folder / 'record.json'} is not a readable GeoCon record ({type(exc).__name__}: {exc}): {_CORRUPT}"
         ) from None
+    other = record.other_model()  # the clip model's own sentence when its file cannot be used
+    if other is not None and record.made_with is None:
+        raise RecordError(
+            f"{folder / 'record.json'} was made with the clip model {other[0]}, which this GeoCon does not have (its "
+            f"model is {other[1]}), and its summary holds no verdict that could be the one it was made with: "
+            f"{_CORRUPT}"
+        )
+    return record
 
 
 def _check_same_record(d: dict[str, Any], z: dict[str, np.ndarray], folder: Path) -> None:
@@ -766,4 +811,54 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         multiview=None if d.get("multiview") is None else MultiViewResult.from_parts(d["multiview"], z),
         readings=None if d.get("readings") is None else ClipReadings.from_json_dict(d["readings"], z),
         record_id=d.get("record_id"),
+        made_with=stored_finding(d.get("summary")),
     )
+
+
+def record_problem(folder: str | Path) -> str | None:
+    """What keeps the record in ``folder`` from being read, in one sentence, checked without
+    reading its arrays: its ``record.json`` missing, damaged or of another format
+    (:func:`read_record_json`), its ``matches.npz`` missing, cut short or of another record (the
+    ids both hold); None when it is whole. Resumed runs (``geocon bench``, ``geocon validate``)
+    score a clip again when its record has a problem."""
+    try:
+        folder, d = read_record_json(folder)
+    except RecordError as exc:
+        return str(exc)
+    npz = folder / "matches.npz"
+    if not npz.is_file() or not zipfile.is_zipfile(npz):  # its directory is at its end: a cut file has none
+        return f"{npz} is missing or not a whole .npz archive"
+    try:
+        _check_same_record(d, read_matches(folder, (), (RECORD_ID_ARRAY,)), folder)
+    except RecordError as exc:
+        return str(exc)
+    return None
+
+
+def pinned_model(d: dict[str, Any]) -> str | None:
+    """The digest of the clip model a parsed ``record.json`` was made with, where the clip model
+    decided it (its configuration's ``signals`` on and readings recorded): its
+    ``signals.model_sha256`` (empty: any model); None where the background decided."""
+    signals = d.get("config", {}).get("signals") if isinstance(d.get("config"), dict) else None
+    if d.get("readings") is None or not isinstance(signals, dict) or not signals.get("enabled"):
+        return None
+    pinned = signals.get("model_sha256", "")
+    return pinned if isinstance(pinned, str) else ""
+
+
+def stored_finding(summary: Any) -> ClipFinding | None:
+    """The finding a ``record.json`` summary holds (``verdict``, ``clip_score``, ``why``), or None
+    when it holds none that could be one: a verdict of :data:`~.finding.VERDICT_WORDS` with a
+    reason, a clip score between 0 and 1 (or none), contributions that are finite numbers."""
+    if not isinstance(summary, dict) or not isinstance(summary.get("verdict"), dict):
+        return None
+    verdict, reason = summary["verdict"].get("verdict"), summary["verdict"].get("reason")
+    score, why = summary.get("clip_score"), summary.get("why", {})
+    if verdict not in VERDICT_WORDS or not isinstance(reason, str) or not isinstance(why, dict):
+        return None
+    if score is not None and (isinstance(score, bool) or not isinstance(score, (int, float)) or not 0 <= score <= 1):
+        return None
+    parts = tuple(why.items())
+    if any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for _, v in parts):
+        return None
+    return ClipFinding(verdict, reason, None if score is None else float(score), tuple((k, float(v)) for k, v in parts))

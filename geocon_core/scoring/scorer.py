@@ -58,7 +58,7 @@ from ..reconstruction import (
     reconstruct,
 )
 from ..record import ClipRecord, FrameDiagnostics, MatchArrays, PairRecord
-from ..signals import ClipReadings, appearance_reading, content_gray, plan_pairs, unkept_share
+from ..signals import ClipReadings, appearance_reading, configured_model, content_gray, plan_pairs, unkept_share
 from .assemble import assemble_record, object_parts, pair_tables, software_versions
 from .judge import judge_background, judge_drift
 from .pipeline import DeferredPose, Pipeline, SharedMatches, Timer, keep_still, resolve_deferred
@@ -247,6 +247,7 @@ def score_clip(
     if masks is not None:
         cfg = cfg.with_(masks="external")
     timer = Timer(timings)
+    configured_model(cfg.signals)  # the clip model that decides the verdict, before the clip is decoded
     if cfg.masks != "none":
         quiet_pot_backends()
         _import_aside("ot")  # AdaDFRC's transport solver

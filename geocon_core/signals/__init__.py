@@ -17,7 +17,18 @@ from .appearance import (
     summarize,
 )
 from .keep import unkept_share
-from .model import DEFAULT_MODEL, MODEL_FORMAT, ClipModel, ModelTerm, fit_clip_model, load_clip_model, model_path
+from .model import (
+    DEFAULT_MODEL,
+    MODEL_FORMAT,
+    ClipModel,
+    ClipModelError,
+    ClipModelMismatch,
+    ModelTerm,
+    configured_model,
+    fit_clip_model,
+    load_clip_model,
+    model_path,
+)
 from .pictures import (
     MAP_OF_READING,
     MAP_VIEWS,
@@ -55,6 +66,9 @@ __all__ = [
     "DEFAULT_MODEL",
     "MODEL_FORMAT",
     "ClipModel",
+    "ClipModelError",
+    "ClipModelMismatch",
+    "configured_model",
     "ModelTerm",
     "fit_clip_model",
     "load_clip_model",

@@ -22,16 +22,60 @@ import math
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["MODEL_FORMAT", "DEFAULT_MODEL", "ModelTerm", "ClipModel", "fit_clip_model", "load_clip_model", "model_path"]
+if TYPE_CHECKING:
+    from ..config import SignalsConfig
+
+__all__ = [
+    "MODEL_FORMAT",
+    "DEFAULT_MODEL",
+    "ModelTerm",
+    "ClipModel",
+    "ClipModelError",
+    "ClipModelMismatch",
+    "fit_clip_model",
+    "load_clip_model",
+    "model_path",
+    "configured_model",
+]
 
 MODEL_FORMAT = "geocon-clip-model/1"
 """The format tag of a clip model file."""
 DEFAULT_MODEL = "clip_model.json"
 """The model shipped in this package (beside this module)."""
+TERM_FIELDS = ("name", "label", "center", "scale", "weight")
+"""The fields of one term of a clip model file (:class:`ModelTerm`), each required."""
+RESTORE = (
+    "the file was edited or damaged: restore it (for the shipped clip_model.json, reinstall GeoCon), or fit it "
+    "again with `geocon validate --fit`"
+)
+"""What to do about a clip model file that cannot be used, said after what is wrong with it."""
+
+
+class ClipModelError(ValueError):
+    """A clip model file that cannot be used: missing, unreadable, not JSON, of another format, or a
+    field of the wrong type or out of range: one sentence, ``problem`` (naming the file and the
+    field) and ``advice`` (what to do; :data:`RESTORE` unless told)."""
+
+    def __init__(self, problem: str, advice: str = RESTORE) -> None:
+        self.problem, self.advice = problem, advice
+        super().__init__(f"{problem}; {advice}" if advice else problem)
+
+
+class ClipModelMismatch(ClipModelError):
+    """The clip model file holds a model of another digest than the configuration pins: ``path``,
+    the digest ``found`` in it and the one ``pinned``."""
+
+    def __init__(self, path: Path, found: str, pinned: str) -> None:
+        self.path, self.found, self.pinned = path, found, pinned
+        super().__init__(
+            f"the clip model {path} has digest {found}, but this configuration pins {pinned}",
+            "the file was changed since GeoCon was installed; restore it (reinstall GeoCon), or, to ship a model "
+            f"fitted anew, set SHIPPED_MODEL_DIGEST in geocon_core/config/stages.py to {found} (docs/validation.md)",
+        )
 
 
 @dataclass(frozen=True)
@@ -95,55 +139,153 @@ class ClipModel:
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any], where: str = "clip model") -> "ClipModel":
-        if d.get("format") != MODEL_FORMAT:
-            raise ValueError(f"{where}: not a {MODEL_FORMAT} file (format {d.get('format')!r})")
-        try:
-            terms = tuple(ModelTerm(**t) for t in d["terms"])
-            model = cls(
-                str(d["version"]), float(d["intercept"]), terms, float(d["threshold"]), dict(d.get("fitted", {}))
+    def from_dict(cls, d: Any, where: str = "clip model") -> "ClipModel":
+        """The model of a parsed clip model file (``where`` names it); :class:`ClipModelError`
+        naming the file and the field for anything of the wrong type or out of range."""
+        if not isinstance(d, dict):
+            raise ClipModelError(f"{where}: holds a JSON {_kind(d)}, not a clip model (a JSON object)")
+        fmt = d.get("format")
+        if isinstance(fmt, str) and fmt.startswith("geocon-clip-model/") and fmt != MODEL_FORMAT:
+            raise ClipModelError(
+                f"{where}: is in the model format {fmt}, and this GeoCon reads {MODEL_FORMAT}",
+                "use the GeoCon that fitted it, or fit it again with `geocon validate --fit`",
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ValueError(f"{where}: malformed ({exc})") from None
-        for t in terms:
-            if not (t.scale > 0 and t.weight >= 0 and math.isfinite(t.center)):
-                raise ValueError(f"{where}: term {t.name!r} needs scale > 0, weight >= 0 and a finite center")
-        if not 0.0 < model.threshold < 1.0:
-            raise ValueError(f"{where}: threshold must lie in (0, 1), got {model.threshold}")
+        if fmt != MODEL_FORMAT:
+            raise ClipModelError(f"{where}: not a {MODEL_FORMAT} file (format {fmt!r})")
+        for key in ("version", "intercept", "threshold", "terms"):
+            if key not in d:
+                raise ClipModelError(f"{where}: has no field {key!r}")
+        if not isinstance(d["version"], str):
+            raise ClipModelError(f"{where}: version is {_shown(d['version'])}, not a string")
+        intercept = _number(d["intercept"], where, "intercept")
+        threshold = _number(d["threshold"], where, "threshold")
+        if not 0.0 < threshold < 1.0:
+            raise ClipModelError(f"{where}: threshold is {threshold!r}, outside (0, 1) where clip scores lie")
+        fitted = d.get("fitted", {})
+        if not isinstance(fitted, dict):
+            raise ClipModelError(f"{where}: fitted is {_shown(fitted)}, not a JSON object")
+        model = cls(d["version"], float(intercept), _terms(d["terms"], where), float(threshold), dict(fitted))
         return model
 
 
+def _kind(value: Any) -> str:
+    """What a parsed JSON value is, in words."""
+    if isinstance(value, bool):
+        return "boolean"
+    names = {dict: "object", list: "array", str: "string", int: "number", float: "number", type(None): "null"}
+    return names.get(type(value), type(value).__name__)
+
+
+def _shown(value: Any) -> str:
+    """A parsed JSON value as a sentence shows it: its text (cut short) and, beside a string, what it is."""
+    text = json.dumps(value)
+    text = text if len(text) <= 40 else text[:37] + "..."
+    return f"{text} (a JSON {_kind(value)})"
+
+
+def _number(value: Any, where: str, field: str, *, low: float = -math.inf, strict: bool = False) -> float | int:
+    """``value`` of the clip model's ``field``: a finite JSON number (never a boolean or a string),
+    above ``low`` (``strict``) or at least ``low``; the number as written (so the digest is the
+    file's), or :class:`ClipModelError`."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ClipModelError(f"{where}: {field} is {_shown(value)}, not a number")
+    if not math.isfinite(value):
+        raise ClipModelError(f"{where}: {field} is {value!r}, not a finite number")
+    if value < low or (strict and value == low):
+        bound = f"above {low:g}" if strict else f"at least {low:g}"
+        raise ClipModelError(f"{where}: {field} is {value!r}, and it must be {bound}")
+    return value
+
+
+def _terms(raw: Any, where: str) -> tuple[ModelTerm, ...]:
+    """The terms of a clip model file, each checked (:data:`TERM_FIELDS`): a reading GeoCon makes
+    (:data:`~.readings.READING_LABELS`) named once, a finite center, a scale above 0 and a weight
+    of at least 0 (a larger reading never lowers the score)."""
+    from .readings import READING_LABELS
+
+    if not isinstance(raw, list) or not raw:
+        what = "an empty array" if raw == [] else _shown(raw)
+        raise ClipModelError(f"{where}: terms is {what}, not a list of the readings' terms")
+    terms: list[ModelTerm] = []
+    for i, t in enumerate(raw):
+        at = f"terms[{i}]"
+        if not isinstance(t, dict):
+            raise ClipModelError(f"{where}: {at} is {_shown(t)}, not a JSON object")
+        missing = [k for k in TERM_FIELDS if k not in t]
+        extra = [k for k in t if k not in TERM_FIELDS]
+        if missing or extra:
+            said = f"has no field {missing[0]!r}" if missing else f"has the unknown field {extra[0]!r}"
+            raise ClipModelError(f"{where}: {at} {said} (a term has {', '.join(TERM_FIELDS)})")
+        name = t["name"]
+        if not isinstance(name, str) or name not in READING_LABELS:
+            raise ClipModelError(
+                f"{where}: {at}.name is {_shown(name)}, not a reading GeoCon makes (one of {', '.join(READING_LABELS)})"
+            )
+        at = f"{at} ({name!r})"
+        if any(u.name == name for u in terms):
+            raise ClipModelError(f"{where}: {at} weighs the reading {name!r} a second time")
+        if not isinstance(t["label"], str):
+            raise ClipModelError(f"{where}: {at} label is {_shown(t['label'])}, not a string")
+        center = _number(t["center"], where, f"{at} center")
+        scale = _number(t["scale"], where, f"{at} scale", low=0.0, strict=True)
+        weight = _number(t["weight"], where, f"{at} weight", low=0.0)
+        terms.append(ModelTerm(name, t["label"], center, scale, weight))
+    return tuple(terms)
+
+
+MODEL_DIR = Path(__file__).resolve().parent
+"""The folder of the models shipped in the package (:data:`DEFAULT_MODEL` lies in it)."""
+
+
 def model_path(name: str) -> Path:
-    """The file of a model named ``name``: a file of this package (``clip_model.json``) or a path."""
-    here = Path(__file__).resolve().parent / name
-    return here if here.is_file() else Path(name)
+    """The file of a model named ``name``: a file of the package (:data:`MODEL_DIR`), a path, or,
+    for :data:`DEFAULT_MODEL`, the package's file even when it is missing (so the sentence names it)."""
+    here = MODEL_DIR / name
+    return here if here.is_file() or name == DEFAULT_MODEL else Path(name)
 
 
-_LOADED: dict[Path, ClipModel] = {}
+_LOADED: dict[tuple[Path, int, int], ClipModel] = {}
+"""The models read in this process, by file and the file's size and modification time (a file
+changed since it was read is read again)."""
 
 
 def load_clip_model(name: str = DEFAULT_MODEL, digest: str = "") -> ClipModel:
-    """The clip model ``name`` (:func:`model_path`), read once per process; with ``digest``, it
-    must be the model of that digest (a configuration pins its model so)."""
+    """The clip model ``name`` (:func:`model_path`), read once per process (:data:`_LOADED`); with ``digest``, it
+    must be the model of that digest (a configuration pins its model so): :class:`ClipModelMismatch`
+    otherwise. :class:`ClipModelError` (one sentence naming the file) for a file that cannot be used."""
     model = _load(model_path(name))
     if digest and model.digest() != digest:
-        raise ValueError(
-            f"the clip model {model_path(name)} has digest {model.digest()}, but the configuration pins {digest} "
-            "(fitted anew? set signals.model_sha256 to its digest)"
-        )
+        raise ClipModelMismatch(model_path(name), model.digest(), digest)
     return model
 
 
+def configured_model(signals: "SignalsConfig") -> ClipModel | None:
+    """The clip model a configuration's ``signals`` decides with (its file, of the digest it pins),
+    or None when ``signals`` is off. Every command that scores calls this before any work, so a
+    clip model that cannot be used is one sentence (:class:`ClipModelError`) before a clip is read."""
+    return load_clip_model(signals.model, signals.model_sha256) if signals.enabled else None
+
+
 def _load(path: Path) -> ClipModel:
-    if path not in _LOADED:
+    try:
+        stat = path.stat()
+    except FileNotFoundError:
+        raise ClipModelError(f"the clip model {path} does not exist") from None
+    except OSError as exc:
+        raise ClipModelError(f"cannot read the clip model {path}: {exc.strerror or exc}") from None
+    key = (path, stat.st_size, stat.st_mtime_ns)
+    if key not in _LOADED:
         try:
             data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ClipModelError(f"the clip model {path} does not exist") from None
         except OSError as exc:
-            raise ValueError(f"cannot read the clip model {path}: {exc.strerror or exc}") from None
-        except ValueError as exc:
-            raise ValueError(f"the clip model {path} is not JSON: {exc}") from None
-        _LOADED[path] = ClipModel.from_dict(data, str(path))
-    return _LOADED[path]
+            raise ClipModelError(f"cannot read the clip model {path}: {exc.strerror or exc}") from None
+        except (ValueError, RecursionError) as exc:  # not UTF-8, not JSON, nested past the parser
+            said = exc.msg if isinstance(exc, json.JSONDecodeError) else type(exc).__name__
+            raise ClipModelError(f"the clip model {path} is not JSON ({said})") from None
+        _LOADED[key] = ClipModel.from_dict(data, str(path))
+    return _LOADED[key]
 
 
 def _newton(X: np.ndarray, y: np.ndarray, w: np.ndarray, l2: float, iters: int = 100) -> np.ndarray:

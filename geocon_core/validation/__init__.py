@@ -34,6 +34,7 @@ from .cases import (
     read_annotations,
     real_clips,
     split_of,
+    wrong_clips,
 )
 from .fit import FIT_TERMS, READINGS_FILE, FitCase, FitReport, FitRow, fit_cases, fit_markdown, fit_model, model_json
 from .footage import DEFAULT_FOOTAGE, fill_footage, footage_status
@@ -79,6 +80,7 @@ __all__ = [
     "plan_cases",
     "planted_cases",
     "missing_clips",
+    "wrong_clips",
     "split_of",
     "read_annotations",
     "real_clips",

@@ -10,6 +10,7 @@ made the same way (:func:`planted_cases`).
 from __future__ import annotations
 
 import csv
+import functools
 import hashlib
 import io
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ __all__ = [
     "PLANT_LEVELS",
     "PLANT_KINDS",
     "missing_clips",
+    "wrong_clips",
     "split_of",
     "ROOTS",
     "SPLITS",
@@ -43,6 +45,7 @@ __all__ = [
     "read_annotations",
     "real_clips",
     "width_for",
+    "source_sha256",
 ]
 
 CodecName = Literal["png", "crf18", "crf28"]
@@ -402,26 +405,79 @@ def _real_cases(plan: ValidationPlan, annotations: dict[str, Annotation]) -> lis
 
 
 def missing_clips(plan: ValidationPlan, annotations: dict[str, Annotation]) -> list[Annotation]:
-    """Annotated clips of the plan's roots (other than ``data``) that are not where they should
-    be: a footage cache not filled yet, or a shared folder that lacks them."""
+    """Annotated clips of the plan's roots that are not where they should be (in the plan's half):
+    a footage cache not filled yet, a shared folder or a ``--data`` folder that lacks them."""
     roots = _roots(plan)
     return [
         a
         for a in sorted(annotations.values(), key=lambda a: a.key)
-        if a.root != "data" and a.root in roots and not a.exclude and not (roots[a.root] / a.clip).exists()
+        if a.root in roots and not a.exclude and _in_split(plan, a.key) and not (roots[a.root] / a.clip).exists()
+    ]
+
+
+def source_sha256(path: str | Path) -> str:
+    """The SHA-256 (hex) of a source clip's bytes; for a folder of frames, of its image files'
+    names and bytes in sorted order. Remembered per process by path, size and modification time."""
+    p = Path(path).resolve()
+    if p.is_dir():
+        files = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in (".png", ".jpg", ".jpeg"))
+        stamp = tuple((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files)
+    else:
+        stat = p.stat()
+        files, stamp = [p], ((p.name, stat.st_size, stat.st_mtime_ns),)
+    return _sha256_of(str(p), stamp, tuple(str(f) for f in files), p.is_dir())
+
+
+@functools.lru_cache(maxsize=1024)
+def _sha256_of(path: str, stamp: tuple[tuple[str, int, int], ...], files: tuple[str, ...], folder: bool) -> str:
+    h = hashlib.sha256()
+    for name in files:
+        if folder:
+            h.update(Path(name).name.encode() + b"\0")
+        with open(name, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+def wrong_clips(plan: ValidationPlan, annotations: dict[str, Annotation]) -> list[Annotation]:
+    """Annotated clip files of the plan's roots (in the plan's half) whose bytes do not hash to
+    their annotated ``sha256``: another clip under the annotated name, which the annotation does not
+    describe. They are left out of the cases (:func:`plan_cases`), and the run names them."""
+    roots = _roots(plan)
+    return [
+        a
+        for a in sorted(annotations.values(), key=lambda a: a.key)
+        if a.sha256
+        and a.root in roots
+        and not a.exclude
+        and _in_split(plan, a.key)
+        and (roots[a.root] / a.clip).is_file()
+        and source_sha256(roots[a.root] / a.clip) != a.sha256.lower()
     ]
 
 
 def plan_cases(plan: ValidationPlan, annotations: dict[str, Annotation] | None = None) -> list[CaseSpec]:
     """The cases of ``plan``: the synthetic grid, then the clips of ``plan.data`` and the annotated
     clips of ``plan.real2`` and ``plan.footage`` (with ``plan.real``), then the planted family
-    (with ``plan.planted``, :func:`planted_cases`)."""
+    (with ``plan.planted``, :func:`planted_cases`). Annotated clips whose bytes are not the
+    annotated ones (:func:`wrong_clips`) are left out of both."""
     cases = _synthetic_cases(plan) if plan.synthetic else []
     if _roots(plan) and (plan.real or plan.planted):
         notes = annotations if annotations is not None else read_annotations()
-        cases += _real_cases(plan, notes) if plan.real else []
-        cases += planted_cases(plan, notes) if plan.planted else []
+        wrong = {a.key for a in wrong_clips(plan, notes)}
+        kept = {k: a for k, a in notes.items() if k not in wrong}  # the annotations that describe their clips
+        real = [c for c in _real_cases(plan, kept) if c.annotation is not None or _key_of(plan, c) not in wrong]
+        cases += real if plan.real else []
+        cases += planted_cases(plan, kept) if plan.planted else []
     return cases
+
+
+def _key_of(plan: ValidationPlan, case: CaseSpec) -> str | None:
+    """The annotation key (``data:REL``) a case of a clip in ``plan.data`` would have."""
+    if plan.data is None or case.source is None:
+        return None
+    return f"data:{Path(case.source).relative_to(plan.data).as_posix()}"
 
 
 def _yes_no(value: str, where: str) -> bool | None:

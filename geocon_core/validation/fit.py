@@ -172,6 +172,25 @@ def _source_note(case: dict[str, Any], by_clip: dict[tuple[str, str], Annotation
     return by_clip.get((str(ann.get("root", "")), str(ann.get("clip", ""))))
 
 
+def _case_status(folder: Path, problems: list[str]) -> dict[str, Any] | None:
+    """The ``case.json`` of a case folder, with its case (a JSON object naming the folder's case);
+    None when there is none (not scored) or, with a line in ``problems``, when it is damaged or
+    another case's."""
+    try:
+        status = json.loads((folder / "case.json").read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        problems.append(f"{folder.name}: its case.json cannot be read ({type(exc).__name__})")
+        return None
+    case = status.get("case") if isinstance(status, dict) else None
+    named_id = case.get("case_id") if isinstance(case, dict) else None
+    if named_id != folder.name:
+        problems.append(f"{folder.name}: its case.json is not this case's (it names {named_id!r})")
+        return None
+    return status
+
+
 def fit_cases(
     cases_dir: Path,
     annotations: dict[str, Annotation],
@@ -185,13 +204,11 @@ def fit_cases(
     with their readings, and one line per case that could not be read."""
     by_clip = {(a.root, a.clip): a for a in annotations.values()}
     folders: list[tuple[Path, Annotation, str]] = []
+    problems: list[str] = []
     for folder in sorted(p for p in cases_dir.iterdir() if p.is_dir()):
-        try:
-            status = json.loads((folder / "case.json").read_text())
-        except (OSError, ValueError):
-            continue
-        case = status.get("case") or {}
-        if status.get("status") != "ok" or case.get("kind") not in ("real", "planted"):
+        status = _case_status(folder, problems)
+        case = {} if status is None else status["case"]
+        if status is None or status.get("status") != "ok" or case.get("kind") not in ("real", "planted"):
             continue
         note = _source_note(case, by_clip)
         if note is None or note.exclude:
@@ -210,7 +227,6 @@ def fit_cases(
             continue  # only non-geometric artifacts: neither broken nor clean
         folders.append((folder, note, group))
     out: list[FitCase] = []
-    problems: list[str] = []
     for i, (folder, note, group) in enumerate(folders):
         try:
             values, before, drift = case_readings(folder, cfg)

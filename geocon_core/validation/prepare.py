@@ -10,6 +10,9 @@ real clip's first ``max_frames`` frames) and a clean re-encode made once per sou
 the kind, severity, seed and frames, the ground truth's format and :func:`plant_code_digest`. Each
 entry's folder name carries a digest of its parameters and of the code that makes it, so a
 changed renderer never reuses a stale clip; an entry is complete when its ``done.json`` exists.
+``done.json`` also keeps the fingerprint of every clip the entry made (:data:`MADE_KEY`), so an
+entry whose ``done.json`` is damaged or whose clip was replaced since is made again, and said so
+(:func:`entry_problem`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .cases import CODEC_CRF, CaseSpec, ValidationPlan
+from .cases import CODEC_CRF, CaseSpec, ValidationPlan, source_sha256
 
 __all__ = [
     "PreparedClip",
@@ -40,6 +43,16 @@ __all__ = [
 
 _DONE = "done.json"
 _FPS = 24.0
+MADE_KEY = "made"
+"""The key of ``done.json`` that maps each clip file or frame folder the entry made (its name in
+the entry's folder) to its :func:`~geocon_core.media.clip_fingerprint`; entries made before it
+was kept have none, and are taken as they are."""
+_NEEDS: dict[str, tuple[str, ...]] = {
+    "synthetic": ("clip_id", "frames", "truth"),
+    "real": ("clip",),
+    "planted": ("source",),
+}
+"""The keys a complete ``done.json`` of each case kind holds (a planted entry holds ``clip`` or ``error``)."""
 
 
 @dataclass(frozen=True)
@@ -82,31 +95,6 @@ def plant_code_digest() -> str:
     return h.hexdigest()[:12]
 
 
-def source_sha256(path: str | Path) -> str:
-    """The SHA-256 (hex) of a source clip's bytes; for a folder of frames, of its image files'
-    names and bytes in sorted order. Remembered per process by path, size and modification time."""
-    p = Path(path).resolve()
-    if p.is_dir():
-        files = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in (".png", ".jpg", ".jpeg"))
-        stamp = tuple((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files)
-    else:
-        stat = p.stat()
-        files, stamp = [p], ((p.name, stat.st_size, stat.st_mtime_ns),)
-    return _sha256_of(str(p), stamp, tuple(str(f) for f in files), p.is_dir())
-
-
-@functools.lru_cache(maxsize=1024)
-def _sha256_of(path: str, stamp: tuple[tuple[str, int, int], ...], files: tuple[str, ...], folder: bool) -> str:
-    h = hashlib.sha256()
-    for name in files:
-        if folder:
-            h.update(Path(name).name.encode() + b"\0")
-        with open(name, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-    return h.hexdigest()
-
-
 def _digest(*parts: object) -> str:
     return hashlib.sha256(json.dumps([str(p) for p in parts]).encode()).hexdigest()[:12]
 
@@ -141,10 +129,47 @@ def _plant_key(case: CaseSpec, plan: ValidationPlan) -> str:
     return f"plant-{stem}-{slug}-{digest}"
 
 
+def _read_done(case: CaseSpec, folder: Path) -> dict:
+    """The ``done.json`` of a cache entry; ValueError (one sentence naming it) when it is missing,
+    not JSON or lacks what an entry of ``case``'s kind holds."""
+    path = folder / _DONE
+    try:
+        done = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path} cannot be read ({type(exc).__name__})") from None
+    if not isinstance(done, dict):
+        raise ValueError(f"{path} is not the record of a finished cache entry (not a JSON object)")
+    needs = _NEEDS[case.kind] + (() if case.kind != "planted" or "error" in done else ("clip",))
+    if any(not isinstance(done.get(k), str) for k in needs):
+        raise ValueError(f"{path} is not the record of a finished cache entry (it lacks {', '.join(needs)})")
+    return done
+
+
+def entry_problem(case: CaseSpec, folder: Path) -> str | None:
+    """What is wrong with the finished cache entry of ``case`` in ``folder``: its ``done.json``
+    damaged, or a clip it made (:data:`MADE_KEY`) replaced or removed since; None when it is
+    whole (or not finished: no ``done.json``)."""
+    from ..media import clip_fingerprint
+
+    if not (folder / _DONE).is_file():
+        return None
+    try:
+        done = _read_done(case, folder)
+    except ValueError as exc:
+        return str(exc)
+    made = done.get(MADE_KEY, {})
+    for name, fingerprint in made.items() if isinstance(made, dict) else ():
+        if clip_fingerprint(folder / name) != fingerprint:
+            state = "was replaced since it was made" if (folder / name).exists() else "is gone"
+            return f"{folder / name} {state}"
+    return None
+
+
 def clip_for(case: CaseSpec, folder: Path) -> PreparedClip:
     """Where the prepared clip of ``case`` lies in its cache folder (see :func:`prepare_case`).
-    ValueError (one sentence) for a planted case whose clip could not be planted."""
-    done = json.loads((folder / _DONE).read_text())
+    ValueError (one sentence) for a planted case whose clip could not be planted, or an entry whose
+    ``done.json`` is damaged."""
+    done = _read_done(case, folder)
     if case.kind == "planted":
         if done.get("error"):
             raise ValueError(f"could not be planted: {done['error']}")
@@ -157,11 +182,24 @@ def clip_for(case: CaseSpec, folder: Path) -> PreparedClip:
     return PreparedClip(folder / f"{done['clip_id']}.{case.codec}.mp4", truth)
 
 
-def prepare_case(case: CaseSpec, plan: ValidationPlan, cache: Path, code: str, codecs: tuple[str, ...]) -> Path:
+def prepare_case(
+    case: CaseSpec,
+    plan: ValidationPlan,
+    cache: Path,
+    code: str,
+    codecs: tuple[str, ...],
+    remade: list[str] | None = None,
+) -> Path:
     """Make the clip of ``case`` (and, for a synthetic scene, its encodings for every codec in
-    ``codecs``) in ``cache`` unless it is there; returns its folder."""
+    ``codecs``) in ``cache`` unless it is there; returns its folder. An entry that is there but not
+    whole (:func:`entry_problem`) is made again, and ``remade`` (when given) hears what was wrong."""
+    from ..media import clip_fingerprint
+
     folder = cache / prepare_key(case, plan, code)
-    if not (folder / _DONE).is_file():
+    problem = entry_problem(case, folder)
+    if problem is not None and remade is not None:
+        remade.append(problem)
+    if problem is not None or not (folder / _DONE).is_file():
         tmp = folder.with_name(folder.name + ".part")
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
@@ -171,11 +209,14 @@ def prepare_case(case: CaseSpec, plan: ValidationPlan, cache: Path, code: str, c
         else:
             done = _plant(case, plan, tmp) if case.kind == "planted" else _cut(case, plan, tmp, folder)
         done["seconds"] = round(time.perf_counter() - start, 3)
+        named = {"frames", *(done[k] for k in ("frames", "clip", "truth") if isinstance(done.get(k), str))}
+        made = sorted(n for n in named if "/" not in n and (tmp / n).exists())  # the files it made, by name
+        done[MADE_KEY] = {name: clip_fingerprint(tmp / name) for name in made}
         (tmp / _DONE).write_text(json.dumps(done, indent=1) + "\n")
         shutil.rmtree(folder, ignore_errors=True)
         tmp.rename(folder)
     if case.kind == "synthetic":
-        _encode(folder, codecs, _FPS)
+        _encode(folder, codecs, _FPS, remade)
     return folder
 
 
@@ -220,15 +261,23 @@ def _plant(case: CaseSpec, plan: ValidationPlan, out: Path) -> dict:
     return {"clip": result.planted.name, "truth": result.ground_truth.name, "source": str(src)}
 
 
-def _encode(folder: Path, codecs: tuple[str, ...], fps: float) -> None:
-    """Encode a rendered scene's PNG frames as H.264 at each CRF of ``codecs`` that is missing."""
-    from ..media import Mp4Writer
+def _encode(folder: Path, codecs: tuple[str, ...], fps: float, remade: list[str] | None = None) -> None:
+    """Encode a rendered scene's PNG frames as H.264 at each CRF of ``codecs`` that is missing, or
+    that was replaced since it was encoded (its fingerprint in ``done.json``; ``remade`` hears of it)."""
+    from ..media import Mp4Writer, clip_fingerprint
 
     done = json.loads((folder / _DONE).read_text())
     frames = sorted((folder / done["frames"]).glob("*.png"))
+    made = done.setdefault(MADE_KEY, {})
     for codec in codecs:
         target = folder / f"{done['clip_id']}.{codec}.mp4"
-        if codec not in CODEC_CRF or target.is_file():
+        if codec not in CODEC_CRF:
+            continue
+        if target.is_file() and target.name in made and clip_fingerprint(target) != made[target.name]:
+            if remade is not None:
+                remade.append(f"{target} was replaced since it was made")
+            target.unlink()
+        if target.is_file():
             continue
         h, w = _imread(frames[0]).shape[:2]
         tmp = target.with_name(f".{target.name}.part")
@@ -236,6 +285,10 @@ def _encode(folder: Path, codecs: tuple[str, ...], fps: float) -> None:
             for f in frames:
                 writer.write(np.ascontiguousarray(_imread(f)[..., ::-1]))
         tmp.replace(target)
+        made[target.name] = clip_fingerprint(target)
+        part = folder / f".{_DONE}.part"
+        part.write_text(json.dumps(done, indent=1) + "\n")
+        part.replace(folder / _DONE)
 
 
 def _cut(case: CaseSpec, plan: ValidationPlan, out: Path, final: Path) -> dict:

@@ -13,11 +13,13 @@ from typing import Any
 from ..config import ScoreConfig, config_hash
 from ..files import commit_together, part_path
 from ..intervals import RESAMPLES, SEED
-from .cases import Annotation, ValidationPlan, plan_cases
+from ..record import RecordError
+from ..signals import configured_model
+from .cases import Annotation, ValidationPlan, missing_clips, plan_cases, read_annotations, wrong_clips
 from .metrics import MetricRow, auc_text, compute_metrics, share_text
 from .planted import PlantedSummary, planted_markdown, planted_summary
 from .results import CaseResult, case_result
-from .runner import Progress, case_folder, run_cases
+from .runner import Progress, case_folder, named, run_cases
 
 __all__ = [
     "INTERVALS_NOTE",
@@ -61,6 +63,10 @@ class ValidationReport:
     plan: ValidationPlan
     planned: int = 0
     planted: PlantedSummary | None = None
+    notes: tuple[str, ...] = ()
+    """What the run left out or did again, one sentence each with the count and what to do:
+    annotated clips missing from their folder or of other bytes than annotated, cache entries made
+    again, cases scored again (or left out) because what was saved for them could not stand for them."""
 
 
 def format_value(row: MetricRow) -> str:
@@ -96,12 +102,35 @@ def run_validation(
     ``peer`` every annotated clip is also scored by the peer (:mod:`.peer`) for the AUC rows."""
     start = time.perf_counter()
     out_dir = Path(out)
+    configured_model(config.signals)  # the clip model that decides the verdicts, before any work
     cases = plan_cases(plan, annotations)
+    notes = _clip_notes(plan, annotations)
     made: set[str] = set()
     scored = run_cases(
-        cases, plan, config, out_dir, cache, jobs=jobs, progress=progress, score=score, peer=peer, made=made
+        cases,
+        plan,
+        config,
+        out_dir,
+        cache,
+        jobs=jobs,
+        progress=progress,
+        score=score,
+        peer=peer,
+        made=made,
+        notes=notes,
     )
-    rows = tuple(case_result(s, case_folder(out_dir, c), c) for c, s in scored)
+    results, unread = [], []
+    for c, s in scored:
+        try:
+            results.append(case_result(s, case_folder(out_dir, c), c))
+        except RecordError as exc:  # damaged since it was checked: named, not a traceback
+            unread.append(f"{c.case_id}: {str(exc).removesuffix(': score the clip again')}")
+    if unread:
+        notes.append(
+            f"{len(unread)} case(s) are left out of the report, their record unreadable (run again to score them "
+            f"anew): {named(unread)}"
+        )
+    rows = tuple(results)
     report = ValidationReport(
         metrics=tuple(compute_metrics(list(rows))),
         cases=rows,
@@ -112,9 +141,46 @@ def run_validation(
         plan=plan,
         planned=len(cases),
         planted=planted_summary(rows, cases, plan, Path(cache), made),
+        notes=tuple(notes),
     )
     write_report(report, out_dir)
     return report
+
+
+_WHERE_TO_PUT = {
+    "data": "copy them into --data, or give the --data folder that holds them",
+    "real2": "copy them into --real2",
+    "footage": "fill the footage cache with `geocon footage fill --from DIR` (`geocon footage status` lists them)",
+}
+"""What to do about annotated clips missing from each root (:data:`~.cases.ROOTS`)."""
+_ROOT_WORDS = {"data": "--data", "real2": "--real2", "footage": "the footage cache"}
+"""How a sentence names each root."""
+
+
+def _clip_notes(plan: ValidationPlan, annotations: dict[str, Annotation] | None) -> list[str]:
+    """The sentences naming the annotated clips a run cannot score: missing from their root
+    (:func:`~.cases.missing_clips`) or of other bytes than annotated (:func:`~.cases.wrong_clips`)."""
+    given = {"data": plan.data, "real2": plan.real2, "footage": plan.footage}
+    roots = {root: path for root, path in given.items() if path is not None}
+    if not roots or not (plan.real or plan.planted):
+        return []
+    notes_in = annotations if annotations is not None else read_annotations()
+    said = []
+    missing = missing_clips(plan, notes_in)
+    for root in sorted({a.root for a in missing}):
+        gone = [a.clip for a in missing if a.root == root]
+        said.append(
+            f"{len(gone)} annotated clip(s) are not scored: not found in {_ROOT_WORDS[root]} {roots[root]}; "
+            f"{_WHERE_TO_PUT[root]}: {named(gone)}"
+        )
+    wrong = wrong_clips(plan, notes_in)
+    if wrong:
+        said.append(
+            f"{len(wrong)} annotated clip(s) are not scored: their bytes do not hash to the annotated SHA-256, so "
+            "they are not the clips the annotations describe; put the annotated files back (`geocon footage "
+            f"status` checks the footage cache): {named([str(roots[a.root] / a.clip) for a in wrong])}"
+        )
+    return said
 
 
 def _fmt(value: Any, spec: str) -> str:
@@ -256,6 +322,7 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         "",
         *(planted_markdown(report.planted) if report.planted is not None else []),
         *_exceptions(report.cases),
+        *(["## Left out or done again", "", *[f"- {n}" for n in report.notes], ""] if report.notes else []),
         "## Cases",
         "",
         *_md_table(_CASE_COLUMNS, [_case_cells(r) for r in report.cases]),
@@ -275,6 +342,7 @@ def write_report(report: ValidationReport, out: Path) -> tuple[Path, Path]:
         "metrics": [asdict(m) for m in report.metrics],
         "planted": None if report.planted is None else asdict(report.planted),
         "cases": [asdict(r) for r in report.cases],
+        "notes": list(report.notes),
     }
     try:
         md_part.write_text("\n".join(lines))

@@ -45,22 +45,25 @@ def case_folder(out: Path, case: CaseSpec) -> Path:
     return out / CASES_DIR / case.case_id
 
 
-def _prepare_one(case: CaseSpec, plan: ValidationPlan, cache: str, code: str) -> tuple[str, bool]:
-    """Worker: prepare one cache entry; returns its folder and whether this call made it (False:
-    it was in the cache)."""
+def _prepare_one(case: CaseSpec, plan: ValidationPlan, cache: str, code: str) -> tuple[str, bool, list[str]]:
+    """Worker: prepare one cache entry; returns its folder, whether this call made it (False: it
+    was in the cache) and what was wrong with an entry it made again (:func:`~.prepare.entry_problem`)."""
     import cv2
 
     from .prepare import prepare_key
 
     cv2.setNumThreads(1)
     made = not (Path(cache) / prepare_key(case, plan, code) / "done.json").is_file()
-    return str(prepare_case(case, plan, Path(cache), code, plan.codecs)), made
+    remade: list[str] = []
+    folder = prepare_case(case, plan, Path(cache), code, plan.codecs, remade)
+    return str(folder), made or bool(remade), remade
 
 
 def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], folder: str, threads: int) -> dict:
     """Worker: score one case into ``folder`` and write its ``case.json``."""
     import cv2
 
+    from ..media import clip_fingerprint
     from ..record import write_record
     from ..scoring import score_clip
 
@@ -80,6 +83,8 @@ def _score_one(case: CaseSpec, cache_folder: str, cfg_dict: dict[str, Any], fold
     try:
         prepared = clip_for(case, Path(cache_folder))
         status.update(clip=str(prepared.clip), truth=None if prepared.truth is None else str(prepared.truth))
+        if case.source is not None:  # the bytes it was made from: a replaced source is seen (case_problem)
+            status["source_fingerprint"] = clip_fingerprint(Path(case.source))
         labels: list[np.ndarray | None] = []
         keep = (
             None
@@ -186,6 +191,47 @@ def _saved_status(folder: Path, clip: Path | str | None) -> dict | None:
     return status if (folder / "record.json").is_file() else None
 
 
+def case_problem(folder: Path, case: CaseSpec, clip: Path | None) -> str | None:
+    """Why what is saved in a case's folder cannot stand for ``case``, in one sentence: its
+    ``case.json`` damaged or another case's, its record damaged or another record's
+    (:func:`~geocon_core.record.record_problem`), its source clip replaced since (its
+    ``source_fingerprint``), or scored from other bytes than ``clip`` (the same path) holds now.
+    None when it can, or when nothing finished is saved (no ``case.json``, a failed case: scored
+    again as any unfinished case is)."""
+    from ..media import clip_fingerprint
+    from ..record import read_record_json, record_problem
+
+    file = folder / CASE_FILE
+    if not file.exists():
+        return None
+    try:
+        status = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        return f"{file} is damaged ({type(exc).__name__})"
+    if not isinstance(status, dict):
+        return f"{file} is damaged (not a JSON object)"
+    if status.get("status") != "ok":
+        return None
+    saved_case = status.get("case")
+    other = saved_case.get("case_id") if isinstance(saved_case, dict) else None
+    if other != case.case_id:
+        return f"{file} is that of {'the case ' + repr(other) if other else 'no case'}, not of {case.case_id}"
+    problem = record_problem(folder)
+    if problem is not None:
+        return problem.removesuffix(": score the clip again")
+    source = status.get("source_fingerprint")
+    if case.source is not None and isinstance(source, str) and clip_fingerprint(Path(case.source)) != source:
+        return f"its clip {case.source} changed since it was scored (other bytes under the same name)"
+    if clip is None or status.get("clip") != str(clip):  # another clip path: prepared anew, not replaced
+        return None
+    video = read_record_json(folder)[1].get("video")
+    saved = video.get("fingerprint") if isinstance(video, dict) else None
+    now = clip_fingerprint(Path(clip))
+    if isinstance(saved, str) and now is not None and saved != now:
+        return f"{folder / 'record.json'} was scored from other bytes than {clip} holds now"
+    return None
+
+
 def _same_clip(before: Any, clip: Path) -> bool:
     """Whether the clip at ``before`` (a path, or nothing) is still there and holds the bytes of ``clip``."""
     from ..media import clip_fingerprint
@@ -262,6 +308,64 @@ def _unique_prepares(cases: Iterable[CaseSpec], plan: ValidationPlan, code: str)
     return keys
 
 
+def _saved(
+    case: CaseSpec, cache_entry: str | None, folder: Path, digest: str, score: bool, unfit: list[tuple[str, str]]
+) -> dict[str, Any] | None:
+    """The saved status of ``case`` when it was scored earlier with the configuration ``digest``
+    from the clip its cache entry holds now (any clip when the entry is not there and nothing is
+    scored), else None (it is to be scored). What was saved but cannot stand for the case
+    (:func:`case_problem`) goes to ``unfit``, and when scoring, its ``case.json`` goes, so the case
+    is scored from its clip and nothing of it is read again."""
+    clip = None
+    if cache_entry is not None:
+        try:
+            clip = clip_for(case, Path(cache_entry)).clip
+        except ValueError:  # not planted: scored (as failed, with the reason) again
+            clip = None
+    problem = case_problem(folder, case, clip)
+    if problem is not None:
+        unfit.append((case.case_id, problem))
+        if score:
+            (folder / CASE_FILE).unlink()
+        return None
+    if cache_entry is not None:
+        return None if clip is None else _finished(folder, digest, clip)
+    if not score:  # a report of what was scored: the record counts whichever clip cache made it
+        return _finished(folder, digest, None)
+    return None
+
+
+NAMED = 5
+"""A note of the run names up to this many cases or clips (and counts the rest)."""
+
+
+def named(items: list[str], most: int = NAMED) -> str:
+    """``items`` joined for a sentence, the first ``most`` of them and how many more."""
+    more = len(items) - most
+    return "; ".join(items[:most]) + (f"; and {more} more" if more > 0 else "")
+
+
+def _run_notes(remade: list[str], unfit: list[tuple[str, str]], cache: Path, score: bool) -> list[str]:
+    """The sentences of :func:`run_cases`'s ``notes``."""
+    said = []
+    if remade:
+        said.append(
+            f"{len(remade)} clip(s) in the cache {cache} were not as they were made, and were made again (nothing to "
+            f"do): {named(remade)}"
+        )
+    if unfit and score:
+        said.append(
+            f"{len(unfit)} case(s) were scored again, as what was saved for them could not stand for them: "
+            + named([f"{case_id}: {why}" for case_id, why in unfit])
+        )
+    elif unfit:
+        said.append(
+            f"{len(unfit)} case(s) are left out of this report, as what was saved for them cannot stand for them "
+            f"(run without --report-only to score them again): " + named([f"{c}: {why}" for c, why in unfit])
+        )
+    return said
+
+
 def run_cases(
     cases: list[CaseSpec],
     plan: ValidationPlan,
@@ -274,13 +378,17 @@ def run_cases(
     score: bool = True,
     peer: bool = True,
     made: set[str] | None = None,
+    notes: list[str] | None = None,
 ) -> list[tuple[CaseSpec, dict[str, Any]]]:
     """Prepare and score ``cases``; returns each case with its status (``case.json``), in case
     order. With ``score=False`` nothing is prepared or scored: only the cases finished earlier
     are returned (the report of an interrupted run). With ``peer`` (and ``score``), every scored
     annotated clip and planted case also gets the peer's keep rate (``peer.json``, phase
     ``peer``), once per clip. ``made``, when given, receives the cache keys (:func:`~.prepare.prepare_key`)
-    this call rendered; the others were reused from the cache."""
+    this call rendered; the others were reused from the cache. ``notes``, when given, hears in one
+    sentence each what the run did not take as it found it: cache entries made again
+    (:func:`~.prepare.entry_problem`), cases scored again, or (``score=False``) left out, because
+    what was saved for them cannot stand for them (:func:`case_problem`)."""
     out_dir, cache_dir = Path(out), Path(cache)
     code = code_digest()
     from .prepare import prepare_key
@@ -288,9 +396,11 @@ def run_cases(
     unique = _unique_prepares(cases, plan, code)
     keys = list(unique)
     folders: dict[str, str] = {}
+    remade: list[str] = []
 
-    def prepared(i: int, result: tuple[str, bool]) -> None:
+    def prepared(i: int, result: tuple[str, bool, list[str]]) -> None:
         folders[keys[i]] = result[0]
+        remade.extend(result[2])
         if result[1] and made is not None:
             made.add(keys[i])
         if progress is not None:
@@ -304,20 +414,14 @@ def run_cases(
         folders = {k: str(cache_dir / k) for k in keys if (cache_dir / k / "done.json").is_file()}
 
     digest = config_hash(config)
-    statuses: list[dict[str, Any] | None] = [None] * len(cases)
-    todo: list[int] = []
-    for i, case in enumerate(cases):
-        folder = folders.get(prepare_key(case, plan, code))
-        if folder is not None:
-            try:
-                clip = clip_for(case, Path(folder)).clip
-            except ValueError:  # not planted: scored (as failed, with the reason) again
-                clip = None
-            statuses[i] = None if clip is None else _finished(case_folder(out_dir, case), digest, clip)
-        elif not score:  # a report of what was scored: the record counts whichever clip cache made it
-            statuses[i] = _finished(case_folder(out_dir, case), digest, None)
-        if statuses[i] is None and score:
-            todo.append(i)
+    unfit: list[tuple[str, str]] = []  # (case id, why its saved record cannot stand for it)
+    statuses = [
+        _saved(case, folders.get(prepare_key(case, plan, code)), case_folder(out_dir, case), digest, score, unfit)
+        for case in cases
+    ]
+    todo = [i for i, status in enumerate(statuses) if status is None] if score else []
+    if notes is not None:
+        notes += _run_notes(remade, unfit, cache_dir, score)
     done = len(cases) - len(todo)
     threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
 

@@ -38,7 +38,7 @@ from geocon_core.media import DEFAULT_FPS
 from geocon_core.record import ClipRecord, RecordError, read_overlays, read_record
 from geocon_core.results import BROKEN, ResultsError, ResultsIndex, TriageRow
 from geocon_core.scoring import ClipVerdict, Thresholds, pair_inliers
-from geocon_core.signals import MAP_NAMES
+from geocon_core.signals import MAP_NAMES, ClipModelError
 
 from ..capture import check_bind
 from ..rerun import evidence
@@ -251,7 +251,7 @@ class AuditApp(AuditPanels, ServedApp):
                 return
             try:
                 record = read_record(clip.folder)
-            except RecordError as exc:  # listed as broken from now on, with the reason; the list follows
+            except (RecordError, ClipModelError) as exc:  # listed as broken from now on, with the reason
                 self.index.mark_broken(clip_id, str(exc))
                 self.refresh()
                 return

@@ -502,6 +502,7 @@ def clip_card(view: ClipView, v: ClipVerdict, clip: ResultClip, th: Thresholds, 
         + (f" · {clip.prompt}" if clip.prompt else ""),
         "",
         f"**{finding.verdict}** (clip score {fmt(finding.clip_score, '.2f')}, 0 sound .. 1 broken): {finding.reason}",
+        *([] if rec.model_note() is None else ["", f"⚠ This record was {rec.model_note()}."]),
         *why,
         "",
         f"**Background {state}** the report gate: model **{v.model}**, IR **{fmt(v.ir)}** "

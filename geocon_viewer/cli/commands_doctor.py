@@ -42,6 +42,9 @@ class Check:
     usable: bool
     detail: str
     required: bool = False
+    problem: str = ""
+    """What is wrong, in a few words, for a required part that is not usable (said in the sentence
+    doctor fails with); empty: its name says it."""
 
 
 SCORE_PACKAGES = ("numpy", "opencv-python-headless", "av", "POT", "pycolmap", "scipy")
@@ -154,6 +157,7 @@ def checks() -> list[Check]:
             else "pycolmap is missing: pip install 'pycolmap==4.2.*'",
             required=True,
         ),
+        _clip_model(),
         Check("features", "sift, sift_octaves, orb, klt, klt_tracks", True, f"OpenCV {cv}"),
         Check("flow", "dis", True, f"OpenCV {cv} (default, no weights)"),
         Check(
@@ -208,6 +212,25 @@ def checks() -> list[Check]:
     )
     out_checks.append(Check("machine", "cores", True, f"{os.cpu_count()} CPU cores"))
     return out_checks
+
+
+def _clip_model() -> Check:
+    """Whether the clip model every preset decides with (:mod:`geocon_core.signals.model`) is there,
+    readable, and the model of the digest the presets pin."""
+    from geocon_core.config import PRESETS
+    from geocon_core.signals import ClipModelError, ClipModelMismatch, load_clip_model, model_path
+
+    name = "clip model (the audit verdict)"
+    pins = sorted({(cfg.signals.model, cfg.signals.model_sha256) for _, cfg in PRESETS.values()})
+    try:
+        models = [(load_clip_model(model, digest), model) for model, digest in pins]
+    except ClipModelMismatch as exc:
+        problem = f"{exc.path} has digest {exc.found}, the presets pin {exc.pinned}"
+        return Check("core", name, False, str(exc), required=True, problem=problem)
+    except ClipModelError as exc:
+        return Check("core", name, False, str(exc), required=True, problem=exc.problem)
+    shown = ", ".join(f"digest {m.digest()} ({len(m.terms)} readings, {model_path(model)})" for m, model in models)
+    return Check("core", name, True, f"{shown}, as the presets pin", required=True)
 
 
 def _unmet(torch_ok: bool, torch_text: str, modules: tuple[str, ...], install: str) -> str | None:
@@ -314,6 +337,6 @@ def doctor() -> None:
         table.add_row(c.group, c.name, usable, escape(c.detail))  # "geocon[bench]" is not markup
     out.print(table)
     _print_versions()
-    broken = [c.name for c in found if c.required and not c.usable]
+    broken = [c.name + (f": {c.problem}" if c.problem else "") for c in found if c.required and not c.usable]
     if broken:
-        raise fail(f"the core install is incomplete ({', '.join(broken)}): reinstall geocon")
+        raise fail(f"the core install is incomplete ({'; '.join(broken)}): reinstall geocon")

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Callable, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 import geocon_core
@@ -140,6 +141,8 @@ def _why_row(record: ClipRecord) -> str:
         shown = "-" if value is None else f"{value:.3g}"
         colour = "red" if part > 0.005 else ("green" if part < -0.005 else "dim")
         cells.append(f"[{colour}]{part:+.2f}[/] {READING_LABELS.get(name, name)} ({shown})")
+    if record.other_model() is not None:  # its own model's base is not here: the contributions it was made with
+        return "   ".join(cells)
     signals = record.config.signals
     base = load_clip_model(signals.model, signals.model_sha256).intercept
     total = base + sum(part for _, part in f.parts)
@@ -206,6 +209,8 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
             f"GE {fmt(shot.ge, '.2f')} px   {state}",
         )
     table.add_row("verdict", _verdict_row(record))
+    if record.model_note() is not None:
+        table.add_row("clip model", f"[yellow]{escape(str(record.model_note()))}[/]")
     why = _why_row(record)
     if why:
         table.add_row("why this score", why)
@@ -437,6 +442,8 @@ def score(
 ) -> None:
     """Score a clip: translation gate (H/F), background inlier ratio (IR) and geometric error
     (GE) per frame pair and scale, the report verdict; writes the audit record."""
+    from geocon_core.signals import configured_model
+
     target = out_dir or default_out(clip)
     sam2 = masks is not None and masks.strip().lower() == "sam2"
     if masks is not None and sam2 and sam2_checkpoint is None and Path(masks).exists():
@@ -460,6 +467,7 @@ def score(
             sam2_size=sam2_size,
         )
         cfg = _pose_settings(cfg, pose, pose_log, dust3r_checkpoint, dust3r_path)
+        configured_model(cfg.signals)  # a clip model file that cannot be used, before any work
         check_inputs(target, pose_log=pose_log, masks=mask_path, rrd=rrd, clip=clip)
     except ValueError as exc:
         raise fail(str(exc)) from None

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from .console import MAX_FRAMES, fail, out, progress_bar
@@ -219,6 +220,7 @@ def validate(
     with injected failures, and the real clips in --data against the project's annotations; prints
     one table and writes validation.md and validation.json into --out."""
     from geocon_core.config import DEFAULT_PRESET, preset
+    from geocon_core.signals import configured_model
     from geocon_core.validation import DEFAULT_FOOTAGE, QUICK, ValidationPlan, read_annotations
 
     try:
@@ -254,6 +256,7 @@ def validate(
         )
         notes = read_annotations(annotations) if annotations is not None else read_annotations()
         _check_outputs(out_dir, cache, plan, annotations, footage_from, fit=fit)
+        configured_model(cfg.signals)  # the clip model that decides the verdicts, before any work
     except (ValueError, OSError) as exc:
         raise fail(str(exc)) from None
     if roots and not data.is_dir():
@@ -261,8 +264,6 @@ def validate(
         raise fail(f"{data}: no such folder of real clips (give --data, or {leave})")
     if roots and footage_from is not None:
         _fill(notes, cache_dir, footage_from)
-    if roots:
-        _say_missing(plan, notes)
     if fit:
         _fit([out_dir, *(fit_with or [])], cfg, notes, annotations, fit_l2)
         return
@@ -278,6 +279,8 @@ def validate(
             "--cache, --seed and grid match the run that scored it)"
         )
     print_report(report)
+    for sentence in report.notes:
+        out.print(f"[yellow]note:[/] {escape(sentence)}", soft_wrap=True, highlight=False)
     out.print(f"report: {out_dir / 'validation.md'} and {out_dir / 'validation.json'}; records in {out_dir / 'cases'}")
     out.print(f"this run took {_minutes(took)} with {jobs} worker process{'es' if jobs > 1 else ''}")
 
@@ -389,18 +392,6 @@ _REPORT_FILES = (("validation.md", "markdown"), ("validation.json", "json:geocon
 GeoCon's own earlier one (:func:`geocon_core.files.claim`)."""
 _FIT_FILES = (("clip_model.json", "json:geocon-clip-model"), ("fit.md", "markdown"))
 """The files ``geocon validate --fit`` writes at the top of ``--out`` (instead of the report)."""
-
-
-def _say_missing(plan: ValidationPlan, notes: dict[str, Annotation]) -> None:
-    from geocon_core.validation import missing_clips
-
-    missing = missing_clips(plan, notes)
-    if missing:
-        where = sorted({a.root for a in missing})
-        out.print(
-            f"[yellow]{len(missing)} annotated clips are not scored: not found in {', '.join(where)}[/] "
-            f"(fill the footage cache with `geocon footage fill --from DIR`; `geocon footage status` lists them)"
-        )
 
 
 def _fill(notes: dict[str, Annotation], cache: Path, sources: Path, option: str = "--footage-from") -> None:

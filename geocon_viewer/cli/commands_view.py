@@ -205,6 +205,8 @@ def view(
         read_overlays(folder, record)  # and overlays of another record, or outside its frames
     except ValueError as exc:  # a RecordError, or the overlays'
         raise fail(str(exc)) from None
+    if record.model_note() is not None:
+        err.print(f"note: {folder / 'record.json'} was {record.model_note()}", soft_wrap=True, highlight=False)
     n = record.video.num_frames
     if at is not None and at >= n:
         raise fail(f"--at {at} is past the last frame of {record.clip}: it has {n} frames (0 to {n - 1})")
@@ -308,6 +310,7 @@ def serve(
         except OutPathError as exc:
             raise fail(str(exc)) from None
     from geocon_core.results import ResultsError, ResultsIndex
+    from geocon_core.signals import load_clip_model
 
     from ..audit import AuditApp
     from ..rerun import quiet_encoder_logs
@@ -317,6 +320,8 @@ def serve(
     start = time.perf_counter()
     try:
         index = ResultsIndex.open(results)
+        if any(c.finding is not None for c in index.clips):  # the clip model decides them: its file is usable
+            load_clip_model()
         if clip is not None and clip not in index.by_id:  # before the server starts
             ids = sorted(index.by_id)
             named = ", ".join(ids[:5]) + (f" and {len(ids) - 5} more" if len(ids) > 5 else "")

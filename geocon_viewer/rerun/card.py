@@ -122,6 +122,7 @@ def audit_card(record: ClipRecord) -> str:
         "",
         f"**Finding: {finding.verdict}** (clip score {fmt(finding.clip_score, '.2f')}, 0 sound .. 1 broken): "
         f"{finding.reason}",
+        *([] if record.model_note() is None else ["", f"⚠ This record was {record.model_note()}."]),
         *why_lines(record),
         "",
         f"**Verdict: background {verdict}** — model {bg.model}, IR {fmt(bg.ir, '.3f')} (gate >= {cfg.ir_gate:g}), "
