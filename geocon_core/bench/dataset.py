@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from ..files import MANIFEST, SIDECAR, FileKind, ReadRefused, read_text, special_file
 from ..media import ClipError, check_clip
 from .layout import MANIFEST_NAME as RESULTS_MANIFEST  # marks a results folder of `geocon bench`
 
@@ -117,6 +118,13 @@ _ID_RULE = (
 )
 NAME_MAX = 255
 """Bytes in a file name on common file systems; a sidecar's name is kept within it."""
+MAX_FIELD_CHARS = 65_536
+"""A field of a clip's metadata (a prompt, a path, an extra column) or a column's name holds at
+most this many characters (the longest prompts of today's generators hold a few thousand): a
+longer one is refused with its file and line, before anything is checked or shown."""
+MAX_ROW_CHARS = 1 << 20
+"""A line of a manifest (a CSV row, a JSONL object) holds at most this many characters."""
+_SHORTEN = f"shorten its fields (each holds at most {MAX_FIELD_CHARS} characters)"
 LAYOUTS = ("sidecars", "manifest", "folder")
 """How a dataset describes its clips: a sidecar per clip, one manifest, or nothing but the files."""
 MANIFEST_NAMES = ("manifest.csv", "manifest.jsonl")
@@ -281,13 +289,34 @@ def _find_video(sidecar: Path, meta: dict[str, Any]) -> Path | None:
     stem = sidecar.name[: -len(".meta.json")]
     for suffix in VIDEO_SUFFIXES:
         cand = sidecar.parent / f"{stem}{suffix}"
-        if cand.is_file():
+        if cand.exists() and not cand.is_dir():  # a FIFO or a device is the clip meant, refused when checked
             return cand
     folder = sidecar.parent / stem
     return folder if folder.is_dir() else None
 
 
+def _long_fields(where: str, meta: dict[str, Any]) -> list[str]:
+    """The problems of a sidecar's or a manifest row's fields (names and text values) longer than
+    :data:`MAX_FIELD_CHARS`."""
+    problems = []
+    for key, value in meta.items():
+        if len(str(key)) > MAX_FIELD_CHARS:
+            problems.append(
+                f"{where}: a field name of {len(str(key))} characters ({str(key)[:20]}...) is longer than the "
+                f"{MAX_FIELD_CHARS} characters a field of a clip may hold"
+            )
+        elif isinstance(value, str) and len(value) > MAX_FIELD_CHARS:
+            problems.append(
+                f"{where}: {key} holds {len(value)} characters, more than the {MAX_FIELD_CHARS} a field of a clip may "
+                "hold; shorten it"
+            )
+    return problems
+
+
 def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
+    long = _long_fields(name, meta)
+    if long:
+        return long
     problems = []
     missing = [k for k in REQUIRED_FIELDS if k not in meta]
     if missing:
@@ -328,26 +357,18 @@ def _field_problems(name: str, meta: dict[str, Any]) -> list[str]:
     return problems
 
 
-def _read_text(path: Path, name: str, what: str) -> tuple[str | None, str]:
-    """The text of a sidecar or a manifest at ``path`` (``name``: how problems name it; ``what``:
-    what it should be, for a folder in its place), a byte-order mark dropped; or None and the
-    problem: a folder or a link to nothing in its place, or bytes that are not UTF-8 text."""
+def _read_text(path: Path, name: str, kind: FileKind, what: str) -> tuple[str | None, str]:
+    """The text of a sidecar or a manifest at ``path`` (``name``: how problems name it; ``kind``:
+    its size bound; ``what``: what it should be, for a folder in its place), a byte-order mark
+    dropped (:func:`geocon_core.files.read_text`: a regular file no larger than the bound of its
+    kind); or None and the problem: a folder, a FIFO or a device or a link to nothing in its place,
+    a file past the bound, or bytes that are not UTF-8 text."""
     try:
-        data = path.read_bytes()
-    except IsADirectoryError:
-        return None, f"{name}: is a folder, not {what}; rename it"
-    except FileNotFoundError:
-        if path.is_symlink():
-            return None, f"{name}: is a link to nothing ({os.readlink(path)})"
-        return None, f"{name}: does not exist"
-    except OSError as exc:
-        return None, f"{name}: cannot be read ({exc.strerror or exc})"
-    try:
-        return data.decode("utf-8-sig"), ""
-    except UnicodeDecodeError as exc:
-        utf16 = data[:2] in (b"\xff\xfe", b"\xfe\xff")
-        found = "UTF-16 text" if utf16 else f"UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})"
-        return None, f"{name}: is {found if utf16 else 'not ' + found}; save it as UTF-8"
+        return read_text(path, kind, name), ""
+    except ReadRefused as exc:
+        if exc.reason == "folder":
+            return None, f"{name}: is a folder, not {what}; rename it"
+        return None, str(exc)
 
 
 def _read_sidecar(sidecar: Path, name: str) -> tuple[dict[str, Any] | None, str]:
@@ -355,7 +376,10 @@ def _read_sidecar(sidecar: Path, name: str) -> tuple[dict[str, Any] | None, str]
     from ..files import strict_json
 
     text, problem = _read_text(
-        sidecar, name, "a sidecar file (every *.meta.json below the dataset folder is read as a clip's sidecar)"
+        sidecar,
+        name,
+        SIDECAR,
+        "a sidecar file (every *.meta.json below the dataset folder is read as a clip's sidecar)",
     )
     if text is None:
         return None, problem
@@ -531,6 +555,11 @@ def _jsonl_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]],
         if not line.strip():
             continue
         where = f"{name} line {n}"
+        if len(line) > MAX_ROW_CHARS:
+            problems.append(
+                f"{where}: holds {len(line)} characters, more than the {MAX_ROW_CHARS} a row may hold; {_SHORTEN}"
+            )
+            continue
         try:
             row = strict_json(line, where, constants=False)
         except json.JSONDecodeError as exc:
@@ -552,13 +581,24 @@ def _csv_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], l
     that is never closed (it would swallow the rows after it into one cell) or text after a
     closing quote is refused with the line the row starts on, and so is a row that runs over
     several lines (a quoted cell may hold line breaks) but has fewer cells than columns: the mark
-    of a quote closed rows later."""
+    of a quote closed rows later. A line longer than :data:`MAX_ROW_CHARS` is refused before the
+    rows are read."""
+    lines = text.split("\n")  # as the reader counts them
+    long = next((n for n, line in enumerate(lines, 1) if len(line) > MAX_ROW_CHARS), None)
+    if long is not None:
+        held = len(lines[long - 1])
+        return [], [
+            f"{name} line {long}: holds {held} characters, more than the {MAX_ROW_CHARS} a row may hold; {_SHORTEN}"
+        ]
     reader = csv.DictReader(io.StringIO(text), strict=True)
     try:
         fieldnames = reader.fieldnames
     except csv.Error as exc:
-        return [], [f"{name} line 1: not valid CSV ({_csv_reason(exc)})"]
+        return [], [_csv_problem(f"{name} line 1", exc)]
     columns = [c.strip().lower() for c in fieldnames or []]
+    named = _long_fields(f"{name} line 1", dict.fromkeys(columns))
+    if named:
+        return [], named[:1]
     if not any(columns):
         return [], [f"{name}: is empty (expected a header row with a 'path' column, then one row per clip)"]
     if "path" not in columns and "video" not in columns:
@@ -572,7 +612,6 @@ def _csv_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], l
         return [], [f"{name}: column{'s' if len(dups) > 1 else ''} {', '.join(dups)} given twice"]
     reader.fieldnames = columns
     rows, problems = [], []
-    lines = text.split("\n")  # as the reader counts them
     end = reader.line_num  # the last line of the row before
     try:
         for row in reader:
@@ -588,7 +627,7 @@ def _csv_rows(text: str, name: str) -> tuple[list[tuple[str, dict[str, Any]]], l
                 )
             rows.append((where, {k: v for k, v in row.items() if k is not None}))
     except csv.Error as exc:
-        problems.append(f"{name} line {_row_start(lines, end)}: not valid CSV ({_csv_reason(exc)})")
+        problems.append(_csv_problem(f"{name} line {_row_start(lines, end)}", exc))
     return rows, problems
 
 
@@ -611,15 +650,29 @@ def _csv_reason(exc: csv.Error) -> str:
     return msg
 
 
+def _csv_problem(where: str, exc: csv.Error) -> str:
+    """The problem of a CSV error met at ``where`` (a cell past the CSV reader's own bound, which
+    lies above :data:`MAX_FIELD_CHARS`, is named as a field too long)."""
+    if "field larger than field limit" in str(exc):
+        return (
+            f"{where}: a cell holds more than the {MAX_FIELD_CHARS} characters a field of a clip may hold; shorten it"
+        )
+    return f"{where}: not valid CSV ({_csv_reason(exc)})"
+
+
 def _manifest_rows(path: Path, name: str) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
     """``(where, fields)`` per clip of a manifest, the aliases mapped to sidecar fields
     (:data:`_ALIASES`) and empty cells None, and the problems of its form."""
-    text, problem = _read_text(path, name, "a manifest file")
+    text, problem = _read_text(path, name, MANIFEST, "a manifest file")
     if text is None:
         return [], [problem]
     raw, problems = (_jsonl_rows if path.suffix.lower() == ".jsonl" else _csv_rows)(text, name)
     rows = []
     for where, row in raw:
+        long = _long_fields(where, row)
+        if long:
+            problems += long
+            continue
         fields: dict[str, Any] = {}
         for key, value in row.items():
             canon = _ALIASES.get(key, key)
@@ -1025,6 +1078,7 @@ def _from_folder(base: Path, check_clips: bool, progress: Progress | None) -> Da
             [
                 f"{base}: no clips found: no clip metadata (*.meta.json), no {' or '.join(MANIFEST_NAMES)}, and no "
                 f"video files ({', '.join(VIDEO_SUFFIXES)}) or folders of PNG/JPEG frames in it or its sub-folders"
+                + "".join(f" ({n})" for n in notes if n.startswith("skipped"))
             ],
         )
     default = base.resolve().name or "clips"
@@ -1065,9 +1119,12 @@ def scan_dataset(
     bad_roots = [f"--root {r} is not a folder" for r in roots if not Path(r).is_dir()]
     if bad_roots:
         raise DatasetError(base, [f"{bad_roots[0]}; name a folder the dataset's clips lie in"])
-    if base.is_file():
-        if base.suffix.lower() in (".csv", ".jsonl"):
+    if base.exists() and not base.is_dir():
+        if base.suffix.lower() in (".csv", ".jsonl"):  # a FIFO or a device is refused by the bounded reader
             return _from_manifest(base, check_clips, progress, roots)
+        if not base.is_file():
+            kind = special_file(base) or "not a regular file"
+            raise DatasetError(base, [f"{base}: is {kind}, not a dataset folder nor a manifest file (.csv or .jsonl)"])
         if base.suffix.lower() in VIDEO_SUFFIXES:
             one = f"{base}: is one clip, not a dataset: score it with `geocon score {base}`, or give its folder"
             raise DatasetError(base, [one])
@@ -1075,7 +1132,7 @@ def scan_dataset(
     if not base.is_dir():
         raise DatasetError(base, [f"{base}: not a folder"])
     sidecars = sorted(base.rglob("*.meta.json"))
-    manifests = [base / n for n in MANIFEST_NAMES if (base / n).is_file()]
+    manifests = [base / n for n in MANIFEST_NAMES if (base / n).exists() and not (base / n).is_dir()]
     if sidecars:
         ds = _from_sidecars(base, sidecars, check_clips, progress, _allowed_folders(base, roots))
         if manifests:
@@ -1109,7 +1166,7 @@ def sidecar_text(meta: dict[str, Any], *, ascii_only: bool = False) -> str:
 def _sidecar_says(sidecar: Path, meta: dict[str, Any]) -> bool:
     """``sidecar`` exists and holds exactly ``meta`` (read as JSON; nothing to write)."""
     try:
-        return sidecar.is_file() and json.loads(sidecar.read_text(encoding="utf-8")) == meta
+        return sidecar.is_file() and json.loads(read_text(sidecar, SIDECAR)) == meta
     except (OSError, UnicodeError, ValueError, RecursionError):
         return False
 

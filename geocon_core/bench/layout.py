@@ -18,6 +18,8 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
+from ..files import BENCH_MANIFEST, STATUS, ReadRefused, read_bytes, read_text
+
 __all__ = [
     "BENCH_FORMAT",
     "STATUS_FORMAT",
@@ -152,8 +154,8 @@ def read_status(folder: Path) -> dict[str, Any] | None:
     if not path.is_file():
         return None
     try:
-        status = json.loads(path.read_bytes())
-    except (OSError, ValueError):  # not JSON, not UTF-8
+        status = json.loads(read_bytes(path, STATUS))
+    except (OSError, ValueError):  # not JSON, not UTF-8, not a regular file, past its bound
         return None
     whole = (
         isinstance(status, dict)
@@ -172,9 +174,14 @@ def write_status(folder: Path, status: dict[str, Any]) -> None:
 
 
 def read_manifest(results: Path) -> dict[str, Any]:
-    """The parsed ``bench.json``. Raises ``json.JSONDecodeError`` when it is not JSON and
-    ``FileNotFoundError`` when it is missing; the caller checks ``"format"``."""
-    parsed: dict[str, Any] = json.loads(manifest_path(results).read_text())
+    """The parsed ``bench.json``. Raises ``json.JSONDecodeError`` when it is not JSON,
+    ``FileNotFoundError`` when it is missing and :class:`~geocon_core.files.ReadRefused` when it is
+    not a regular file or past :data:`~geocon_core.files.bounded.BENCH_MANIFEST`'s bound; the caller
+    checks ``"format"``."""
+    path = manifest_path(results)
+    if not path.exists():
+        raise FileNotFoundError(2, "No such file or directory", str(path))
+    parsed: dict[str, Any] = json.loads(read_text(path, BENCH_MANIFEST))
     return parsed
 
 
@@ -183,8 +190,12 @@ def checked_manifest(results: Path) -> dict[str, Any]:
     missing and ``ValueError`` (one sentence naming it, for the caller to add what to do) when it is
     not a GeoCon benchmark manifest: not UTF-8 JSON, not an object, or of another format."""
     path = manifest_path(results)
+    if not path.exists():
+        raise FileNotFoundError(2, "No such file or directory", str(path))
     try:
-        parsed = json.loads(path.read_bytes())
+        parsed = json.loads(read_bytes(path, BENCH_MANIFEST))
+    except ReadRefused as exc:  # a FIFO, a device, past the bound
+        why = exc.why
     except UnicodeDecodeError:
         why = "not UTF-8 text"
     except json.JSONDecodeError as exc:

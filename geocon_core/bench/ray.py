@@ -217,21 +217,39 @@ def _connect(ray, options: RayOptions) -> tuple[bool, subprocess.Popen | None]:
 
 
 PROBE_S = 5.0
-"""Seconds :func:`_probe` waits for a cluster's head to answer (Ray itself retries for minutes)."""
+"""Seconds :func:`_probe` waits for a cluster's head to accept a connection and answer as the
+gRPC (HTTP/2) server it is (Ray itself retries for minutes, also on a port that accepts and never
+answers)."""
+
+
+def _answer(host: str, port: int) -> str | None:
+    """None when the head at ``host``:``port`` answers as a gRPC server within :data:`PROBE_S`
+    (on any of the host's addresses), else why not in words."""
+    from ..files import http2_answer, resolve
+
+    found = resolve(host, port, PROBE_S)
+    if isinstance(found, str):
+        return found
+    why = "no address"
+    for family, sockaddr in found:
+        why = http2_answer(family, sockaddr, PROBE_S) or ""
+        if not why:
+            return None
+    return why
 
 
 def _probe(address: str) -> None:
-    """Refuse at once an address ``HOST:PORT`` where nothing answers (``auto`` and ``ray://``
-    client addresses are left to Ray)."""
-    if address == "auto" or "://" in address:
+    """Refuse at once an address ``HOST:PORT`` where nothing answers as a Ray head does, within
+    :data:`PROBE_S` (:func:`geocon_core.files.answers.http2_answer`): a head's GCS ``HOST:PORT`` and
+    a Ray client's ``ray://HOST:PORT`` both speak gRPC; ``auto`` is left to Ray."""
+    target = address.removeprefix("ray://")
+    if address == "auto" or "://" in target:
         return
-    host, sep, port = address.rpartition(":")
+    host, sep, port = target.rpartition(":")
     if not sep or not port.isdigit() or not host:
         raise BenchError(f"--ray-address {address}: expected HOST:PORT, as `ray start --head` prints it")
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_S).close()
-    except OSError as exc:
-        why = "timed out" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+    why = _answer(host.strip("[]"), int(port))
+    if why is not None:
         raise BenchError(
             f"--ray-address {address}: no Ray cluster answers there ({why}); start one with `ray start --head` "
             "and pass the address it prints"

@@ -31,6 +31,8 @@ from ..config import ScoreConfig, config_hash
 from ..files import (
     FolderLock,
     LockHeld,
+    NotALockFile,
+    check_lock_path,
     check_out_dir,
     clear_stale_parts,
     die_with_parent,
@@ -123,7 +125,7 @@ def _prepare_results(
 
     manifest = manifest_path(results)
     digest = config_hash(cfg)
-    if manifest.is_file():
+    if manifest.exists():  # a FIFO or a device in its place is refused by checked_manifest
         try:
             old = checked_manifest(results)
         except ValueError as exc:
@@ -242,6 +244,9 @@ def run_bench(
         lock.acquire()
     except LockHeld as held:
         raise BenchError(_busy(out, held)) from None
+    except NotALockFile as exc:
+        _remove_if_empty(out, created)
+        raise BenchError(str(exc)) from None
     except BaseException:
         _remove_if_empty(out, created)
         raise
@@ -316,9 +321,10 @@ def _check_out(out: Path, cfg: ScoreConfig) -> None:
     try:
         check_out_dir(out)
         check_output_kind(out, "results")
+        check_lock_path(lock_path(out))
     except ValueError as exc:
         raise BenchError(str(exc)) from None
-    if manifest_path(out).is_file():
+    if manifest_path(out).exists():
         try:
             old = checked_manifest(out)
         except ValueError as exc:

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 from typing import Any, Collection
 
+from ..files import PARQUET_TABLE, ReadRefused, regular_file
 from ..record import ClipRecord, read_record
 from ..scoring import sensitivity_scan, timeline_rows, window_t_inf
 from .dataset import expected_model
@@ -370,7 +371,7 @@ def read_tables(results: str | Path) -> dict[str, Any]:
     import pandas as pd
 
     folder = tables_dir(Path(results))
-    missing = [n for n in TABLES if not (folder / f"{n}.parquet").is_file()]
+    missing = [n for n in TABLES if not (folder / f"{n}.parquet").exists()]
     if missing:
         raise FileNotFoundError(
             f"{folder}: missing {', '.join(f'{n}.parquet' for n in missing)}; run `geocon bench` first"
@@ -378,6 +379,12 @@ def read_tables(results: str | Path) -> dict[str, Any]:
     tables = {}
     for name in TABLES:
         path = folder / f"{name}.parquet"
+        try:
+            regular_file(path, PARQUET_TABLE)  # a FIFO or a device is never opened
+        except ReadRefused as exc:
+            raise ValueError(
+                f"{path} is {exc.why}; run the same `geocon bench` command again, which writes the tables anew"
+            ) from None
         try:
             tables[name] = pd.read_parquet(path)
         except (OSError, ValueError) as exc:  # pyarrow's errors of a damaged file are both

@@ -7,12 +7,46 @@ every writer: only its own files, replaced only by its own kind for the same inp
 :mod:`.lockfile` (one writer per results folder), :mod:`.procs` (worker processes that do not
 outlive their parent), :mod:`.alloc` (the C allocator of a long scoring process), :mod:`.jsonin`
 (strict JSON for sidecars and pose logs), :mod:`.npz` (the errors a damaged archive raises, and
-what a file that is none is) and :mod:`.checkpoint` (the one reader of user-given network weights).
+what a file that is none is), :mod:`.checkpoint` (the one reader of user-given network weights),
+:mod:`.bounded` (every file read where a file is expected: regular files only, sizes bounded before
+reading, one bound per kind of file) and :mod:`.answers` (servers outside that must answer within a
+time bound).
 """
 
 from __future__ import annotations
 
 from .alloc import ARENAS, MMAP_THRESHOLD, tune_allocator
+from .answers import HTTP2_PREFACE, http2_answer, resolve
+from .bounded import (
+    ANNOTATIONS,
+    BENCH_MANIFEST,
+    CLIP,
+    CLIP_MODEL,
+    COLMAP_TEXT,
+    FRAME_IMAGE,
+    GROUND_TRUTH,
+    LOCK_FILE,
+    MANIFEST,
+    MASKS_ARCHIVE,
+    MATCHES,
+    OVERLAY_IMAGE,
+    OVERLAYS_INDEX,
+    PARQUET_TABLE,
+    POSE_LOG,
+    POSE_SCENE,
+    RECORD_JSON,
+    RECORDING,
+    SIDECAR,
+    SMALL_STATE,
+    STATUS,
+    FileKind,
+    ReadRefused,
+    byte_size,
+    open_regular,
+    read_bytes,
+    read_text,
+    regular_file,
+)
 from .checkpoint import (
     read_checkpoint_file,
 )
@@ -24,6 +58,8 @@ from .jsonin import (
 from .lockfile import (
     FolderLock,
     LockHeld,
+    NotALockFile,
+    check_lock_path,
     lock_holder,
 )
 from .npz import (
@@ -100,6 +136,8 @@ __all__ = [
     "special_file",
     "FolderLock",
     "LockHeld",
+    "NotALockFile",
+    "check_lock_path",
     "lock_holder",
     "MAX_NUMBER_CHARS",
     "strict_json",
@@ -117,4 +155,35 @@ __all__ = [
     "folders_above",
     "held",
     "stamp_png",
+    "HTTP2_PREFACE",
+    "http2_answer",
+    "resolve",
+    "ANNOTATIONS",
+    "BENCH_MANIFEST",
+    "CLIP",
+    "CLIP_MODEL",
+    "COLMAP_TEXT",
+    "FRAME_IMAGE",
+    "GROUND_TRUTH",
+    "LOCK_FILE",
+    "MANIFEST",
+    "MASKS_ARCHIVE",
+    "MATCHES",
+    "OVERLAY_IMAGE",
+    "OVERLAYS_INDEX",
+    "PARQUET_TABLE",
+    "POSE_LOG",
+    "POSE_SCENE",
+    "RECORD_JSON",
+    "RECORDING",
+    "SIDECAR",
+    "SMALL_STATE",
+    "STATUS",
+    "FileKind",
+    "ReadRefused",
+    "byte_size",
+    "open_regular",
+    "read_bytes",
+    "read_text",
+    "regular_file",
 ]

@@ -14,13 +14,15 @@ import fcntl
 import json
 import os
 import socket
+import stat
 import time
 from pathlib import Path
 from types import TracebackType
 
+from .bounded import LOCK_FILE, read_text
 from .procs import pid_alive
 
-__all__ = ["FolderLock", "LockHeld", "lock_holder"]
+__all__ = ["FolderLock", "LockHeld", "NotALockFile", "check_lock_path", "lock_holder"]
 
 
 class LockHeld(Exception):
@@ -29,6 +31,41 @@ class LockHeld(Exception):
     def __init__(self, path: Path, pid: int | None, host: str | None) -> None:
         super().__init__(f"{path} is held by PID {pid} on {host}")
         self.path, self.pid, self.host = path, pid, host
+
+
+class NotALockFile(ValueError):
+    """The lock file's path holds something GeoCon never made there: a link, a folder, a FIFO or
+    a device (opened, a FIFO blocks and a link would have another file truncated)."""
+
+
+_OPEN_FLAGS = os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK
+"""How a lock file is opened: never through a link, never blocking on a FIFO."""
+
+
+def check_lock_path(path: Path) -> None:
+    """Raise :class:`NotALockFile` when something is at ``path`` that is not a regular file (a link
+    too, followed nowhere): checked before a command starts, as :meth:`FolderLock.acquire` checks it
+    again on the file it opens."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(mode):
+        what = "a link" if stat.S_ISLNK(mode) else "not a regular file"
+        raise NotALockFile(
+            f"{path} is {what}, so it is not GeoCon's lock file: remove it (a running geocon bench keeps its lock "
+            "there)"
+        )
+
+
+def _check_node(path: Path, fd: int) -> None:
+    """Raise :class:`NotALockFile` (closing ``fd``) when ``fd`` is not a regular file."""
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise NotALockFile(
+            f"{path} is not a regular file, so it is not GeoCon's lock file: remove it (a running geocon bench keeps "
+            "its lock there)"
+        )
 
 
 class FolderLock:
@@ -49,7 +86,17 @@ class FolderLock:
     def acquire(self) -> None:
         """Take the lock or raise :class:`LockHeld`."""
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | _OPEN_FLAGS, 0o644)
+            except OSError as exc:
+                if exc.errno not in (errno.ELOOP, errno.EISDIR, errno.ENXIO):  # a link, a folder, a socket
+                    raise
+                raise NotALockFile(
+                    f"{self.path} is a link, a folder or a socket, so it is not GeoCon's lock file: remove it (a "
+                    "running geocon bench keeps its lock there)"
+                ) from None
+            _check_node(self.path, fd)
+            os.set_blocking(fd, True)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -93,7 +140,7 @@ class FolderLock:
         deadline = time.monotonic() + wait_s
         while True:
             try:
-                info = json.loads(self.path.read_text())
+                info = json.loads(read_text(self.path, LOCK_FILE))
                 return int(info["pid"]), str(info["host"])
             except (OSError, ValueError, KeyError, TypeError):
                 if time.monotonic() >= deadline:
@@ -117,8 +164,11 @@ def lock_holder(path: Path) -> LockHeld | None:
     ``flock`` is tried and dropped at once. On a file system without ``flock`` the file's PID
     decides, as in :meth:`FolderLock.acquire`."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        fd = os.open(path, os.O_RDONLY | _OPEN_FLAGS)
     except OSError:
+        return None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):  # a FIFO or a device: no process holds it
+        os.close(fd)
         return None
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)

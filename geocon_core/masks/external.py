@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..files import NPZ_ERRORS
+from ..files import FRAME_IMAGE, MASKS_ARCHIVE, NPZ_ERRORS, regular_file
 from ..media import ClipInfo, Frame, imread_any, native_path
 from .base import MAX_ID, Coverage, labels_to_canvas
 
@@ -27,7 +27,9 @@ _LAYOUTS = (
 def _frame_files(folder: Path, num_frames: int, what: str) -> list[Path]:
     """The PNGs of ``folder`` in frame order, checked to be numbered consecutively from 0 or 1
     and to be exactly ``num_frames``."""
-    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() == ".png"]
+    files = [p for p in folder.iterdir() if p.suffix.lower() == ".png"]
+    for p in files:  # a FIFO, a device or a folder named as a mask: refused, never skipped (nor opened)
+        regular_file(p, FRAME_IMAGE)
     numbered: dict[int, Path] = {}
     for p in files:
         m = _DIGITS.search(p.stem)
@@ -84,6 +86,7 @@ def _read_palette_png(path: Path) -> np.ndarray | None:
 
 
 def _read_png(path: Path) -> np.ndarray:
+    regular_file(path, FRAME_IMAGE)  # a FIFO or a device is never opened, a file past the bound never read
     if _is_palette_png(path):
         ids = _read_palette_png(path)
         if ids is None:
@@ -167,6 +170,8 @@ def check_masks_path(path: str | Path) -> str:
     p = Path(path)
     if not p.exists():
         raise ValueError(f"{p}: masks path does not exist")
+    if not p.is_dir():  # a FIFO, a device or an archive past its bound is refused unread
+        regular_file(p, MASKS_ARCHIVE)
     if p.is_file():
         if p.suffix.lower() != ".npz":
             raise ValueError(f"{p}: not a masks layout; {_LAYOUTS}")
@@ -174,7 +179,7 @@ def check_masks_path(path: str | Path) -> str:
         return "npz"
     if not p.is_dir():
         raise ValueError(f"{p}: not a masks layout; {_LAYOUTS}")
-    pngs = sorted(c for c in p.iterdir() if c.is_file() and c.suffix.lower() == ".png")
+    pngs = sorted(c for c in p.iterdir() if c.suffix.lower() == ".png" and not c.is_dir())
     if pngs:
         _read_png(pngs[0])
         return "label_images"

@@ -110,10 +110,14 @@ _PNG_END = b"IEND\xaeB`\x82"
 
 def imread_any(path: str | Path, flags: int = cv2.IMREAD_COLOR) -> np.ndarray | None:
     """``cv2.imread`` for any file name (the bytes are read by Python, decoded by OpenCV); None
-    when the file cannot be read or decoded. A PNG cut short (no ``IEND`` chunk at its end) is None
+    when the file cannot be read or decoded: a FIFO, a device or a file past
+    :data:`~geocon_core.files.bounded.FRAME_IMAGE`'s bound is not read at all
+    (:func:`~geocon_core.files.read_bytes`). A PNG cut short (no ``IEND`` chunk at its end) is None
     without being handed to libpng, which would print its own error on the terminal."""
+    from ..files import FRAME_IMAGE, read_bytes
+
     try:
-        data = np.fromfile(os.fspath(path), dtype=np.uint8)
+        data = np.frombuffer(read_bytes(path, FRAME_IMAGE), dtype=np.uint8)
         if data[:8].tobytes() == _PNG_SIGNATURE and data[-12:].tobytes()[4:] != _PNG_END:
             return None
         return cv2.imdecode(data, flags) if data.size else None
@@ -261,6 +265,7 @@ def _frame_files(folder: Path, name: str) -> list[Path]:
             "hold image files only, so move it out"
         )
     files.sort(key=_natural_key)
+    _check_frame_sizes(files, name)
     twice = _twice(files)
     if twice is not None:
         a, b = twice
@@ -269,6 +274,19 @@ def _frame_files(folder: Path, name: str) -> list[Path]:
             "a file manager's copy): a folder of frames holds one file per frame, so move one of them out"
         )
     return files
+
+
+def _check_frame_sizes(files: Sequence[Path], name: str) -> None:
+    """Refuse a frame file larger than :data:`~geocon_core.files.bounded.FRAME_IMAGE`'s bound
+    (read whole to be decoded, it would fill the memory; no frame of a clip is that large)."""
+    from ..files import FRAME_IMAGE, ReadRefused, regular_file
+
+    for t, f in enumerate(files):
+        try:
+            regular_file(f, FRAME_IMAGE)
+        except ReadRefused as exc:
+            if exc.reason == "size":
+                raise ClipError(f"{f}: is {exc.why} (frame {t} of {name}); check that it is a frame") from None
 
 
 _COPY_NAME = re.compile(r"(.+?)(?: \(\d+\)| copy(?: \d+)?| - copy(?: \(\d+\))?)", re.IGNORECASE)

@@ -58,6 +58,7 @@ from .decode import (
     ClipKind,
     FrameCount,
     Frames,
+    _entry_kind,
     container_frame_count,
     frame_number_gaps,
     gif_cut,
@@ -388,7 +389,10 @@ def clip_fingerprint(path: Path) -> str | None:
     """``size:sha256`` of a clip: its byte count and a hash of its first and last
     :data:`FINGERPRINT_BYTES` (a folder: its file names and sizes, and its first and last files
     likewise). Cheap on any size, and different for another clip of the same name. None when the
-    clip cannot be read."""
+    clip cannot be read, or is a FIFO, a device or a socket (never opened:
+    :func:`~geocon_core.files.open_regular`)."""
+    from ..files import CLIP, ReadRefused, open_regular
+
     h = hashlib.sha256()
     try:
         if path.is_dir():
@@ -401,13 +405,13 @@ def clip_fingerprint(path: Path) -> str | None:
         else:
             parts, total = [path], path.stat().st_size
         for part in parts:
-            with open(part, "rb") as fh:
+            with open_regular(part, CLIP) as fh:
                 h.update(fh.read(FINGERPRINT_BYTES))
                 size = os.fstat(fh.fileno()).st_size
                 if size > FINGERPRINT_BYTES:
                     fh.seek(max(FINGERPRINT_BYTES, size - FINGERPRINT_BYTES))
                     h.update(fh.read())
-    except (OSError, ClipError):
+    except (OSError, ClipError, ReadRefused):
         return None
     return f"{total}:{h.hexdigest()}"
 
@@ -433,6 +437,11 @@ def locate_clip(info: ClipInfo, record_dir: str | Path) -> ClipInfo:
     for cand in candidates:
         if cand in seen or not cand.exists():
             continue
+        if not cand.is_file() and not cand.is_dir():  # read, a FIFO would block and a device never end
+            raise ClipError(
+                f"{cand}: is {_entry_kind(cand)}, not a clip file, where this record's clip was; put the clip back "
+                "as a file"
+            )
         seen.append(cand)
         if info.fingerprint is None or clip_fingerprint(cand) == info.fingerprint:
             return replace(info, path=str(cand))

@@ -31,6 +31,8 @@ from typing import Any, Callable, Iterator, Mapping
 import numpy as np
 
 from ..files import (
+    GROUND_TRUTH,
+    ReadRefused,
     check_apart,
     check_out_dir,
     check_targets,
@@ -39,6 +41,7 @@ from ..files import (
     held,
     parents_made,
     part_path,
+    read_text,
     replace_file,
 )
 from .encode import MATCH_FRAMES, decode_planes, file_sha256, match_quality, plane_writer, probe_source
@@ -408,7 +411,9 @@ def read_plant_truth(path: str | Path) -> dict[str, Any]:
     """The ground truth of a planted clip (its ``.gt.json``). Raises ValueError when the file is not one."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_text(path, GROUND_TRUTH))  # a regular file within its bound
+    except ReadRefused as exc:
+        raise ValueError(f"{path}: cannot be read as a planted clip's ground truth ({exc.why})") from None
     except (OSError, UnicodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: cannot be read as a planted clip's ground truth ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != PLANT_FORMAT:

@@ -30,7 +30,18 @@ from typing import Any
 
 import numpy as np
 
-from ..files import NPZ_ERRORS, npz_problem, parents_made, part_path, replace_file
+from ..files import (
+    COLMAP_TEXT,
+    NPZ_ERRORS,
+    POSE_SCENE,
+    ReadRefused,
+    npz_problem,
+    parents_made,
+    part_path,
+    read_text,
+    regular_file,
+    replace_file,
+)
 from .log import POSE_LOG_FORMAT, PoseLog
 
 __all__ = ["from_colmap", "from_dust3r", "write_pose_log", "rotation_from_quaternion"]
@@ -52,12 +63,16 @@ def _lines(path: Path, keep_empty: bool = False) -> list[str]:
     """The data lines of a COLMAP text file (comments dropped; empty lines kept with
     ``keep_empty``, as images.txt needs: an image without 2D points has an empty second line,
     the last one too)."""
-    if not path.is_file():
+    if not path.exists():
         raise ValueError(f"{path} does not exist (a COLMAP text model holds cameras.txt, images.txt, points3D.txt)")
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} cannot be read as text ({type(exc).__name__})") from None
+        text = read_text(path, COLMAP_TEXT)  # a regular file within its bound, or refused unread
+    except ReadRefused as exc:
+        if exc.reason == "encoding":
+            raise ValueError(f"{path} cannot be read as text (UnicodeDecodeError)") from None
+        raise ValueError(
+            f"{path} is {exc.why} (a COLMAP text model holds cameras.txt, images.txt, points3D.txt)"
+        ) from None
     lines = [line for line in text.splitlines() if not line.lstrip().startswith("#")]
     return lines if keep_empty else [line for line in lines if line.strip()]
 
@@ -143,8 +158,9 @@ def from_dust3r(path: str | Path) -> dict[str, Any]:
     """The pose log of a DUSt3R scene saved as an ``.npz`` (see the module docstring): the first
     and the last camera of ``poses``."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise ValueError(f"{p} does not exist (an .npz with DUSt3R's poses and pts3d)")
+    regular_file(p, POSE_SCENE)  # a FIFO, a device or a scene past its bound is refused unread
     problem = npz_problem(p)
     if problem is not None:
         raise ValueError(

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from ..files import strict_json
+from ..files import POSE_LOG, ReadRefused, read_bytes, strict_json
 from ..geometry import rotation_angle_deg
 from .base import PoseEstimate, check_inputs, failure, focal_of
 
@@ -54,7 +54,7 @@ POSE_LOG_FORMAT = "geocon-pose/1"
 MAX_T_UNIT = 1000.0
 """Largest translation (in mean scene distances) a pose log may give; the gate's band is at
 0.03-0.05, so a larger value can only come from a wrong scale or unit."""
-MAX_POSE_LOG_BYTES = 1 << 20
+MAX_POSE_LOG_BYTES = POSE_LOG.limit
 """A pose log is a few hundred bytes; a larger file is refused before it is parsed."""
 _SYNTH_GT_FORMAT = "geocon-synth-gt/1"
 _ROT_TOL = 1e-6
@@ -96,11 +96,15 @@ def _read_json(path: Path) -> Any:
     if not path.is_file():
         raise ValueError(f"pose log {where} is not a file (a geocon-pose/1 JSON file is expected)")
     try:
-        if path.stat().st_size > MAX_POSE_LOG_BYTES:
-            raise ValueError(
-                f"pose log {where} is larger than {MAX_POSE_LOG_BYTES} bytes; a pose log is a small JSON file"
-            )
-        return strict_json(path.read_bytes().decode("utf-8"), f"pose log {where}")
+        try:
+            raw = read_bytes(path, POSE_LOG)  # a regular file within its bound, or refused unread
+        except ReadRefused as exc:
+            if exc.reason == "size":
+                raise ValueError(
+                    f"pose log {where} is larger than {MAX_POSE_LOG_BYTES} bytes; a pose log is a small JSON file"
+                ) from None
+            raise ValueError(f"pose log {where} is {exc.why} (a geocon-pose/1 JSON file is expected)") from None
+        return strict_json(raw.decode("utf-8"), f"pose log {where}")
     except UnicodeDecodeError:
         raise ValueError(f"pose log {where} is not UTF-8 text (a geocon-pose/1 JSON file is expected)") from None
     except json.JSONDecodeError as e:

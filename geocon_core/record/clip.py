@@ -28,7 +28,7 @@ import numpy as np
 
 from .._version import __version__
 from ..config import ScoreConfig
-from ..files import NPZ_ERRORS
+from ..files import MATCHES, NPZ_ERRORS, RECORD_JSON, ReadRefused, open_regular, read_bytes
 from ..media import MAX_FPS, ClipInfo
 from ..reconstruction import ARRAY_NAMES as MV_ARRAYS
 from ..reconstruction import DenseCloud, MultiViewResult, WindowCloud
@@ -76,7 +76,7 @@ __all__ = [
 RECORD_FORMAT = "geocon-record/1"
 """The ``format`` field of ``record.json``; a record of another format is refused."""
 
-MAX_RECORD_JSON_BYTES = 512 * 1024 * 1024
+MAX_RECORD_JSON_BYTES = RECORD_JSON.limit
 """The largest ``record.json`` :func:`read_record_json` parses: 512 MiB. A record holds about
 350 bytes per scored (pair, scale), so an hour of 30 fps video under the ``strict`` preset (gaps
 1, 4, 8 at three scales) stays below ~350 MB; a larger file is not a record GeoCon wrote, and
@@ -547,21 +547,18 @@ def read_record_json(path: str | Path) -> tuple[Path, dict[str, Any]]:
     p = Path(path)
     folder = p if p.is_dir() else p.parent
     file = folder / "record.json"
-    limit = MAX_RECORD_JSON_BYTES
-    too_large = f"{file} is larger than {limit // 2**20} MiB, far more than a GeoCon record: refusing to parse it"
+    mib = MAX_RECORD_JSON_BYTES // 2**20
+    too_large = f"{file} is larger than {mib} MiB, far more than a GeoCon record: refusing to parse it"
     try:
-        if file.stat().st_size > limit:
-            raise RecordError(too_large)
-        if not file.is_file():  # a pipe or a device would block or never end
-            raise RecordError(f"{file} is not a regular file: give a record folder from `geocon score --out`")
-        with file.open("rb") as f:
-            raw = f.read(limit + 1)  # bounded even when the size above was not the real one (a pipe)
-    except FileNotFoundError:
-        raise RecordError(f"{file} does not exist: give a record folder from `geocon score --out`") from None
-    except OSError as exc:
-        raise RecordError(f"{file} could not be read ({exc.strerror or exc})") from None
-    if len(raw) > limit:
-        raise RecordError(too_large)
+        raw = read_bytes(file, RECORD_JSON)  # a regular file, bounded even when its size is not the real one
+    except ReadRefused as exc:
+        if exc.reason == "size":
+            raise RecordError(too_large) from None
+        if exc.reason == "missing" and not file.is_symlink():
+            raise RecordError(f"{file} does not exist: give a record folder from `geocon score --out`") from None
+        if exc.reason in ("special", "folder"):  # a pipe or a device would block or never end
+            raise RecordError(f"{file} is {exc.why}: give a record folder from `geocon score --out`") from None
+        raise RecordError(str(exc)) from None
     try:
         d = json.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
@@ -610,20 +607,23 @@ def read_matches(folder: str | Path, names: Iterable[str], optional: Iterable[st
     names, optional = tuple(names), tuple(optional)
     name: str | None = None
     try:
-        loaded = np.load(path, allow_pickle=False)
-        if not isinstance(loaded, np.lib.npyio.NpzFile):
-            raise RecordError(f"{path} is not a readable .npz archive (a single .npy array): {_CORRUPT}")
-        with loaded as z:
-            missing = [n for n in names if n not in z.files]
-            if missing:
-                lacks = ", ".join(missing)
-                raise RecordError(f"{path} is not a readable .npz archive (it lacks {lacks}): {_CORRUPT}")
-            out = {}
-            for name in (*names, *(n for n in optional if n in z.files)):
-                out[name] = z[name]
-            return out
-    except FileNotFoundError:
-        raise RecordError(f"{path} does not exist (the record is incomplete): {_CORRUPT}") from None
+        with open_regular(path, MATCHES) as fh:  # a FIFO or a device is refused unopened
+            loaded = np.load(fh, allow_pickle=False)
+            if not isinstance(loaded, np.lib.npyio.NpzFile):
+                raise RecordError(f"{path} is not a readable .npz archive (a single .npy array): {_CORRUPT}")
+            with loaded as z:
+                missing = [n for n in names if n not in z.files]
+                if missing:
+                    lacks = ", ".join(missing)
+                    raise RecordError(f"{path} is not a readable .npz archive (it lacks {lacks}): {_CORRUPT}")
+                out = {}
+                for name in (*names, *(n for n in optional if n in z.files)):
+                    out[name] = z[name]
+                return out
+    except ReadRefused as exc:
+        if exc.reason == "missing":
+            raise RecordError(f"{path} does not exist (the record is incomplete): {_CORRUPT}") from None
+        raise RecordError(f"{path} is {exc.why}: {_CORRUPT}" if exc.reason != "size" else str(exc)) from None
     except RecordError:
         raise
     except NPZ_ERRORS as exc:

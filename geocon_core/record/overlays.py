@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from ..files import OVERLAY_IMAGE, OVERLAYS_INDEX, ReadRefused, read_bytes, regular_file
 from ..media import Frame, imread_any, imwrite_any
 
 if TYPE_CHECKING:
@@ -263,8 +264,16 @@ class Overlays:
 
     @staticmethod
     def _check_size(path: Path, size: tuple[int, int] | None) -> None:
-        """A PNG whose header states another (w, h) than ``size`` is refused unread (its pixels
-        would be allocated at the stated size)."""
+        """An overlay that is not a regular file (a FIFO would block its reader) or is past
+        :data:`~geocon_core.files.bounded.OVERLAY_IMAGE`'s bound, and a PNG whose header states
+        another (w, h) than ``size``, are refused unread (its pixels would be allocated at the stated
+        size)."""
+        try:
+            regular_file(path, OVERLAY_IMAGE)
+        except ReadRefused as exc:
+            if exc.reason == "missing":
+                raise _missing(path) from None
+            raise ValueError(f"{path} is {exc.why}: the record was edited or damaged; score the clip again") from None
         if size is None:
             return
         try:
@@ -285,7 +294,7 @@ def _missing(path: Path) -> ValueError:
     return ValueError(f"{path}: an overlay of this record is missing or unreadable; score the clip again")
 
 
-MAX_INDEX_BYTES = 64 << 20
+MAX_INDEX_BYTES = OVERLAYS_INDEX.limit
 """An overlays index larger than this is refused unread (a long clip's index is a few MB)."""
 
 
@@ -300,9 +309,15 @@ def read_overlays(record_dir: str | Path, record: ClipRecord | None = None) -> O
     if not index.exists():
         return None
     try:
-        if index.stat().st_size > MAX_INDEX_BYTES:
-            raise ValueError(f"{index}: larger than {MAX_INDEX_BYTES >> 20} MB; not a GeoCon overlays index")
-        d = json.loads(index.read_bytes().decode("utf-8"))
+        try:
+            raw = read_bytes(index, OVERLAYS_INDEX)  # a regular file within its bound, or refused unread
+        except ReadRefused as exc:
+            if exc.reason == "size":
+                raise ValueError(
+                    f"{index}: larger than {MAX_INDEX_BYTES >> 20} MB; not a GeoCon overlays index"
+                ) from None
+            raise ValueError(f"{index}: {exc.why}; score the clip again") from None
+        d = json.loads(raw.decode("utf-8"))
         if not isinstance(d, dict) or d.get("format") != OVERLAYS_FORMAT:
             fmt = d.get("format") if isinstance(d, dict) else None
             raise ValueError(f"{index}: not GeoCon overlays (format {fmt!r}, expected {OVERLAYS_FORMAT!r})")

@@ -286,7 +286,7 @@ def _read_results(base: Path, target: Path, option: str) -> tuple[dict[str, Any]
     if not base.is_dir():
         raise ReportError(f"{base} is a file, not a results folder written by `geocon bench`")
     manifest = base / "bench.json"
-    if not manifest.is_file():
+    if not manifest.exists():  # a FIFO or a device in its place is refused by checked_manifest, naming it
         raise ReportError(f"{base}: no bench.json; not a results folder written by `geocon bench`")
     check_out_dir(target, option)
     if target.is_dir():

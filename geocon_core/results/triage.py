@@ -23,6 +23,7 @@ from typing import Callable, Iterable
 
 from ..bench import BENCH_FORMAT, MANIFEST_NAME, clip_folders, read_manifest, read_status
 from ..config import ScoreConfig
+from ..files import ReadRefused
 from ..geometry import family_spec
 from ..record import RecordError, read_record_json
 from ..scoring import (
@@ -190,9 +191,9 @@ class ResultsIndex:
                 f"{root} is a file, not a folder: give a results folder from `geocon bench` or a record folder from "
                 f"`geocon score --out` (a clip opens with `geocon view {shlex.quote(str(root))}`)"
             )
-        if (root / MANIFEST_NAME).is_file():
+        if (root / MANIFEST_NAME).exists():  # a FIFO or a device in its place is refused, naming it
             return cls._open_bench(root)
-        if (root / "record.json").is_file():
+        if (root / "record.json").exists():  # a FIFO or a device in its place is refused, naming it
             status = {"meta": {"model": "-", "category": None}, "rrd": None}
             try:
                 _, d = read_record_json(root)
@@ -211,6 +212,8 @@ class ResultsIndex:
             manifest = read_manifest(root)
         except json.JSONDecodeError:
             raise ResultsError(f"{root / MANIFEST_NAME} is not valid JSON") from None
+        except ReadRefused as exc:  # a FIFO, a device, past its bound, not UTF-8
+            raise ResultsError(str(exc)) from None
         if manifest.get("format") != BENCH_FORMAT:
             raise ResultsError(
                 f"{root / MANIFEST_NAME} is not a GeoCon benchmark manifest (format {manifest.get('format')!r})"

@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
+from ..files import CLIP_MODEL, ReadRefused, read_text
+
 if TYPE_CHECKING:
     from ..config import SignalsConfig
 
@@ -276,7 +278,10 @@ def _load(path: Path) -> ClipModel:
     key = (path, stat.st_size, stat.st_mtime_ns)
     if key not in _LOADED:
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(read_text(path, CLIP_MODEL, f"the clip model {path}"))  # a regular file within its bound
+        except ReadRefused as exc:  # a FIFO or a device (read, it would block or never end), past its bound
+            said = f"the clip model {path} is not JSON ({exc.why})" if exc.reason == "encoding" else str(exc)
+            raise ClipModelError(said) from None
         except FileNotFoundError:
             raise ClipModelError(f"the clip model {path} does not exist") from None
         except OSError as exc:

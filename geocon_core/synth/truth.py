@@ -131,5 +131,8 @@ class GroundTruth:
 
 
 def load_ground_truth(path: str | Path) -> GroundTruth:
-    """Read a ``<clip_id>.gt.json`` file."""
-    return GroundTruth.from_json_dict(json.loads(Path(path).read_text()))
+    """Read a ``<clip_id>.gt.json`` file (a regular file within the bound of
+    :data:`~geocon_core.files.bounded.GROUND_TRUTH`, else :class:`~geocon_core.files.ReadRefused`)."""
+    from ..files import GROUND_TRUTH, read_text
+
+    return GroundTruth.from_json_dict(json.loads(read_text(path, GROUND_TRUTH)))

@@ -323,8 +323,16 @@ _CLIP_SUFFIXES = (".mp4", ".avi", ".mov", ".webm", ".gif", ".mkv", ".m4v")
 def real_clips(data: Path) -> list[Path]:
     """Every clip under ``data``: video files and folders that hold only image frames (at least two),
     in sorted order. Folders that mix frames with other files (still image pairs with their ground
-    truth) are not clips."""
-    clips = [p for p in data.rglob("*") if p.is_file() and p.suffix.lower() in _CLIP_SUFFIXES]
+    truth) are not clips. A FIFO, a device or a socket named as a clip raises ``ValueError`` naming it
+    (read, it would block or never end; left out, its clip would be missing without a word)."""
+    named = [p for p in data.rglob("*") if p.suffix.lower() in _CLIP_SUFFIXES and not p.is_dir()]
+    odd = next((p for p in named if not p.is_file()), None)
+    if odd is not None:
+        from ..files import special_file
+
+        kind = special_file(odd) or ("a link to nothing" if odd.is_symlink() else "not a regular file")
+        raise ValueError(f"{odd} is {kind}, not a clip file, among the real clips of {data}; move it out")
+    clips = [p for p in named if p.is_file()]
     for folder in [data, *(p for p in data.rglob("*") if p.is_dir())]:
         files = [p for p in folder.iterdir() if p.is_file()]
         if len(files) >= 2 and all(p.suffix.lower() in (".png", ".jpg", ".jpeg") for p in files):
@@ -423,7 +431,9 @@ def source_sha256(path: str | Path) -> str:
         files = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in (".png", ".jpg", ".jpeg"))
         stamp = tuple((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files)
     else:
-        stat = p.stat()
+        from ..files import CLIP, regular_file
+
+        stat = regular_file(p, CLIP, str(path))  # a FIFO or a device would block or never end
         files, stamp = [p], ((p.name, stat.st_size, stat.st_mtime_ns),)
     return _sha256_of(str(p), stamp, tuple(str(f) for f in files), p.is_dir())
 
@@ -530,19 +540,16 @@ ANNOTATION_COLUMNS = (
 
 def _annotation_text(p: Path) -> str:
     """The text of the annotation file ``p``; ``ValueError`` with one sentence naming it when it is
-    missing, a folder, unreadable or not UTF-8."""
+    missing, a folder, a FIFO or a device, past the bound of
+    :data:`~geocon_core.files.bounded.ANNOTATIONS`, unreadable or not UTF-8."""
+    from ..files import ANNOTATIONS, ReadRefused, read_text
+
     try:
-        return p.read_bytes().decode("utf-8-sig")
-    except IsADirectoryError:
-        raise ValueError(f"annotation file {p} is a folder; give the annotation CSV") from None
-    except FileNotFoundError:
-        raise ValueError(f"annotation file {p} does not exist") from None
-    except OSError as exc:
-        raise ValueError(f"annotation file {p} cannot be read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(
-            f"annotation file {p} is not UTF-8 text (byte at offset {exc.start}); save it as UTF-8"
-        ) from None
+        return read_text(p, ANNOTATIONS, f"annotation file {p}")  # a regular file within its bound
+    except ReadRefused as exc:
+        if exc.reason == "folder":
+            raise ValueError(f"annotation file {p} is a folder; give the annotation CSV") from None
+        raise
 
 
 def read_annotations(path: str | Path = ANNOTATIONS_PATH) -> dict[str, Annotation]:

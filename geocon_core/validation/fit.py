@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..config import ScoreConfig
+from ..files import ANNOTATIONS, SMALL_STATE, ReadRefused, read_bytes, read_text
 from ..intervals import Interval, auc_interval, paired_auc_difference, wilson_interval
 from ..record import ClipFinding, model_finding
 from ..signals import READING_LABELS, ClipModel, fit_clip_model
@@ -139,7 +140,7 @@ def stored_readings(folder: Path, rec: ClipRecord, cfg: ScoreConfig) -> ClipRead
     key = {"record_id": rec.record_id, "signals": _signals_key(cfg)}
     saved = folder / READINGS_FILE
     try:
-        data = json.loads(saved.read_text())
+        data = json.loads(read_text(saved, SMALL_STATE))
         if data.get("key") == key:
             return ClipReadings.from_json_dict(data["readings"])
     except (OSError, ValueError, KeyError, TypeError):
@@ -177,8 +178,11 @@ def _case_status(folder: Path, problems: list[str]) -> dict[str, Any] | None:
     None when there is none (not scored) or, with a line in ``problems``, when it is damaged or
     another case's."""
     try:
-        status = json.loads((folder / "case.json").read_text(encoding="utf-8"))
-    except FileNotFoundError:
+        status = json.loads(read_text(folder / "case.json", SMALL_STATE))  # a regular file within its bound
+    except ReadRefused as exc:
+        if exc.reason == "missing":
+            return None
+        problems.append(f"{folder.name}: its case.json cannot be read ({exc.why})")
         return None
     except (OSError, ValueError) as exc:
         problems.append(f"{folder.name}: its case.json cannot be read ({type(exc).__name__})")
@@ -312,7 +316,9 @@ def fit_model(
     # (AUC about 0.5 against their clean re-encodes), and fitted beside the annotated clips they
     # only add noise to the broken class (measured: tune AUC 0.72 -> 0.68, artifacts flagged 64% -> 22%)
     tune = [c for c in cases if c.split == "tune" and c.group in FITTED_GROUPS]
-    digest = hashlib.sha256(Path(annotations_path).read_bytes()).hexdigest()[:12]
+    digest = hashlib.sha256(
+        read_bytes(annotations_path, ANNOTATIONS, f"annotation file {annotations_path}")
+    ).hexdigest()[:12]
     model = fit_clip_model(
         [c.values for c in tune],
         [c.broken for c in tune],

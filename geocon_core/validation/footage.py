@@ -104,12 +104,35 @@ def clone_for(repo: str, sources: Path) -> Path | None:
     return None
 
 
+GIT_TIMEOUT_S = 120.0
+"""How long ``git show`` may take to give one file of a local clone (a clip of a few hundred MB
+takes seconds); a git that has not answered by then (a clone on a file system that stopped
+answering, an ``alternates`` file that is a FIFO) is stopped, and the clip is named as not filled."""
+
+
+class GitStuck(RuntimeError):
+    """``git`` did not give a file within :data:`GIT_TIMEOUT_S`, or cannot be run."""
+
+
 def _git_show(clone: Path, commit: str, path: str) -> bytes | None:
-    """The bytes of ``path`` at ``commit`` in ``clone``, or None when the clone lacks either."""
+    """The bytes of ``path`` at ``commit`` in ``clone``, or None when the clone lacks either;
+    :class:`GitStuck` when git does not answer within :data:`GIT_TIMEOUT_S` or is not installed."""
     git_dir = clone / ".git" if (clone / ".git").exists() else clone
-    res = subprocess.run(
-        ["git", f"--git-dir={git_dir}", "show", f"{commit}:{path}"], capture_output=True, check=False, timeout=300
-    )
+    try:
+        res = subprocess.run(
+            ["git", f"--git-dir={git_dir}", "show", f"{commit}:{path}"],
+            capture_output=True,
+            check=False,
+            timeout=GIT_TIMEOUT_S,
+            stdin=subprocess.DEVNULL,
+        )
+    except subprocess.TimeoutExpired:
+        raise GitStuck(
+            f"git did not give {path} of {clone} within {GIT_TIMEOUT_S:g} s (a clone on a file system that stopped "
+            "answering?); it was stopped"
+        ) from None
+    except OSError as exc:
+        raise GitStuck(f"git cannot be run ({exc.strerror or exc}); install git") from None
     return res.stdout if res.returncode == 0 else None
 
 
@@ -140,7 +163,12 @@ def fill_footage(
             hint = f"git clone --bare https://github.com/{a.repo} {sources / f'{owner}+{name}'}"
             out.append(FootageItem(a, "no clone", f"no clone of {a.repo} in {sources} (make one: {hint})"))
             continue
-        data = _git_show(clone, a.commit, a.path)
+        try:
+            data = _git_show(clone, a.commit, a.path)
+            pose = _git_show(clone, a.commit, a.pose_path) if a.pose_file and a.pose_path else None
+        except GitStuck as exc:
+            out.append(FootageItem(a, "not in clone", str(exc)))
+            continue
         if data is None:
             out.append(FootageItem(a, "not in clone", f"{clone} has no {a.path} at {a.commit[:12]}"))
             continue
@@ -148,7 +176,6 @@ def fill_footage(
             out.append(FootageItem(a, "wrong bytes", f"{a.path} at {a.commit[:12]} does not hash as annotated"))
             continue
         if a.pose_file:
-            pose = _git_show(clone, a.commit, a.pose_path) if a.pose_path else None
             if pose is None:
                 out.append(FootageItem(a, "not in clone", f"{clone} has no pose file {a.pose_path!r}"))
                 continue

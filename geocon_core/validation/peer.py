@@ -30,6 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..files import SMALL_STATE, read_text
+
 __all__ = [
     "PEER_NAME",
     "PEER_FILE",
@@ -86,7 +88,7 @@ def read_peer(folder: Path) -> dict | None:
     """The peer's saved score in a case folder (``peer.json``), None when absent, unreadable or
     of another :data:`PEER_VERSION` (then it is computed again)."""
     try:
-        saved = json.loads((folder / PEER_FILE).read_text())
+        saved = json.loads(read_text(folder / PEER_FILE, SMALL_STATE))
     except (OSError, ValueError):
         return None
     return saved if isinstance(saved, dict) and saved.get("version") == PEER_VERSION else None

@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..files import SMALL_STATE, read_text
 from ..intervals import Interval, paired_rate_difference, wilson_interval
 from .cases import PLANT_LEVELS, CaseSpec, ValidationPlan
 from .metrics import MIN_COMPARE, _auc_row, auc_text, difference_text, share_text
@@ -293,7 +294,7 @@ def planted_cache(cases: Iterable[CaseSpec], plan: ValidationPlan, cache: Path, 
         counts[f"{name}reused"] = sum((cache / k / "done.json").is_file() for k in keys[clean] - made)
         for key in rendered:
             try:
-                seconds += float(json.loads((cache / key / "done.json").read_text()).get("seconds", 0.0))
+                seconds += float(json.loads(read_text(cache / key / "done.json", SMALL_STATE)).get("seconds", 0.0))
             except (OSError, ValueError):
                 pass
     return PlantedCache(render_seconds=seconds, **counts)

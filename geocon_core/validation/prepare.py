@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..files import SMALL_STATE, ReadRefused, read_text
 from .cases import CODEC_CRF, CaseSpec, ValidationPlan, source_sha256
 
 __all__ = [
@@ -134,7 +135,9 @@ def _read_done(case: CaseSpec, folder: Path) -> dict:
     not JSON or lacks what an entry of ``case``'s kind holds."""
     path = folder / _DONE
     try:
-        done = json.loads(path.read_text(encoding="utf-8"))
+        done = json.loads(read_text(path, SMALL_STATE))  # a regular file within its bound
+    except ReadRefused as exc:
+        raise ValueError(f"{path} cannot be read ({exc.why})") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path} cannot be read ({type(exc).__name__})") from None
     if not isinstance(done, dict):
@@ -266,7 +269,7 @@ def _encode(folder: Path, codecs: tuple[str, ...], fps: float, remade: list[str]
     that was replaced since it was encoded (its fingerprint in ``done.json``; ``remade`` hears of it)."""
     from ..media import Mp4Writer, clip_fingerprint
 
-    done = json.loads((folder / _DONE).read_text())
+    done = json.loads(read_text(folder / _DONE, SMALL_STATE))
     frames = sorted((folder / done["frames"]).glob("*.png"))
     made = done.setdefault(MADE_KEY, {})
     for codec in codecs:

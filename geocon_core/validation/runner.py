@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..config import ScoreConfig, config_hash
+from ..files import RECORD_JSON, SMALL_STATE, ReadRefused, read_text
 from .cases import CaseSpec, ValidationPlan
 from .prepare import clip_for, code_digest, prepare_case
 
@@ -120,7 +121,7 @@ def _refresh_readings(out: Path, cfg: ScoreConfig, clip: str) -> dict | None:
     if status is None:
         return None
     digest = config_hash(cfg)
-    head = json.loads((out / "record.json").read_text())
+    head = json.loads(read_text(out / "record.json", RECORD_JSON))
     if head.get("config_hash") != status.get("config_hash"):
         return None
 
@@ -179,8 +180,8 @@ def _saved_status(folder: Path, clip: Path | str | None) -> dict | None:
     configuration. A clip prepared again into another cache folder is the same clip when its bytes
     are (:func:`~geocon_core.media.clip_fingerprint` of both, the earlier one still there)."""
     try:
-        status = json.loads((folder / CASE_FILE).read_text())
-    except (OSError, json.JSONDecodeError):
+        status = json.loads(read_text(folder / CASE_FILE, SMALL_STATE))
+    except (OSError, ValueError):  # not JSON, not a regular file, past its bound
         return None
     if status.get("status") != "ok":
         return None
@@ -205,7 +206,9 @@ def case_problem(folder: Path, case: CaseSpec, clip: Path | None) -> str | None:
     if not file.exists():
         return None
     try:
-        status = json.loads(file.read_text(encoding="utf-8"))
+        status = json.loads(read_text(file, SMALL_STATE))  # a regular file within its bound
+    except ReadRefused as exc:
+        return f"{file} is damaged ({exc.why})"
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         return f"{file} is damaged ({type(exc).__name__})"
     if not isinstance(status, dict):

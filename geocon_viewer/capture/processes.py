@@ -174,7 +174,9 @@ VIEWER_SCHEMES = ("rerun+http", "rerun+https", "rerun")
 VIEWER_DEFAULT_PORT = 9876
 """The port Rerun connects to when a viewer URL names none (the viewer's default)."""
 CONNECT_TIMEOUT_S = 5.0
-"""How long :func:`check_viewer_url` waits for the viewer's host to resolve and to accept a connection."""
+"""How long :func:`check_viewer_url` waits for the viewer's host to resolve, and for the viewer to
+accept a connection and answer as a gRPC (HTTP/2) server (a port that accepts and never answers
+would have the recording wait for ever)."""
 _EXAMPLE_URL = "rerun+http://127.0.0.1:9876/proxy"
 
 
@@ -182,8 +184,10 @@ def check_viewer_url(url: str, *, timeout_s: float = CONNECT_TIMEOUT_S) -> tuple
     """(host, port) of the Rerun viewer at ``url`` (``rerun+http://HOST:PORT/proxy``), checked
     before anything is rendered: :class:`ViewerUrlError` when ``url`` is not such a URL,
     :class:`ViewerUnreachable` when its host does not resolve or nothing accepts a connection on
-    its port within ``timeout_s`` seconds (the streaming itself would only fail after the whole
-    recording was rendered, with a traceback of Rerun's)."""
+    its port and answers as an HTTP/2 (gRPC) server within ``timeout_s`` seconds
+    (:func:`geocon_core.files.answers.http2_answer`; the streaming itself would only fail after the
+    whole recording was rendered, with a traceback of Rerun's, or wait for ever on a port that
+    accepts and never answers)."""
     where = f"--connect {url!r}"
     parts = urllib.parse.urlsplit(url)
     if url.partition("://")[0] not in VIEWER_SCHEMES:  # case and spaces matter to Rerun
@@ -204,30 +208,26 @@ def check_viewer_url(url: str, *, timeout_s: float = CONNECT_TIMEOUT_S) -> tuple
     port = VIEWER_DEFAULT_PORT if port is None else port
     if port == 0:
         raise ViewerUrlError(f"{where} has no valid port (a number from 1 to 65535); give one like {_EXAMPLE_URL}")
+    from geocon_core.files import http2_answer
+
     addrs = _resolve_for_connect(host, port, url, timeout_s)
-    last: OSError | None = None
+    tls = url.partition("://")[0] != "rerun+http"
+    whys = []
     for family, sockaddr in addrs:
-        with socket.socket(family, socket.SOCK_STREAM) as sock:
-            sock.settimeout(timeout_s)
-            try:
-                sock.connect(sockaddr)
-                return host, port
-            except OSError as exc:
-                last = exc
-    if isinstance(last, ConnectionRefusedError):
+        why = http2_answer(family, sockaddr, timeout_s, tls=tls, host=host)
+        if why is None:
+            return host, port
+        whys.append(why)
+    if whys and all(w == "connection refused" for w in whys):
         raise ViewerUnreachable(
             f"no Rerun viewer listens at {url} (connection refused on {host} port {port}); start one with `rerun` "
             f"(it listens on {_EXAMPLE_URL}) or give the URL it prints"
         )
-    why = f"no answer within {timeout_s:g} s" if isinstance(last, TimeoutError) else _why(last)
+    why = next((w for w in whys if w != "connection refused"), "no address")
     raise ViewerUnreachable(
         f"the Rerun viewer at {url} cannot be reached ({why}); check that it runs and that this machine can reach "
         f"{host} port {port}"
     )
-
-
-def _why(exc: OSError | None) -> str:
-    return "no address" if exc is None else (exc.strerror or str(exc) or type(exc).__name__).lower()
 
 
 def _resolve_for_connect(host: str, port: int, url: str, timeout_s: float) -> list[tuple[int, tuple]]:

@@ -24,6 +24,9 @@ _LAYOUT_TEXT = {
     "folder": "a plain folder of clips",
 }
 _COLUMNS = (("clip id", "clip_id"), ("platform", "model"), ("prompt", "prompt"), ("category", "category"))
+SHOWN_CHARS = 200
+"""A field longer than this is shown cut, with its length (a long prompt would fill the terminal,
+and the table's wrapping takes time that grows faster than the text)."""
 
 
 def dataset(
@@ -149,6 +152,8 @@ def _cell(entry: ClipEntry, key: str) -> str:
     source, dimmed."""
     value: Any = entry.meta.get(key)
     text = ("from scorer" if key == "category" else "-") if value is None else str(value)
+    if len(text) > SHOWN_CHARS:
+        text = f"{text[:SHOWN_CHARS]}... ({len(text)} characters)"
     return f"{escape(text)}\n[dim]{entry.sources.get(key, '?')}[/]"
 
 

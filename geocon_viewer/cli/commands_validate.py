@@ -262,6 +262,13 @@ def validate(
     if roots and not data.is_dir():
         leave = "--no-real without --planted" if planted else "--no-real"
         raise fail(f"{data}: no such folder of real clips (give --data, or {leave})")
+    if roots:
+        from geocon_core.validation import real_clips
+
+        try:
+            real_clips(data)  # a FIFO or a device among the clips: refused before any work
+        except ValueError as exc:
+            raise fail(str(exc)) from None
     if roots and footage_from is not None:
         _fill(notes, cache_dir, footage_from)
     if fit:

@@ -3,7 +3,9 @@ Viser audit app. The viewer modules load only when these commands run."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Annotated, Any, Optional
@@ -123,9 +125,24 @@ def _check_connect(url: str | None) -> None:
 
 def _stream_failed(connect: str | None, exc: RuntimeError) -> typer.Exit:
     """The one sentence (exit 1) of a viewer that went away while the recording streamed to it;
-    ``exc`` itself when nothing streamed (a bug, with its traceback)."""
+    ``exc`` itself when nothing streamed (a bug, with its traceback). A viewer that stopped taking
+    the recording (:class:`~geocon_viewer.rerun.log.ViewerStalled`) leaves Rerun's client waiting
+    for it for ever, at exit too: the process ends at once after its sentence (``os._exit``; the
+    partial recording is already removed)."""
+    from ..rerun import ViewerStalled
+
     if connect is None:
         raise exc
+    if isinstance(exc, ViewerStalled):
+        fail(
+            f"the Rerun viewer at {connect} stopped answering while the recording streamed ({exc}); the recording "
+            "is not kept: check the viewer, then rerun the command",
+            code=1,
+        )
+        with contextlib.suppress(OSError, ValueError):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(1)
     return fail(
         f"the Rerun viewer at {connect} stopped answering while the recording streamed ({exc}); the recording "
         "is not kept: start the viewer again and rerun the command",

@@ -5,13 +5,15 @@ the frames as one AV1 video (:mod:`.video`) and opening a recording in Rerun's v
 from __future__ import annotations
 
 from .card import evidence, why_lines, worst_frame
-from .log import RerunAudit, RrdSink, write_rrd
+from .log import STREAM_FLUSH_S, RerunAudit, RrdSink, ViewerStalled, write_rrd
 from .serve import open_native, serve_web
 from .video import quiet_encoder_logs
 
 __all__ = [
     "RerunAudit",
     "RrdSink",
+    "STREAM_FLUSH_S",
+    "ViewerStalled",
     "evidence",
     "open_native",
     "quiet_encoder_logs",

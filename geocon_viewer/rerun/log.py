@@ -68,6 +68,8 @@ __all__ = [
     "RerunAudit",
     "AuditFrame",
     "RrdSink",
+    "STREAM_FLUSH_S",
+    "ViewerStalled",
     "write_rrd",
     "blueprint",
     "audit_card",
@@ -387,6 +389,18 @@ class _PipedFile:
         self.part.unlink(missing_ok=True)
 
 
+STREAM_FLUSH_S = 30.0
+"""Seconds a viewer streamed to (``--connect``) may take, once every frame is logged, to take the
+rest of the recording; a viewer that has stopped taking it by then (it answered when the command
+began, then hung) is given up (:class:`ViewerStalled`)."""
+
+
+class ViewerStalled(RuntimeError):
+    """The viewer streamed to did not take the recording within :data:`STREAM_FLUSH_S`. Rerun's
+    client then waits for it for ever, in its disconnect and again when the process exits, so the
+    process must end without that clean-up (the command line's call, ``os._exit``)."""
+
+
 class RrdSink:
     """Streams a clip into a recording while it is scored: pass it as the scorer's ``on_frame``,
     then call :meth:`finish` with the record. Writes ``path`` (a ``.rrd`` file) and/or streams to
@@ -411,6 +425,9 @@ class RrdSink:
         self.part: Path | None = None
         self.file: _PipedFile | None = None
         self.rec = rr.RecordingStream("geocon")
+        self.connect = connect
+        self.stalled = False
+        """The viewer at ``connect`` stopped taking the recording (:class:`ViewerStalled`)."""
         sinks: list = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -451,7 +468,16 @@ class RrdSink:
         """Log the record and close the recording; with ``commit`` move it into place at once,
         else leave that to :meth:`commit` (a caller committing it together with the record)."""
         self._audit(record.video.fps).record(record)
-        self.rec.flush()
+        if self.connect is None:
+            self.rec.flush()
+        else:
+            try:
+                self.rec.flush(timeout_sec=STREAM_FLUSH_S)
+            except RuntimeError:  # Rerun's "Flush timed out"
+                self.stalled = True
+                raise ViewerStalled(
+                    f"it took not all of the recording within {STREAM_FLUSH_S:g} s of the last frame"
+                ) from None
         self.rec.disconnect()
         if self.file is not None:
             self.file.close()
@@ -465,9 +491,11 @@ class RrdSink:
             replace_file(self.part, self.path)
 
     def abort(self) -> None:
-        """Stop recording and remove the partial file; an earlier recording at ``path`` stays."""
-        with contextlib.suppress(Exception):
-            self.rec.disconnect()
+        """Stop recording and remove the partial file; an earlier recording at ``path`` stays. A
+        stalled viewer is not disconnected (that would wait for it for ever)."""
+        if not self.stalled:
+            with contextlib.suppress(Exception):
+                self.rec.disconnect()
         if self.file is not None:
             self.file.discard()
         elif self.part is not None:
