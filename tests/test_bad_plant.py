@@ -374,3 +374,16 @@ def test_the_source_says_how_it_is_re_timed(tmp_path: Path):
     variable = probe_source(write_turned(tmp_path / "v.mp4", frames(), pts_ms=VFR_MS))
     assert variable.retimed and variable.retiming is not None and variable.retiming.startswith("v.mp4 has a variable")
     assert variable.timing_entry()["intervals_ms"] == {"min": 10.0, "median": 30.0, "mean": 45.455, "max": 100.0}
+
+
+@pytest.mark.parametrize("degrees", [90, 180, -90])
+def test_pyav_reads_a_turned_clip_upright_as_opencv_does(tmp_path: Path, degrees: int) -> None:
+    """The decoder geocon score uses for AV1 and interlaced streams (PyAV) applies a display matrix
+    as OpenCV's path does, so plant (which writes upright) and score see the same picture."""
+    from geocon_core.media.decode import PyAVFrames
+
+    clip = write_turned(tmp_path / "turned.mp4", frames()[:4], degrees)
+    opencv = read_bgr(clip)
+    pyav = np.stack([f.astype(np.int16) for f in PyAVFrames(str(clip))])
+    assert pyav.shape == opencv.shape, (pyav.shape, opencv.shape)
+    assert float(np.abs(pyav - opencv).mean()) < 1.0

@@ -575,6 +575,11 @@ def video_tracks(name: str) -> tuple[tuple[int, int], ...]:
     return () if peek is None else peek.tracks
 
 
+UPRIGHT_TOLERANCE_DEG = 1.0
+"""A display matrix within this many degrees of a quarter turn is applied to PyAV's frames (as
+OpenCV applies it to its own); another angle, or a mirroring one, leaves the frames as stored."""
+
+
 @dataclass(frozen=True)
 class DisplayTurn:
     """How a video's display matrix (FFmpeg's ``DISPLAYMATRIX`` side data, a phone's orientation)
@@ -696,7 +701,11 @@ class PyAVFrames(_LibraryFrames):
         except self._av.FFmpegError as err:
             raise self._stopped(err) from None
         self.decoded += 1
-        return frame.to_ndarray(format="bgr24")
+        turn = display_turn(frame)  # read before the reformat, which drops the side data
+        bgr = frame.to_ndarray(format="bgr24")
+        turns = None if turn is None or turn.mirrored else turn.quarter_turns(UPRIGHT_TOLERANCE_DEG)
+        # upright as OpenCV's own path shows a phone's clip (its display matrix applied)
+        return np.ascontiguousarray(np.rot90(bgr, turns)) if turns else bgr
 
     def close(self) -> None:
         if getattr(self, "_container", None) is not None:
