@@ -35,6 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Literal
 
+from .paths import special_kind
+
 __all__ = [
     "ANNOTATIONS",
     "BENCH_MANIFEST",
@@ -145,13 +147,6 @@ sparse file of absurd size)."""
 LOCK_FILE = FileKind("a lock file of GeoCon", 64 * 1024, "remove it when no geocon bench runs", own=True)
 """A results folder's lock file (a PID and a host name: under 100 bytes)."""
 
-_SPECIAL = (
-    (stat.S_ISFIFO, "a FIFO (named pipe)"),
-    (stat.S_ISCHR, "a character device"),
-    (stat.S_ISBLK, "a block device"),
-    (stat.S_ISSOCK, "a socket"),
-)
-
 
 class ReadRefused(ValueError):
     """A file that is not read: one sentence naming it, what it should be and why. ``reason``:
@@ -176,11 +171,6 @@ def byte_size(n: int) -> str:
     return f"{n} bytes"
 
 
-def _node(mode: int) -> str | None:
-    """What a file of ``mode`` is when it is neither a regular file nor a folder, in words."""
-    return next((words for test, words in _SPECIAL if test(mode)), None)
-
-
 def _refused(path: Path, name: str, reason: Reason, why: str, then: str = "") -> ReadRefused:
     """The refusal ``{name} is {why}{then}``."""
     return ReadRefused(f"{name} is {why}{then}", path, reason, why)
@@ -192,7 +182,7 @@ def _checked(path: Path, st: os.stat_result, kind: FileKind, name: str, linked: 
     via = "a link to " if linked else ""
     if stat.S_ISDIR(st.st_mode):
         raise _refused(path, name, "folder", f"{via}a folder, not {kind.what}", "; give the file")
-    node = _node(st.st_mode)
+    node = special_kind(st.st_mode)
     if node is not None or not stat.S_ISREG(st.st_mode):
         raise _refused(
             path,

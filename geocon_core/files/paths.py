@@ -79,7 +79,12 @@ def special_file(path: Path) -> str | None:
         return None
     if stat.S_ISCHR(st.st_mode) and st.st_rdev == _null_rdev():
         return "the null device"
-    return next((kind for test, kind in _SPECIAL_KINDS if test(st.st_mode)), None)
+    return special_kind(st.st_mode)
+
+
+def special_kind(mode: int) -> str | None:
+    """What a file of ``mode`` is when it is a device, a FIFO or a socket, in words; else None."""
+    return next((kind for test, kind in _SPECIAL_KINDS if test(mode)), None)
 
 
 def refuse_special(path: Path, option: str | None = None) -> None:
