@@ -99,7 +99,7 @@ def _first_valid(name: str, value: Any, build: Callable[[Any], ScoreConfig]) -> 
 
 
 VARIANTS = _variants()
-AUDIT_HASH = "4b5bd9b41da70aa5"
+AUDIT_HASH = "da4cef22a514ac9d"
 """The hash of ``audit`` (renewed whenever a setting of it changes)."""
 
 
@@ -121,7 +121,7 @@ def test_every_field_changes_the_hash(name: str, config: ScoreConfig) -> None:
         assert config_hash(config) == config_hash(ScoreConfig()), name
         assert config_hash(config.with_(**{field: value})) != config_hash(ScoreConfig().with_(**{field: value}))
         return
-    if top in ("multiview", "signals") and name != f"{top}.enabled":
+    if top in ("multiview", "signals", "regions") and name != f"{top}.enabled":
         # the multi-view check's and the readings' settings count once they are on (audit), and only then
         assert config_hash(config) == config_hash(ScoreConfig()), name
         on = dataclasses.replace(getattr(config, top), enabled=True)

@@ -23,6 +23,7 @@ from .stages import (
     MotionConfig,
     MultiViewConfig,
     PoseConfig,
+    RegionsConfig,
     Sam2Config,
     ScanConfig,
     SignalsConfig,
@@ -41,6 +42,7 @@ SUB_CONFIGS: dict[str, type] = {
     "scans": ScanConfig,
     "multiview": MultiViewConfig,
     "signals": SignalsConfig,
+    "regions": RegionsConfig,
 }
 """The nested sub-configurations of :class:`ScoreConfig` by field name."""
 
@@ -258,6 +260,8 @@ class ScoreConfig:
     beyond the paper, on in ``audit``)."""
     signals: SignalsConfig = field(default_factory=SignalsConfig)
     """The clip's appearance readings (:mod:`geocon_core.signals`; beyond the paper)."""
+    regions: RegionsConfig = field(default_factory=RegionsConfig)
+    """Region-by-region readings over the whole clip (:mod:`geocon_core.regions`; beyond the paper)."""
 
     def __post_init__(self) -> None:
         if not self.scales or any(not 0 < s <= 1 for s in self.scales):
@@ -369,6 +373,8 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "gray zone (both families fitted); a failing background half of whose matches moved on their "
         "own cannot be judged; the verdict is a clip model's over readings beyond the background (dense-flow "
         "failures, appearance the flow does not explain, the keep reading), fitted on annotated clips; "
+        "region-by-region readings over the whole clip (long tracks, each region's motion against the "
+        "clip's camera and its look against its start) are recorded and drawn, not yet read by the verdict; "
         "the default of `geocon score` and `geocon bench`",
         ScoreConfig(
             preset="audit",
@@ -393,6 +399,7 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             cuts=CutConfig(fade_frames=30),
             multiview=MultiViewConfig(enabled=True),
             signals=SignalsConfig(enabled=True),
+            regions=RegionsConfig(enabled=True),
         ),
     ),
     "fast": (
@@ -480,6 +487,8 @@ def config_hash(config: ScoreConfig) -> str:
         d.pop("multiview", None)
     if not config.signals.enabled:  # off: likewise
         d.pop("signals", None)
+    if not config.regions.enabled:  # off: likewise
+        d.pop("regions", None)
     for name, default in LATER_DEFAULTS.items():  # at the earlier behaviour: the earlier hash
         if d.get(name) == default:
             d.pop(name, None)

@@ -26,6 +26,7 @@ __all__ = [
     "ScanConfig",
     "MultiViewConfig",
     "SignalsConfig",
+    "RegionsConfig",
 ]
 
 SHIPPED_MODEL_DIGEST = "a2ef81b8baab"
@@ -568,3 +569,56 @@ class SignalsConfig:
             or self.boundary_px < 0
         ):
             raise ValueError("signals thresholds must be non-negative")
+
+
+@dataclass(frozen=True)
+class RegionsConfig:
+    """Region-by-region readings over the whole clip (:mod:`geocon_core.regions`): long tracks over
+    the whole frame, movers included, and per region its motion against the clip's one camera over
+    long baselines. Off in ``paper`` and ``strict``; on in ``audit``, where the readings are
+    reported and drawn (the clip model does not read them yet)."""
+
+    enabled: bool = False
+    """Follow the tracks and read the regions."""
+    track_side: int = 960
+    """Long side of the image the tracks are followed on, px (a smaller clip at its own size)."""
+    max_tracks: int = 900
+    """Tracks kept alive at once."""
+    reseed_share: float = 0.8
+    """Corners are found again when fewer than this share of ``max_tracks`` are alive."""
+    min_distance: int = 10
+    """Least distance between two tracks' corners, px of the tracking image."""
+    fb_px: float = 0.5
+    """A track is kept when tracking back lands within this many px (tracking image) of its start."""
+    patch_px: int = 11
+    """Side of the patch compared with the track's patch at birth, px of the tracking image."""
+    keyframe_step: int = 4
+    """The readings compare every ``keyframe_step``-th frame (and the last)."""
+    min_baseline: int = 12
+    """Pairs of keyframes read are at least this many frames apart (a slow failure needs time)."""
+    min_tracks: int = 40
+    """Fewer background tracks alive at both keyframes: the pair is not read."""
+    min_region_tracks: int = 10
+    """A region holds at least this many tracks."""
+    radius: float = 0.12
+    """A region: the tracks within this share of the frame diagonal of one track."""
+    mover_radius_share: float = 0.5
+    """On a mover, regions are this share of ``radius`` across."""
+    ransac_px: float = 1.0
+    """Inlier threshold of the camera fits, px of the working canvas."""
+    ransac_iterations: int = 2000
+    """Iterations of each camera fit (MAGSAC)."""
+    h_share: float = 0.7
+    """The homography is the camera when it explains this share of the background tracks within
+    ``ransac_px``; otherwise the camera translates and a fundamental matrix is fitted."""
+    mover_speed_px: float = 1.5
+    """A track moving faster than this against the camera between two keyframes, px per frame, is
+    a mover (nothing slower moves far over a clip)."""
+    drift_px: float = 2.0
+    """A region whose median residual exceeds the frame's by this many px drifts."""
+    deformation_px: float = 2.0
+    """A mover's region this many px off its own best homography deforms."""
+    appearance_change: float = 0.3
+    """A region whose median patch change (1 - NCC) exceeds the frame's by this much is redrawn."""
+    breathing_px: float = 2.0
+    """A residual field whose regions' 90th percentile reaches this many px breathes."""

@@ -32,6 +32,7 @@ from ..files import MATCHES, NPZ_ERRORS, RECORD_JSON, ReadRefused, open_regular,
 from ..media import MAX_FPS, ClipInfo
 from ..reconstruction import ARRAY_NAMES as MV_ARRAYS
 from ..reconstruction import DenseCloud, MultiViewResult, WindowCloud
+from ..regions import REGION_ARRAYS, RegionsPart
 from ..signals import MAP_ARRAYS, ClipReadings, load_clip_model
 from . import parts as record_parts
 from .finding import VERDICT_WORDS, ClipFinding, clip_finding, model_finding, report_margin
@@ -156,6 +157,9 @@ class ClipRecord:
     multiview: MultiViewResult | None = None
     readings: ClipReadings | None = None
     """The readings beside the background fit (:mod:`geocon_core.signals`), when ``config.signals`` is on."""
+    regions: RegionsPart | None = None
+    """The region readings over the whole clip and their tracks (:mod:`geocon_core.regions`), when
+    ``config.regions`` is on."""
     record_id: str | None = None
     """The id that ties ``record.json`` to its ``matches.npz`` and ``overlays/index.json``
     (:func:`record_id`), as read from ``record.json``; None for a record not yet written, or
@@ -294,6 +298,7 @@ class ClipRecord:
             "clip_score": finding.clip_score,
             **({"why": dict(finding.parts)} if finding.parts else {}),
             **({"readings": self.reading_values()} if self.readings is not None else {}),
+            **({"regions": self.regions.summary()} if self.regions is not None else {}),
             "gate": {
                 "label": gate.label,
                 "model": gate.model,
@@ -395,6 +400,7 @@ class ClipRecord:
             **({"dynamic_share": list(self.dynamic_share)} if self.dynamic_share else {}),
             **({"multiview": self.multiview.to_json_dict()} if self.multiview is not None else {}),
             **({"readings": self.readings.to_json_dict()} if self.readings is not None else {}),
+            **({"regions": self.regions.to_json_dict()} if self.regions is not None else {}),
         }
 
 
@@ -437,6 +443,8 @@ def _arrays(record: ClipRecord) -> dict[str, np.ndarray]:
         arrays.update(record.multiview.arrays())
     if record.readings is not None:
         arrays.update(record.readings.arrays())
+    if record.regions is not None:
+        arrays.update(record.regions.arrays())
     return arrays
 
 
@@ -655,6 +663,7 @@ def read_record(path: str | Path) -> ClipRecord:
             *pointmaps_names,
             *MV_ARRAYS,
             *MAP_ARRAYS,
+            *REGION_ARRAYS,
             RECORD_ID_ARRAY,
         ),
     )
@@ -810,6 +819,7 @@ def _record_from(d: dict[str, Any], z: dict[str, np.ndarray]) -> ClipRecord:
         dynamic_share=tuple(float(v) for v in d.get("dynamic_share", [])),
         multiview=None if d.get("multiview") is None else MultiViewResult.from_parts(d["multiview"], z),
         readings=None if d.get("readings") is None else ClipReadings.from_json_dict(d["readings"], z),
+        regions=None if d.get("regions") is None else RegionsPart.from_json_dict(d["regions"], z),
         record_id=d.get("record_id"),
         made_with=stored_finding(d.get("summary")),
     )

@@ -33,6 +33,7 @@ from ..record import (
     PointCloud,
     PointMaps,
 )
+from ..regions import RegionsPart
 from ..signals import ClipReadings
 from .category import categorize_record
 from .judge import BackgroundJudgement, coverage_note
@@ -193,6 +194,7 @@ def assemble_record(
     notes: Sequence[str] = (),
     multiview: MultiViewResult | None = None,
     readings: ClipReadings | None = None,
+    regions: RegionsPart | None = None,
     dense: tuple[WindowCloud, ...] = (),
     cloud: PointCloud | None = None,
     pointmaps: PointMaps | None = None,
@@ -233,6 +235,7 @@ def assemble_record(
         dense=dense,
         multiview=multiview,
         readings=readings,
+        regions=regions,
     )
     return replace(record, category=categorize_record(record, [o.frames for o in objects.summaries]))
 

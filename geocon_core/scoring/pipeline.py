@@ -48,6 +48,7 @@ from ..reconstruction import (
     LongTracks,
 )
 from ..record import FrameDiagnostics, ObjectFlow, PointCloud, PointMaps
+from ..regions import RegionTracker
 from ..signals import content_gray, plan_pairs
 from .rigidity import ObjectPairScore, adadfrc_pair, mask_interior, refine_object_mask
 
@@ -195,6 +196,10 @@ class Pipeline:
             LongTracks(config.multiview, info.num_frames, info.working_size) if config.multiview.enabled else None
         )
         """The multi-view check's long tracks (:mod:`geocon_core.reconstruction.multiview`), when it is on."""
+        self.regions = (
+            RegionTracker(config.regions, info.num_frames, info.working_size) if config.regions.enabled else None
+        )
+        """The region readings' tracks over the whole frame, movers included (:mod:`geocon_core.regions`)."""
         self.reading_frames: dict[int, np.ndarray] = {}
         """The frames the appearance readings use, on their canvas (:mod:`geocon_core.signals`)."""
         self.reading_needed: frozenset[int] = frozenset()
@@ -256,6 +261,10 @@ class Pipeline:
                 frame.index, frame.gray, frame.content if labels is None else frame.content & (labels == 0)
             )
             self.timer.add("multiview", start)
+        if self.regions is not None:
+            start = time.perf_counter()
+            self.regions.observe(frame.index, frame.gray, frame.content, labels)
+            self.timer.add("regions", start)
 
     def still_test(self, span: tuple[int, int], est: PoseEstimate, K: np.ndarray) -> PoseEstimate:
         """The still-camera test of frames ``span`` (``ScoreConfig.still_share``): when it passes,

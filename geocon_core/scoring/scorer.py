@@ -58,6 +58,7 @@ from ..reconstruction import (
     reconstruct,
 )
 from ..record import ClipRecord, FrameDiagnostics, MatchArrays, PairRecord
+from ..regions import RegionsPart, RegionTracker, read_regions
 from ..signals import ClipReadings, appearance_reading, configured_model, content_gray, plan_pairs, unkept_share
 from .assemble import assemble_record, object_parts, pair_tables, software_versions
 from .judge import judge_background, judge_drift
@@ -329,6 +330,7 @@ def score_clip(
         timer.add("multiview", start)
     tables = pair_tables(scored)
     readings = _readings(stages.reading_frames, tables, info, cfg, timer)
+    regions = None if stages.regions is None else _regions(stages.regions, cfg, judgement.background.model, timer)
     objects = object_parts(
         cfg,
         sorted(out.objects, key=lambda r: r.key),
@@ -361,10 +363,22 @@ def score_clip(
         notes=notes,
         multiview=multiview,
         readings=readings,
+        regions=regions,
         dense=clouds,
         cloud=cloud,
         pointmaps=stages.pointmaps,
     )
+
+
+def _regions(tracker: RegionTracker, cfg: ScoreConfig, camera: str, timer: Timer) -> RegionsPart:
+    """The region readings (:mod:`geocon_core.regions`) of the tracks followed while the clip was
+    read, each pair's camera of the family the gate chose."""
+    start = time.perf_counter()
+    tracks = tracker.result()
+    family = camera if camera in ("H", "F") else None
+    part = RegionsPart(read_regions(tracks, cfg.regions, cfg.seed, family), tracks, tracks.size, tracks.scale, family)
+    timer.add("regions", start)
+    return part
 
 
 def read_readings(record: ClipRecord, record_dir: str | Path, config: ScoreConfig) -> ClipRecord:

@@ -127,6 +127,22 @@ def _verdict_row(record: ClipRecord) -> str:
     return f"[{colour}]{f.verdict}[/]{score}: {f.reason}"
 
 
+def _regions_row(record: ClipRecord) -> str:
+    """The region readings in one cell: what fires (reported; the verdict does not read them), or
+    the largest of each, or why they cannot judge."""
+    regions = record.regions
+    assert regions is not None
+    r = regions.readings
+    fired = r.fired
+    head = f"{r.tracks} tracks over {r.coverage:.0%} of the frame; "
+    if fired:
+        return head + "; ".join(f.describe() for f in fired) + " (reported, not in the verdict)"
+    values = ", ".join(f"{k} {'-' if v is None else format(v, '.2f')}" for k, v in r.values.items())
+    if all(v is None for v in r.values.values()):
+        return head + "cannot judge: " + next(iter(r.reasons.values()), "no long tracks")
+    return head + f"none fires ({values})"
+
+
 def _why_row(record: ClipRecord) -> str:
     """The clip model's contributions, reading by reading (empty for the background's own score)."""
     from geocon_core.signals import READING_LABELS, load_clip_model
@@ -216,6 +232,8 @@ def print_record(record: ClipRecord, out_dir: Path | None) -> None:
         table.add_row("why this score", why)
     if record.category is not None:
         table.add_row("category", f"{record.category.label}: {record.category.rule}")
+    if record.regions is not None:
+        table.add_row("regions", escape(_regions_row(record)))
     _object_rows(table, record)
     table.add_row("config", f"{cfg.preset} preset{_changed_settings(cfg)}, hash {record.config_hash}")
     for w in record.warnings:

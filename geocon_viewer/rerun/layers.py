@@ -18,6 +18,7 @@ from ..shared import clean_cloud
 from .dense import log_dense, log_pointmaps
 from .images import colormap, object_rgba, png_bytes, residual_map
 from .multiview import log_multiview
+from .regions import log_regions
 
 __all__ = ["RecordLayers", "ARROW_GAIN", "INLIER", "OUTLIER"]
 
@@ -55,6 +56,7 @@ class RecordLayers:
         self._log_series(record)
         self._log_world(record)
         log_multiview(self.rec, record, self._time)
+        log_regions(self.rec, record, self._time)
         self._log_readings(record)
 
     def _log_readings(self, record: ClipRecord) -> None:

@@ -45,6 +45,7 @@ import contextlib
 import errno
 import os
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -401,6 +402,72 @@ class ViewerStalled(RuntimeError):
     process must end without that clean-up (the command line's call, ``os._exit``)."""
 
 
+class _StreamLogger:
+    """Logs into a recording that streams to a viewer, on a thread of its own, so that a viewer
+    which stops taking the recording can never hold the caller: Rerun's gRPC sink may block inside
+    any ``log`` call once its buffer is full, not only in the final flush. Jobs run in order; the
+    caller waits only while the logger makes progress, and gives up (:class:`ViewerStalled`) when
+    no job has finished for :data:`STREAM_FLUSH_S`. The queue is short, so frames decoded faster
+    than the viewer takes them wait here instead of piling up in memory."""
+
+    QUEUE = 8
+
+    def __init__(self) -> None:
+        import queue
+
+        self._jobs: queue.Queue = queue.Queue(self.QUEUE)
+        self._error: BaseException | None = None
+        self._done = threading.Event()
+        self._beat = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="geocon-rerun-stream", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                self._done.set()
+                return
+            if self._error is None:
+                try:
+                    job()
+                except BaseException as exc:  # handed to the caller at its next call
+                    self._error = exc
+            self._beat = time.monotonic()
+
+    def _stalled(self) -> bool:
+        return time.monotonic() - self._beat > STREAM_FLUSH_S
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+
+    def submit(self, job) -> None:
+        """Queue ``job`` (a callable); waits while the queue is full and the logger moves."""
+        import queue
+
+        self._raise()
+        while True:
+            try:
+                self._jobs.put(job, timeout=0.2)
+                return
+            except queue.Full:
+                if self._stalled():
+                    raise ViewerStalled(
+                        f"it took no more of the recording within {STREAM_FLUSH_S:g} s while it streamed"
+                    ) from None
+
+    def close(self) -> None:
+        """Wait until every queued job has run; :class:`ViewerStalled` when the logger stops
+        moving for :data:`STREAM_FLUSH_S`, else the first error a job raised."""
+        self.submit(None)
+        while not self._done.wait(0.2):
+            if self._stalled():
+                raise ViewerStalled(f"it took not all of the recording within {STREAM_FLUSH_S:g} s of the last frame")
+        self._raise()
+
+
 class RrdSink:
     """Streams a clip into a recording while it is scored: pass it as the scorer's ``on_frame``,
     then call :meth:`finish` with the record. Writes ``path`` (a ``.rrd`` file) and/or streams to
@@ -446,6 +513,8 @@ class RrdSink:
             self.file.attached()
         self.frames = frames
         self.audit: RerunAudit | None = None
+        self._stream = _StreamLogger() if connect is not None else None
+        """Where logging runs while a viewer is streamed to (:class:`_StreamLogger`)."""
 
     def _audit(self, fps: float) -> RerunAudit:
         if self.audit is None:
@@ -456,28 +525,47 @@ class RrdSink:
         if self.file is not None:
             self.file.check()
 
+    def _log(self, job) -> None:
+        if self._stream is None:
+            job()
+            return
+        try:
+            self._stream.submit(job)
+        except ViewerStalled:
+            self.stalled = True
+            raise
+
     def __call__(self, fd: FrameDiagnostics) -> None:
-        self._audit(fd.fps).frame(fd)
+        self._log(lambda: self._audit(fd.fps).frame(fd))
         self._check()
 
     def frame(self, f: AuditFrame, fps: float) -> None:
-        self._audit(fps).frame(f)
+        self._log(lambda: self._audit(fps).frame(f))
         self._check()
 
     def finish(self, record: ClipRecord, *, commit: bool = True) -> Path | None:
         """Log the record and close the recording; with ``commit`` move it into place at once,
         else leave that to :meth:`commit` (a caller committing it together with the record)."""
-        self._audit(record.video.fps).record(record)
-        if self.connect is None:
+        if self._stream is None:
+            self._audit(record.video.fps).record(record)
             self.rec.flush()
         else:
+
+            def last() -> None:
+                try:
+                    self.rec.flush(timeout_sec=STREAM_FLUSH_S)
+                except RuntimeError:  # Rerun's "Flush timed out"
+                    raise ViewerStalled(
+                        f"it took not all of the recording within {STREAM_FLUSH_S:g} s of the last frame"
+                    ) from None
+
             try:
-                self.rec.flush(timeout_sec=STREAM_FLUSH_S)
-            except RuntimeError:  # Rerun's "Flush timed out"
+                self._log(lambda: self._audit(record.video.fps).record(record))
+                self._log(last)
+                self._stream.close()
+            except ViewerStalled:
                 self.stalled = True
-                raise ViewerStalled(
-                    f"it took not all of the recording within {STREAM_FLUSH_S:g} s of the last frame"
-                ) from None
+                raise
         self.rec.disconnect()
         if self.file is not None:
             self.file.close()
