@@ -22,6 +22,7 @@ from .features import (
     make_matcher,
     mutual_ratio_matches,
     scaled_inputs,
+    tracking_canvas,
 )
 from .models import (
     FAMILIES,
@@ -108,6 +109,7 @@ __all__ = [
     "OrbMatcher",
     "SiftMatcher",
     "good_corners",
+    "tracking_canvas",
     "gross_mismatches",
     "lk_forward_backward",
     "make_matcher",

@@ -28,6 +28,7 @@ __all__ = [
     "mutual_ratio_matches",
     "gross_mismatches",
     "good_corners",
+    "tracking_canvas",
     "lk_forward_backward",
 ]
 
@@ -286,6 +287,14 @@ def lk_forward_backward(
     p1, p0b = p1.reshape(-1, 2), p0b.reshape(-1, 2)
     ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(p0b - xy, axis=1) <= fb_px)
     return p1, ok & _inside(mask, p1)
+
+
+def tracking_canvas(working_size: tuple[int, int], side: int) -> tuple[float, tuple[int, int]]:
+    """(scale, (W, H)): the image long tracks are followed on, its long side at most ``side`` px
+    (a smaller clip at its own size), never below 16 px a side."""
+    W, H = working_size
+    scale = min(1.0, side / max(W, H))
+    return scale, (max(16, round(W * scale)), max(16, round(H * scale)))
 
 
 def good_corners(gray: np.ndarray, mask: np.ndarray, n: int, min_distance: int) -> np.ndarray:

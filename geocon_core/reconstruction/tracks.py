@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from ..config import MultiViewConfig
-from ..geometry import good_corners, lk_forward_backward
+from ..geometry import good_corners, lk_forward_backward, tracking_canvas
 
 __all__ = ["LongTracks", "TrackObservations", "TrackTable", "keyframes"]
 
@@ -46,9 +46,7 @@ class LongTracks:
     def __init__(self, config: MultiViewConfig, num_frames: int, working_size: tuple[int, int]) -> None:
         self.config = config
         self.keyframes = frozenset(keyframes(num_frames, config.max_views))
-        W, H = working_size
-        self.scale = min(1.0, config.track_side / max(W, H))
-        self._size = (max(16, round(W * self.scale)), max(16, round(H * self.scale)))
+        self.scale, self._size = tracking_canvas(working_size, config.track_side)
         self._prev: np.ndarray | None = None
         self._prev_t = -2
         self._ids = np.zeros(0, np.int64)

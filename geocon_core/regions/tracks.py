@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from ..config import RegionsConfig
-from ..geometry import good_corners, lk_forward_backward
+from ..geometry import good_corners, lk_forward_backward, tracking_canvas
 
 __all__ = ["ClipTracks", "RegionTracker", "region_keyframes"]
 
@@ -93,17 +93,16 @@ class RegionTracker:
         self.config = config
         self.keyframes = region_keyframes(num_frames, config.keyframe_step)
         self._key_index = {t: k for k, t in enumerate(self.keyframes)}
-        W, H = working_size
-        self.working_size = (int(W), int(H))
-        self.scale = min(1.0, config.track_side / max(W, H))
-        self._size = (max(16, round(W * self.scale)), max(16, round(H * self.scale)))
+        self.working_size = (int(working_size[0]), int(working_size[1]))
+        self.scale, self._size = tracking_canvas(self.working_size, config.track_side)
         self._prev: np.ndarray | None = None
         self._prev_t = -2
         self._ids = np.zeros(0, np.int64)
         self._xy = np.zeros((0, 2), np.float32)
         self._patches: list[np.ndarray] = []
         self._birth: list[int] = []
-        self._death: list[int] = []
+        self._death = np.zeros(0, np.int64)
+        """The last frame each track was alive."""
         self._rows: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _small(self, image: np.ndarray, nearest: bool = False) -> np.ndarray:
@@ -126,8 +125,6 @@ class RegionTracker:
         ids, xy = self._ids[:0], self._xy[:0]
         if self._prev is not None and self._prev_t == t - 1 and len(self._ids):
             p1, ok = lk_forward_backward(self._prev, g, self._xy, m, cfg.fb_px, _WIN, _LEVELS)
-            for i in self._ids[~ok]:
-                self._death[int(i)] = t - 1
             ids, xy = self._ids[ok], p1[ok].astype(np.float32)
         if len(ids) < cfg.reseed_share * cfg.max_tracks:
             free = m.astype(np.uint8) * 255
@@ -138,11 +135,10 @@ class RegionTracker:
             for x, y in new:
                 self._patches.append(self._patch(g, x, y))
                 self._birth.append(t)
-                self._death.append(t)
+            self._death = np.concatenate([self._death, np.full(len(new), t, np.int64)])
             ids = np.concatenate([ids, np.arange(start, start + len(new), dtype=np.int64)])
             xy = np.concatenate([xy, new]).astype(np.float32)
-        for i in ids:
-            self._death[int(i)] = t
+        self._death[ids] = t
         self._prev, self._prev_t, self._ids, self._xy = g, t, ids, xy
         if t in self._key_index:
             if labels is None:
@@ -177,7 +173,7 @@ class RegionTracker:
             label=label[seen],
             ncc=ncc[seen],
             birth=np.asarray(self._birth, np.int64)[seen],
-            death=np.asarray(self._death, np.int64)[seen],
+            death=self._death[seen],
             size=self.working_size,
             scale=self.scale,
         )
