@@ -7,8 +7,9 @@ used):
 >>> record = score_clip("clip.mp4", ScoreConfig())                   # doctest: +SKIP
 >>> write_record(record, "out/")                                     # doctest: +SKIP
 
-- scoring: :func:`score_clip`, :class:`ScoreConfig`, :func:`preset`, :data:`PRESETS`,
-  :func:`config_hash`;
+- scoring: :func:`score_clip`, :func:`score_frames` (frames in memory), :class:`ScoreConfig`,
+  :func:`preset`, :data:`PRESETS`, :func:`config_hash`; a reward for training loops in
+  :mod:`geocon_core.reward`;
 - records: :func:`read_record`, :func:`write_record`, :class:`ClipRecord` and its parts
   (:class:`GateRecord`, :class:`BackgroundSummary`, :class:`PairRecord`, ...), :class:`ClipInfo`,
   :class:`PoseEstimate`;
@@ -52,10 +53,11 @@ if TYPE_CHECKING:
         read_record,
         write_record,
     )
-    from .scoring import score_clip
+    from .scoring import score_clip, score_frames
 
 _LAZY: dict[str, str] = {
     "score_clip": "scoring",
+    "score_frames": "scoring",
     "ScoreConfig": "config",
     "PRESETS": "config",
     "preset": "config",
@@ -82,6 +84,7 @@ _LAZY: dict[str, str] = {
 __all__ = [
     "__version__",
     "score_clip",
+    "score_frames",
     "ScoreConfig",
     "PRESETS",
     "preset",

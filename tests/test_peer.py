@@ -106,3 +106,43 @@ def test_f_test_looseness_is_read_in_source_pixels(synth_dir, scored_clip):
     assert list(within) == sorted(within) and within[F_PX_STEPS.index(2.0)] > 0.9
     assert tau_px > 2.0  # tau_F (normalised) is several source pixels at this size
     assert f_within_px(rec, (1e9,))[0] == (1.0,)
+
+
+def test_the_sampson_distance_is_zero_on_exact_two_view_geometry_and_grows_off_it():
+    from geocon_core.validation.peer import sampson_squared
+
+    rng = np.random.default_rng(1)
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    X = np.c_[rng.uniform(-2, 2, (50, 2)), rng.uniform(4, 8, 50)]
+    R, _ = cv2.Rodrigues(np.array([0.02, -0.05, 0.01]))
+    t = np.array([0.4, 0.05, 0.1])
+    x1 = (X @ K.T)[:, :2] / X[:, 2:]
+    Y = X @ R.T + t
+    x2 = (Y @ K.T)[:, :2] / Y[:, 2:]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    F = np.linalg.inv(K).T @ tx @ R @ np.linalg.inv(K)
+    assert sampson_squared(F, x1, x2).max() < 1e-9
+    off = sampson_squared(F, x1, x2 + np.array([0.0, 3.0]))
+    assert 0.1 < np.median(off) < 9.0, "a 3 px shift reads as a squared distance of a few px^2"
+
+
+@pytest.mark.full
+def test_epipolar_dpo_reads_a_melting_scene_above_a_rigid_one_and_is_deterministic(synth_dir, tmp_path):
+    from geocon_core.validation.peer import EPIPOLAR_STRIDE, epipolar_score
+
+    clip = synth_dir / "c3_translation.mp4"
+    rigid = epipolar_score(clip)
+    assert rigid.frames == len(range(0, 24, EPIPOLAR_STRIDE)) and rigid.pairs == rigid.frames - 1
+    assert rigid.sampson is not None and epipolar_score(clip).sampson == rigid.sampson
+    _warped_copy(clip, tmp_path / "melting", 4.0, 24)
+    melting = epipolar_score(tmp_path / "melting")
+    assert melting.sampson is not None and melting.sampson > rigid.sampson
+
+
+def test_the_peer_file_holds_both_peers(synth_dir, tmp_path):
+    from geocon_core.validation.results import epipolar_peer_score
+
+    clip = synth_dir / "c1_static.mp4"
+    saved = _peer_one(str(clip), str(tmp_path), 16)
+    assert saved["version"] == PEER_VERSION and saved["epipolar"]["sampson"] is not None
+    assert epipolar_peer_score(tmp_path) == saved["epipolar"]["sampson"]

@@ -421,6 +421,32 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
             sam2=Sam2Config(image_size=512),
         ),
     ),
+    "reward": (
+        "a reward for training loops (geocon_core.reward): an 854x480 canvas scored at its own size, "
+        "frame gaps 1 and 4 of at most 32 frames sampled evenly over the clip, KLT tracks kept alive across "
+        "frames (1000; SIFT costs five times as much per frame), the built-in motion masks analysed at "
+        "256x180, independent motion left "
+        "out of IR, a gate that has a pose (consecutive hops when the first-last pose fails), gate windows "
+        "every 16 frames; no objects' rigidity, no clip model, no multi-view check and no region readings "
+        "(their cost buys no preference on the planted pairs at this size); the reward is the mean "
+        "inlier ratio of the gate's family over the frame pairs, with a bootstrap interval, and guards "
+        "make frozen, repeated, blurred, textureless and cut clips cannot judge",
+        ScoreConfig(
+            preset="reward",
+            working_size=(854, 480),
+            matcher="klt_tracks",
+            max_features=1000,
+            scales=(1.0,),
+            gaps=(1, 4),
+            chain_hop=1,
+            gate_stride=16,
+            gross_match_share=0.04,
+            independent=IndependentConfig(enabled=True),
+            flow_params=FlowConfig(preset="fast"),
+            motion=MotionConfig(analysis_size=(256, 180)),
+            object_scales="top",
+        ),
+    ),
 }
 """The presets by name: a one-line description and the configuration (:func:`preset` builds them)."""
 

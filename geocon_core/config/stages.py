@@ -622,3 +622,46 @@ class RegionsConfig:
     """A region whose median patch change (1 - NCC) exceeds the frame's by this much is redrawn."""
     breathing_px: float = 2.0
     """A residual field whose regions' 90th percentile reaches this many px breathes."""
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """A reward for training loops (:mod:`geocon_core.reward`): how a clip's frames are sampled
+    before the ``reward`` preset scores them, the guards that make a clip "cannot judge" before
+    it could be rewarded for doing nothing, and the noise a preference pair must clear."""
+
+    max_frames: int = 32
+    """At most this many frames, sampled evenly over the clip (first and last kept)."""
+    guard_side: int = 480
+    """Long side of the grey image the guards read, px (a smaller clip at its own size)."""
+    min_motion_px: float = 2.0
+    """Too little motion: the 90th percentile of the tracked corners' displacement from the first
+    frame, at its largest over the clip, below this (px of the 854-px canvas). A frozen or nearly
+    static clip fits any geometry perfectly and must never win."""
+    max_repeated_share: float = 0.25
+    """Repeated frames (a slideshow, a slowed copy): more than this share of the frame steps
+    repeat the frame before."""
+    min_corners: int = 60
+    """Too little texture: fewer corners than this on the first frame (guard image)."""
+    corner_quality: float = 0.01
+    """Corner quality level of the texture guard and the motion tracks (OpenCV's qualityLevel)."""
+    min_sharpness: float = 8.0
+    """Too blurred: the median over sampled frames of the variance of the Laplacian of the grey
+    guard image below this."""
+    judge_cuts: bool = False
+    """A clip with a hard cut or a cross-fade is judged; False: it cannot be judged (a cut makes
+    two scenes, and a generator rewarded on it learns to cut)."""
+    bootstrap: int = 400
+    """Resamples of the frame pairs behind the score's interval (seeded)."""
+    level: float = 0.95
+    """Level of the score's interval and of a pair's margin."""
+    seed: int = 0
+    """Seed of the bootstrap."""
+
+    def __post_init__(self) -> None:
+        if self.max_frames < 2:
+            raise ValueError(f"max_frames must be at least 2, got {self.max_frames}")
+        if not 0.0 < self.level < 1.0:
+            raise ValueError(f"level must lie in (0, 1), got {self.level}")
+        if self.bootstrap < 50:
+            raise ValueError(f"bootstrap needs at least 50 resamples, got {self.bootstrap}")

@@ -40,6 +40,7 @@ from .decode import (
     resolve_clip,
     timing_note,
 )
+from .memory import as_bgr_frames, to_numpy
 from .reader import (
     ClipInfo,
     Frame,
@@ -53,6 +54,7 @@ from .reader import (
     layout_of,
     locate_clip,
     probe_clip,
+    probe_frames,
     to_working,
 )
 from .video import (
@@ -65,6 +67,9 @@ __all__ = [
     "CaptureFrames",
     "ClipError",
     "ClipKind",
+    "as_bgr_frames",
+    "to_numpy",
+    "probe_frames",
     "DEFAULT_FPS",
     "MAX_FPS",
     "DisplayTurn",

@@ -67,8 +67,9 @@ __all__ = [
     "resolve_clip",
 ]
 
-ClipKind = Literal["video", "gif", "images"]
-"""What a clip is read from: a video container, a GIF, or a folder (or list) of images."""
+ClipKind = Literal["video", "gif", "images", "frames"]
+"""What a clip is read from: a video container, a GIF, a folder (or list) of images, or decoded
+frames held in memory (:func:`~geocon_core.media.reader.probe_frames`)."""
 
 
 def native_safe(name: str) -> bool:

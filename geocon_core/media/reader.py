@@ -87,6 +87,7 @@ __all__ = [
     "OtherClipError",
     "iter_frames",
     "probe_clip",
+    "probe_frames",
     "find_fades",
     "canvas_layout",
     "layout_of",
@@ -150,8 +151,8 @@ class ClipInfo:
     written before this field (read as none)."""
 
     def __post_init__(self) -> None:
-        if self.kind not in ("video", "gif", "images"):
-            raise ValueError(f"kind must be video, gif or images, got {self.kind!r}")
+        if self.kind not in ("video", "gif", "images", "frames"):
+            raise ValueError(f"kind must be video, gif, images or frames, got {self.kind!r}")
         if self.num_frames < 2:
             raise ValueError(f"a clip needs at least 2 frames, got {self.num_frames}")
         for name, n in (("source_size", 2), ("working_size", 2), ("offset", 2), ("bars", 4), ("content_box", 4)):
@@ -268,36 +269,30 @@ class _Layout:
     offset: tuple[int, int]
 
 
-def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
-    """One streaming pass over the clip at ``path`` (a video/GIF file or a folder of PNG/JPEG
-    frames), holding at most two decoded frames: counts the frames and detects burned-in bars,
-    duplicated frames and hard cuts. Deterministic. Raises :class:`ClipError` for unusable input."""
-    config = config or ScoreConfig()
-    name = str(path)
-    kind, files = resolve_clip(Path(path), name)
-    fps = DEFAULT_FPS
-    row_max: np.ndarray | None = None
-    col_max: np.ndarray | None = None
-    prev_gray = prev_thumb = prev_hist = None
-    dup_flags: list[bool] = []
-    hist_dist: list[float] = []
-    thumb_mad: list[float] = []
-    fade_thumbs: list[np.ndarray] = []
-    n = 0
-    size = (0, 0)
-    video: Frames | None = None
-    frames: Iterator[np.ndarray]
-    if files is not None:
-        frames = image_frames(files, name)
-    else:
-        fps, opened = open_video(name)
-        frames = video = opened
-    for bgr in frames:
+class _Probe:
+    """The probe pass's running sums over decoded BGR frames (at most two held): the frame size,
+    the brightest row and column (burned-in bars), duplicates, and the cut evidence."""
+
+    def __init__(self, name: str, config: ScoreConfig, files: list[Path] | None = None) -> None:
+        self.name, self.config, self.files = name, config, files
+        self.row_max: np.ndarray | None = None
+        self.col_max: np.ndarray | None = None
+        self.prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.dup_flags: list[bool] = []
+        self.hist_dist: list[float] = []
+        self.thumb_mad: list[float] = []
+        self.fade_thumbs: list[np.ndarray] = []
+        self.n = 0
+        self.size = (0, 0)
+
+    def add(self, bgr: np.ndarray) -> None:
+        config, files, n = self.config, self.files, self.n
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         h, w = gray.shape
         if n == 0:
-            size = (w, h)
-        elif (w, h) != size:
+            self.size = (w, h)
+        elif (w, h) != self.size:
+            size = self.size
             which = f"frame {n}" if files is None else f"frame {n} ({files[n].name})"
             turned = ""
             if files is not None and (h, w) == size:  # as stored, before its EXIF orientation is applied?
@@ -306,21 +301,74 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
                     turned = (
                         " once its EXIF orientation tag turns it (frame 0's does not); give every frame one orientation"
                     )
-            raise ClipError(f"{name}: {which} is {w}x{h} but frame 0 is {size[0]}x{size[1]}{turned}")
+            raise ClipError(f"{self.name}: {which} is {w}x{h} but frame 0 is {size[0]}x{size[1]}{turned}")
         rows = cv2.reduce(gray, 1, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
         cols = cv2.reduce(gray, 0, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
-        row_max = rows if row_max is None else np.maximum(row_max, rows)
-        col_max = cols if col_max is None else np.maximum(col_max, cols)
+        self.row_max = rows if self.row_max is None else np.maximum(self.row_max, rows)
+        self.col_max = cols if self.col_max is None else np.maximum(self.col_max, cols)
         thumb = _thumbnail(gray, config.cuts.thumb_width)
         hist = cv2.calcHist([thumb], [0], None, [config.cuts.hist_bins], [0, 256])
         if config.cuts.fade_frames:
-            fade_thumbs.append(_thumbnail(gray, config.cuts.fade_width))
-        if prev_gray is not None and prev_thumb is not None and prev_hist is not None:
-            dup_flags.append(float(cv2.mean(cv2.absdiff(gray, prev_gray))[0]) <= config.duplicate_mad)
-            hist_dist.append(float(cv2.compareHist(prev_hist, hist, cv2.HISTCMP_BHATTACHARYYA)))
-            thumb_mad.append(float(cv2.mean(cv2.absdiff(thumb, prev_thumb))[0]))
-        prev_gray, prev_thumb, prev_hist = gray, thumb, hist
-        n += 1
+            self.fade_thumbs.append(_thumbnail(gray, config.cuts.fade_width))
+        if self.prev is not None:
+            prev_gray, prev_thumb, prev_hist = self.prev
+            self.dup_flags.append(float(cv2.mean(cv2.absdiff(gray, prev_gray))[0]) <= config.duplicate_mad)
+            self.hist_dist.append(float(cv2.compareHist(prev_hist, hist, cv2.HISTCMP_BHATTACHARYYA)))
+            self.thumb_mad.append(float(cv2.mean(cv2.absdiff(thumb, prev_thumb))[0]))
+        self.prev = (gray, thumb, hist)
+        self.n += 1
+
+    def info(self, **where: Any) -> ClipInfo:
+        """The :class:`ClipInfo` of the frames added; ``where`` holds the fields only the source
+        knows (path, abs_path, fingerprint, kind, fps, warnings)."""
+        config = self.config
+        assert self.row_max is not None and self.col_max is not None
+        w, h = size = self.size
+        bars = _burned_in_bars(self.row_max, self.col_max, config.bar_luma, config.bars)
+        layout = canvas_layout(size, config.working_size)
+        sw, sh = layout.scaled_size
+        duplicates = tuple(t + 1 for t, d in enumerate(self.dup_flags) if d)
+        cuts = _hard_cuts(
+            np.asarray(self.hist_dist), np.asarray(self.thumb_mad), np.asarray(self.dup_flags), config.cuts
+        )
+        fades = find_fades(self.fade_thumbs, config.cuts) if self.fade_thumbs else ()
+        if fades:  # a fade's ends are cuts; a cut found inside a fade is the fade's
+            inside = {t for s, e in fades for t in range(s + 1, e + 1)}
+            cuts = tuple(sorted({c for c in cuts if c not in inside} | {t for s, e in fades for t in (s + 1, e)}))
+        return ClipInfo(
+            source_size=(w, h),
+            num_frames=self.n,
+            working_size=(sw, sh),
+            scale=layout.scale,
+            offset=layout.offset,
+            bars=bars,
+            content_box=_content_box(size, bars, layout, config.bars.margin_px),
+            duplicates=duplicates,
+            cuts=cuts,
+            fades=fades,
+            **where,
+        )
+
+
+def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
+    """One streaming pass over the clip at ``path`` (a video/GIF file or a folder of PNG/JPEG
+    frames), holding at most two decoded frames: counts the frames and detects burned-in bars,
+    duplicated frames and hard cuts. Deterministic. Raises :class:`ClipError` for unusable input."""
+    config = config or ScoreConfig()
+    name = str(path)
+    kind, files = resolve_clip(Path(path), name)
+    fps = DEFAULT_FPS
+    video: Frames | None = None
+    frames: Iterator[np.ndarray]
+    if files is not None:
+        frames = image_frames(files, name)
+    else:
+        fps, opened = open_video(name)
+        frames = video = opened
+    probe = _Probe(name, config, files)
+    for bgr in frames:
+        probe.add(bgr)
+    n = probe.n
     if n == 0:  # only a video can get here: every file of an image folder decodes or raises
         raise ClipError(f"{name}: unreadable bytes (the container opened but no frame could be decoded)")
     promise = container_frame_count(name) if video is not None else None
@@ -331,33 +379,12 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
                 " (truncated or damaged file); at least 2 are needed"
             )
         raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
-    assert row_max is not None and col_max is not None
-    w, h = size
-    bars = _burned_in_bars(row_max, col_max, config.bar_luma, config.bars)
-    layout = canvas_layout(size, config.working_size)
-    sw, sh = layout.scaled_size
-    duplicates = tuple(t + 1 for t, d in enumerate(dup_flags) if d)
-    cuts = _hard_cuts(np.asarray(hist_dist), np.asarray(thumb_mad), np.asarray(dup_flags), config.cuts)
-    fades = find_fades(fade_thumbs, config.cuts) if fade_thumbs else ()
-    if fades:  # a fade's ends are cuts; a cut found inside a fade is the fade's
-        inside = {t for s, e in fades for t in range(s + 1, e + 1)}
-        cuts = tuple(sorted({c for c in cuts if c not in inside} | {t for s, e in fades for t in (s + 1, e)}))
-    return ClipInfo(
+    return probe.info(
         path=name,
         abs_path=os.path.abspath(name),
         fingerprint=clip_fingerprint(Path(path)),
         kind=kind,
-        source_size=(w, h),
         fps=fps,
-        num_frames=n,
-        working_size=(sw, sh),
-        scale=layout.scale,
-        offset=layout.offset,
-        bars=bars,
-        content_box=_content_box(size, bars, layout, config.bars.margin_px),
-        duplicates=duplicates,
-        cuts=cuts,
-        fades=fades,
         warnings=_damage_warnings(Path(path), kind, n, None if video is None else video.error, promise)
         + _decoder_note(video)
         + _track_notes(name, kind, video)
@@ -365,6 +392,24 @@ def probe_clip(path: str | Path, config: ScoreConfig | None = None) -> ClipInfo:
         + frame_number_gaps(files, name)
         + (hidden_frames_note(Path(path), name) if files is not None else ()),
     )
+
+
+def probe_frames(
+    frames: np.ndarray, name: str, config: ScoreConfig | None = None, fps: float = DEFAULT_FPS
+) -> ClipInfo:
+    """:func:`probe_clip` for decoded frames held in memory: ``frames`` is a (T, h, w, 3) uint8
+    **BGR** array (:func:`~geocon_core.media.memory.as_bgr_frames` makes one from RGB numpy or
+    torch frames); ``name`` stands in for the path in the record. The same frames give the same
+    :class:`ClipInfo` as a folder of lossless PNG files of them, less the file's identity."""
+    config = config or ScoreConfig()
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
+        raise ClipError(f"{name}: frames must be a (T, h, w, 3) uint8 array, got {frames.dtype} {frames.shape}")
+    if len(frames) < 2:
+        raise ClipError(f"{name}: has {len(frames)} frame{'s' if len(frames) != 1 else ''}; at least 2 are needed")
+    probe = _Probe(name, config)
+    for bgr in frames:
+        probe.add(bgr)
+    return probe.info(path=name, kind="frames", fps=float(fps))
 
 
 DECODER_NOTES = {
@@ -532,12 +577,19 @@ def check_clip(path: str | Path) -> None:
         raise ClipError(f"{name}: has 1 frame; at least 2 are needed")
 
 
-def iter_frames(info: ClipInfo) -> Iterator[Frame]:
+def iter_frames(info: ClipInfo, held: np.ndarray | None = None) -> Iterator[Frame]:
     """Decode the clip of ``info`` again and yield its ``info.num_frames`` frames in order at
-    working resolution, one at a time (never the whole clip). Raises :class:`ClipError` if the
-    clip no longer decodes to the probed frames (e.g. the file changed in between)."""
+    working resolution, one at a time (never the whole clip). Frames held in memory
+    (:func:`probe_frames`, kind ``"frames"``) are read from ``held``, the array probed. Raises
+    :class:`ClipError` if the clip no longer decodes to the probed frames (e.g. the file changed
+    in between)."""
     name = info.path
-    if info.kind == "images":
+    frames: Iterator[np.ndarray]
+    if info.kind == "frames":
+        if held is None:
+            raise ClipError(f"{name}: frames held in memory; pass them again to read them")
+        frames = iter(held)
+    elif info.kind == "images":
         _, files = resolve_clip(Path(name), name)
         assert files is not None
         frames = image_frames(files, name)

@@ -42,6 +42,7 @@ from .tracks import ClipTracks
 __all__ = ["RegionFinding", "RegionReadings", "read_regions", "READING_NAMES"]
 
 READING_NAMES: tuple[str, ...] = ("drift", "deformation", "appearance", "breathing")
+"""The region readings, in the order the record and the viewers list them."""
 
 
 @dataclass(frozen=True)

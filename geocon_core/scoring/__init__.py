@@ -64,6 +64,7 @@ from .schedule import (
 from .scorer import (
     read_readings,
     score_clip,
+    score_frames,
 )
 from .verdict import (
     ClipVerdict,
@@ -164,4 +165,5 @@ __all__ = [
     "judge_background",
     "judge_drift",
     "score_clip",
+    "score_frames",
 ]

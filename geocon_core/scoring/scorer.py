@@ -36,7 +36,7 @@ from ..geometry import (
     make_matcher,
 )
 from ..masks import check_masks_path, make_mask_source
-from ..media import ClipInfo, Frame, iter_frames, probe_clip
+from ..media import DEFAULT_FPS, ClipInfo, Frame, as_bgr_frames, iter_frames, probe_clip, probe_frames
 from ..pose import (
     PoseBackend,
     PoseEstimate,
@@ -244,6 +244,82 @@ def score_clip(
     receives seconds per stage (summed over worker threads); ``on_frame``, if given, receives a
     :class:`~geocon_core.record.overlays.FrameDiagnostics` per frame, in frame order, on the calling
     thread. Raises :class:`~geocon_core.media.reader.ClipError` for unusable input."""
+    return _score(
+        partial(probe_clip, path),
+        None,
+        str(path),
+        config,
+        pose_log=pose_log,
+        masks=masks,
+        flow_checkpoint=flow_checkpoint,
+        sam2_checkpoint=sam2_checkpoint,
+        dense=dense,
+        dust3r_checkpoint=dust3r_checkpoint,
+        dust3r_path=dust3r_path,
+        workers=workers,
+        progress=progress,
+        timings=timings,
+        on_frame=on_frame,
+    )
+
+
+def score_frames(
+    frames: Any,
+    config: ScoreConfig | None = None,
+    *,
+    name: str = "frames",
+    fps: float = DEFAULT_FPS,
+    channel_order: str = "rgb",
+    masks: str | Path | None = None,
+    flow_checkpoint: str | Path | None = None,
+    sam2_checkpoint: str | Path | None = None,
+    workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    timings: dict[str, float] | None = None,
+) -> ClipRecord:
+    """Score one clip's decoded frames held in memory, as :func:`score_clip` scores a file:
+    ``frames`` is a numpy array or a torch tensor (any device) of shape (T, H, W, 3),
+    (T, 3, H, W) or (T, H, W), uint8 or floats in [0, 1] (:func:`~geocon_core.media.as_bgr_frames`);
+    ``channel_order`` "rgb" or "bgr"; ``name`` stands in for the clip's path in the record and
+    ``fps`` for its rate. Writes nothing. The same frames give the same record as ``geocon
+    score`` on a folder of lossless PNG files of them, with the same configuration (the clip's
+    path, fingerprint and timings aside). Raises :class:`~geocon_core.media.ClipError` for
+    unusable frames."""
+    held = as_bgr_frames(frames, channel_order=channel_order, name=name)
+    return _score(
+        partial(probe_frames, held, name, fps=fps),
+        held,
+        name,
+        config,
+        masks=masks,
+        flow_checkpoint=flow_checkpoint,
+        sam2_checkpoint=sam2_checkpoint,
+        workers=workers,
+        progress=progress,
+        timings=timings,
+    )
+
+
+def _score(
+    probe: Callable[[ScoreConfig], ClipInfo],
+    held: np.ndarray | None,
+    path: str,
+    config: ScoreConfig | None,
+    *,
+    pose_log: str | Path | None = None,
+    masks: str | Path | None = None,
+    flow_checkpoint: str | Path | None = None,
+    sam2_checkpoint: str | Path | None = None,
+    dense: DenseCloudConfig | None = None,
+    dust3r_checkpoint: str | Path | None = None,
+    dust3r_path: str | Path | None = None,
+    workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    timings: dict[str, float] | None = None,
+    on_frame: Callable[[FrameDiagnostics], None] | None = None,
+) -> ClipRecord:
+    """:func:`score_clip` and :func:`score_frames`: ``probe(cfg)`` makes the clip's
+    :class:`~geocon_core.media.ClipInfo`, ``held`` the frames when they are in memory."""
     cfg = config or ScoreConfig()
     if masks is not None:
         cfg = cfg.with_(masks="external")
@@ -259,7 +335,7 @@ def score_clip(
     flow = _flow_backend(cfg, flow_checkpoint)  # shared: thread-safe per instance
     sam2_model = _sam2_model(cfg, sam2_checkpoint)
     start = time.perf_counter()
-    info = probe_clip(path, cfg)
+    info = probe(cfg)
     timer.add("probe", start)
     n = info.num_frames
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio, anchors=(0, n - 1))
@@ -304,7 +380,7 @@ def score_clip(
         schedule = StreamSchedule(
             stages, pool, n, cfg.gaps, pose_windows, info.pair_skip_reason, workers, emit, progress, object_gap
         )
-        out = schedule.run(_timed(iter_frames(info), timer))
+        out = schedule.run(_timed(iter_frames(info, held), timer))
     pose, cloud = out.first_last
     by_window = dict(out.windows)
     if not pose.pose_present and hops:
@@ -350,7 +426,7 @@ def score_clip(
         clouds = builder.clouds(K, {**resolved, (0, n - 1): pose})
         timer.add("dense", start)
     return assemble_record(
-        str(path),
+        path,
         info,
         cfg,
         K,

@@ -96,6 +96,10 @@ class MetricRow:
     """The peer's value on the same clips, with its interval (AUC and matched flag-rate rows)."""
     difference: Interval | None = None
     """GeoCon's value minus the peer's on the same clips, with its paired bootstrap interval."""
+    second_peer: Interval | None = None
+    """The second peer's (Epipolar-DPO's) AUC on the same clips, with its interval (AUC rows)."""
+    second_difference: Interval | None = None
+    """GeoCon's AUC minus the second peer's, paired as :attr:`difference` is."""
 
 
 def share_text(hits: int, n: int) -> str:
@@ -126,22 +130,23 @@ positives and the negatives of an AUC; the clips of a rate): resamples of fewer 
 little for their interval to be trusted."""
 
 
-def difference_text(diff: Interval, *, points: bool, more: str, few: str | None = None) -> str:
+def difference_text(diff: Interval, *, points: bool, more: str, few: str | None = None, peer: str = "peer") -> str:
     """GeoCon minus the peer in words: ``GeoCon - peer +0.04 [-0.12, +0.19]: the interval
     includes 0, so the two cannot be told apart on these clips``; ``points`` prints a difference
     of shares in percentage points; ``more`` says what a positive difference means ("separates
     these clips better", "flags more of these clips"); ``few`` (the clips, in words) when there are
-    fewer than :data:`MIN_COMPARE` on a side, and then no side is called better."""
+    fewer than :data:`MIN_COMPARE` on a side, and then no side is called better; ``peer`` names
+    the peer."""
     unit = " points" if points else ""
     head = (
-        f"GeoCon - peer {_signed(diff.estimate, points)}{unit} "
+        f"GeoCon - {peer} {_signed(diff.estimate, points)}{unit} "
         f"[{_signed(diff.low, points)}, {_signed(diff.high, points)}]"
     )
     if few is not None:
         return f"{head}: too few clips ({few}) to tell the two apart"
     if diff.low <= 0.0 <= diff.high:
         return f"{head}: the interval includes 0, so the two cannot be told apart on these clips"
-    who = "GeoCon" if diff.low > 0.0 else "the peer"
+    who = "GeoCon" if diff.low > 0.0 else f"the {peer}" if peer == "peer" else peer
     return f"{head}: the interval excludes 0, {who} {more}"
 
 
@@ -283,6 +288,18 @@ def _scores(values: Iterable[float | None]) -> np.ndarray:
     return np.array([0.5 if v is None else v for v in values], float)
 
 
+def _field_scores(pos: list[CaseResult], neg: list[CaseResult], name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The scores of field ``name`` for an AUC: a missing one counts as 0.5 (:func:`_scores`), or,
+    for the second peer, whose distances have no fixed range, as the median of the others."""
+    if name != "epipolar_score":
+        return _scores(getattr(r, name) for r in pos), _scores(getattr(r, name) for r in neg)
+    present = [r.epipolar_score for r in pos + neg if r.epipolar_score is not None]
+    fill = float(np.median(present)) if present else 0.0
+    return tuple(  # type: ignore[return-value]
+        np.array([fill if r.epipolar_score is None else r.epipolar_score for r in side], float) for side in (pos, neg)
+    )
+
+
 def auc(pos: Iterable[float | None], neg: Iterable[float | None]) -> float | None:
     """Area under the ROC curve of a score (higher = more broken) separating ``pos`` from ``neg``:
     the chance that a random positive scores above a random negative, ties counting half
@@ -320,14 +337,20 @@ def _auc_row(label: str, group: str, name: str, pos: list[CaseResult], neg: list
     if not pos or not neg:
         return MetricRow(metric, name, None, len(pos), n, "reported", None)
     with_peer = any(r.peer_score is not None for r in pos + neg)
-    fields = ("clip_score", "peer_score") if with_peer else ("clip_score",)
+    with_second = any(r.epipolar_score is not None for r in pos + neg)
+    fields = ("clip_score", *(("peer_score",) if with_peer else ()), *(("epipolar_score",) if with_second else ()))
     sample, boot = bootstrap_aucs(
-        np.column_stack([_scores(getattr(r, f) for r in pos) for f in fields]),
-        np.column_stack([_scores(getattr(r, f) for r in neg) for f in fields]),
+        np.column_stack([_field_scores(pos, neg, f)[0] for f in fields]),
+        np.column_stack([_field_scores(pos, neg, f)[1] for f in fields]),
     )
     ours = percentile_interval(sample[0], boot[:, 0], n)
     peer = percentile_interval(sample[1], boot[:, 1], n) if with_peer else None
     diff = percentile_interval(sample[0] - sample[1], boot[:, 0] - boot[:, 1], n) if with_peer else None
+    second = second_diff = None
+    if with_second:
+        k = fields.index("epipolar_score")
+        second = percentile_interval(sample[k], boot[:, k], n)
+        second_diff = percentile_interval(sample[0] - sample[k], boot[:, 0] - boot[:, k], n)
     target, ok = "reported", None
     if group == "check" and peer is not None and label.startswith("visible artifact vs c"):
         target, ok = f">= peer + {AUC_MARGIN:.2f}", ours.estimate >= peer.estimate + AUC_MARGIN
@@ -342,9 +365,16 @@ def _auc_row(label: str, group: str, name: str, pos: list[CaseResult], neg: list
         notes += [f"{missing} clips without a peer score counted at 0.5"] if missing else []
     else:
         notes.append("no peer score")
+    if second is not None and second_diff is not None:
+        notes.append(f"Epipolar-DPO {auc_text(second)}")
+        notes.append(
+            difference_text(second_diff, points=False, more="separates these clips better", peer="Epipolar-DPO")
+        )
     judged = sum(r.clip_score is None for r in pos + neg)
     notes += [f"{judged} not judged counted at 0.5"] if judged else []
-    return MetricRow(metric, name, ours.estimate, len(pos), n, target, ok, "; ".join(notes), ours, peer, diff)
+    return MetricRow(
+        metric, name, ours.estimate, len(pos), n, target, ok, "; ".join(notes), ours, peer, diff, second, second_diff
+    )
 
 
 def _auc_rows(rows: list[CaseResult]) -> list[MetricRow]:

@@ -1,4 +1,4 @@
-"""The simplest published peer: the GVGC keep rate.
+"""The published peers: the GVGC keep rate and Epipolar-DPO's mean Sampson distance.
 
 The geometric-consistency study of generated video (the "Sora ... geometrical consistency" work,
 and VBench-2.0's port of it) scores a clip by how many SIFT matches between two of its frames a
@@ -16,6 +16,13 @@ fitted) keeps nothing (0); a pair with no match at all is left out. GeoCon repor
 rate`` beside its own clip score (higher = more broken) so both read the same way.
 
 Everything is seeded (``cv2.setRNGSeed``): the same clip gives the same keep rate.
+
+The second peer is the reward of Epipolar-DPO (Kupyn et al. 2025), as its paper and public code
+describe it: grey frames as decoded, every :data:`EPIPOLAR_STRIDE`-th frame paired with the next
+one sampled, OpenCV SIFT (default settings), brute-force two-nearest-neighbour matching with
+Lowe's ratio 0.75, a fundamental matrix fitted by the normalised 8-point algorithm to all
+matches (least squares, no RANSAC), and the mean squared Sampson distance of the matches; a
+clip reads the mean over its pairs (:func:`epipolar_score`). Deterministic: no random choice.
 """
 
 from __future__ import annotations
@@ -46,14 +53,23 @@ __all__ = [
     "pair_keep",
     "peer_keep_rate",
     "raw_frames",
+    "EPIPOLAR_NAME",
+    "EPIPOLAR_FILE",
+    "EPIPOLAR_STRIDE",
+    "EPIPOLAR_RATIO",
+    "EpipolarScore",
+    "epipolar_pair",
+    "epipolar_score",
+    "sampson_squared",
 ]
 
 PEER_NAME = "GVGC keep rate"
 """The published peer measured beside GeoCon."""
 PEER_FILE = "peer.json"
 """The peer's score of a validation case (:class:`PeerScore` as JSON), beside its record."""
-PEER_VERSION = 1
-"""Bumped whenever what the peer measures changes (saved peer scores of another version are recomputed)."""
+PEER_VERSION = 2
+"""Bumped whenever what the peers measure changes (saved peer scores of another version are recomputed);
+2: ``peer.json`` also holds the second peer (``epipolar``: :class:`EpipolarScore`)."""
 PEER_SIZE = (854, 480)
 PEER_FEATURES = 40000
 PEER_RATIO = 0.85
@@ -157,3 +173,93 @@ def peer_keep_rate(path: str | Path, max_frames: int | None = None, *, gap: int 
     if keep is not None and not math.isfinite(keep):
         keep = None
     return PeerScore(keep, len(rates), matches, inliers, len(feats), round(time.perf_counter() - start, 3))
+
+
+# --- the second peer: Epipolar-DPO's mean Sampson distance ---------------------------------
+
+EPIPOLAR_NAME = "Epipolar-DPO Sampson"
+"""The second published peer: the reward of Epipolar-DPO (Kupyn et al. 2025)."""
+EPIPOLAR_FILE = "epipolar.json"
+"""Its score of a validation case (:class:`EpipolarScore` as JSON), beside the record."""
+EPIPOLAR_VERSION = 1
+EPIPOLAR_STRIDE = 15
+"""Frames between the two frames of a scored pair: (0, 15), (15, 30), ..."""
+EPIPOLAR_RATIO = 0.75
+"""Lowe's ratio of its SIFT matching (brute force, two nearest neighbours)."""
+
+
+@dataclass(frozen=True)
+class EpipolarScore:
+    """Epipolar-DPO's reading of one clip: ``sampson`` is the mean over its pairs of the mean
+    squared Sampson distance (px^2, source pixels) of every ratio-test match to a fundamental
+    matrix fitted to all of them by the 8-point algorithm (least squares, no RANSAC); None when
+    no pair had 8 matches. Higher = more broken, as GeoCon's clip score reads."""
+
+    sampson: float | None
+    pairs: int
+    matches: int
+    frames: int
+    seconds: float
+    version: int = EPIPOLAR_VERSION
+
+    @property
+    def score(self) -> float | None:
+        return self.sampson
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def sampson_squared(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """(N,) squared Sampson distance (px^2) of the matches ``x1 -> x2`` ((N, 2) each) to ``F``
+    (``x2^T F x1 = 0``): ``(x2^T F x1)^2 / ((F x1)_1^2 + (F x1)_2^2 + (F^T x2)_1^2 + (F^T x2)_2^2)``."""
+    h1 = np.c_[x1, np.ones(len(x1))]
+    h2 = np.c_[x2, np.ones(len(x2))]
+    Fx1 = h1 @ F.T
+    Ftx2 = h2 @ F
+    num = np.einsum("ij,ij->i", h2, Fx1) ** 2
+    den = Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2
+    return num / np.maximum(den, 1e-12)
+
+
+def epipolar_pair(sift: cv2.SIFT, a: np.ndarray, b: np.ndarray) -> tuple[int, float | None]:
+    """(ratio-test matches, mean squared Sampson distance) of two grey frames under Epipolar-DPO's
+    protocol; the distance is None below 8 matches."""
+    ka, da = sift.detectAndCompute(a, None)
+    kb, db = sift.detectAndCompute(b, None)
+    if da is None or db is None or len(da) < 2 or len(db) < 2:
+        return 0, None
+    knn = cv2.BFMatcher().knnMatch(da, db, k=2)
+    good = [m for m, n in (p for p in knn if len(p) == 2) if m.distance < EPIPOLAR_RATIO * n.distance]
+    if len(good) < _MIN_F_MATCHES:
+        return len(good), None
+    x1 = np.array([ka[m.queryIdx].pt for m in good], np.float64)
+    x2 = np.array([kb[m.trainIdx].pt for m in good], np.float64)
+    F, _ = cv2.findFundamentalMat(x1, x2, cv2.FM_8POINT)
+    if F is None or F.shape != (3, 3):
+        return len(good), None
+    d = sampson_squared(F, x1, x2)
+    return len(good), float(np.mean(d)) if np.isfinite(d).all() else None
+
+
+def epipolar_score(frames: "Iterator[np.ndarray] | str | Path", max_frames: int | None = None) -> EpipolarScore:
+    """Epipolar-DPO's reading (:class:`EpipolarScore`) of a clip at a path, or of its BGR frames
+    (an iterable of (h, w, 3) uint8 arrays, e.g. :func:`raw_frames`), over the pairs
+    (t, t + :data:`EPIPOLAR_STRIDE`) for t = 0, 15, 30, ... of its first ``max_frames`` frames."""
+    start = time.perf_counter()
+    source = raw_frames(frames, max_frames) if isinstance(frames, (str, Path)) else frames
+    grey = [
+        cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        for t, bgr in enumerate(source)
+        if t % EPIPOLAR_STRIDE == 0 and (max_frames is None or t < max_frames)
+    ]
+    sift = cv2.SIFT_create()  # type: ignore[attr-defined]  # in cv2, missing from its stubs
+    values: list[float] = []
+    matches = 0
+    for a, b in zip(grey, grey[1:], strict=False):
+        m, d = epipolar_pair(sift, a, b)
+        matches += m
+        if d is not None:
+            values.append(d)
+    mean = float(np.mean(values)) if values else None
+    return EpipolarScore(mean, len(values), matches, len(grey), round(time.perf_counter() - start, 3))

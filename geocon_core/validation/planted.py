@@ -201,11 +201,19 @@ def _planted_row(
         notes += [f"{missing} clips without a peer score counted at 0.5"] if missing else []
     elif pos and neg:
         notes.append("no peer score")
+    if auc.second_peer is not None and auc.second_difference is not None:
+        notes.append(f"Epipolar-DPO {auc_text(auc.second_peer)}")
+        notes.append(
+            difference_text(auc.second_difference, points=False, more="separates these clips better", peer="Epipolar-DPO")
+        )
     judged = sum(r.clip_score is None for r in pos + neg)
     notes += [f"{judged} not judged counted at 0.5"] if judged else []
     if paired:
         mine = f"planted clip scored above its own clean re-encode: GeoCon {above}/{len(paired)}"
-        notes.append(mine + (f", peer {peer_above}/{len(paired)}" if peer_above is not None else ""))
+        mine += f", peer {peer_above}/{len(paired)}" if peer_above is not None else ""
+        if auc.second_peer is not None:
+            mine += f", Epipolar-DPO {_above_own(paired, own, 'epipolar_score')}/{len(paired)}"
+        notes.append(mine)
     failed = sum(r.verdict == "failed" for r in planted + clean)
     notes += [f"{failed} not scored (listed under Cases)"] if failed else []
     return PlantedRow(

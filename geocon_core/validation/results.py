@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "peer_score",
+    "epipolar_peer_score",
     "CaseResult",
     "case_result",
     "worst_pair_note",
@@ -116,6 +117,9 @@ class CaseResult:
     """The source-pixel equivalent of the record's tau_F (median over the largest-scale F fits)."""
     peer_score: float | None = None
     """The peer's score on the same clip: 1 - GVGC keep rate (:mod:`.peer`); None when not run."""
+    epipolar_score: float | None = None
+    """The second peer's on the same clip: Epipolar-DPO's mean squared Sampson distance, px^2
+    (higher = more broken, :func:`~.peer.epipolar_score`); None when not run."""
     posed: bool = False
     """The clip comes with its camera poses (a RealEstate10K walk-through): its expected gate is
     known from them, not only seen."""
@@ -290,6 +294,16 @@ def peer_score(folder: Path) -> float | None:
     return None if keep is None else 1.0 - float(keep)
 
 
+def epipolar_peer_score(folder: Path) -> float | None:
+    """Epipolar-DPO's mean Sampson distance saved in a case folder's ``peer.json``, None when absent."""
+    from .peer import read_peer
+
+    saved = read_peer(folder)
+    second = None if saved is None else saved.get("epipolar")
+    value = second.get("sampson") if isinstance(second, dict) else None
+    return None if value is None else float(value)
+
+
 def _report_margin(rec: ClipRecord) -> float | None:
     from ..scoring import report_margin
 
@@ -374,6 +388,7 @@ def case_result(status: dict[str, Any], folder: Path, spec: CaseSpec | None = No
         report_margin=_report_margin(rec),
         clip_score=finding.clip_score,
         peer_score=peer_score(folder),
+        epipolar_score=epipolar_peer_score(folder),
         f_within=within,
         tau_f_px=tau_px,
         verdict_note=finding.reason if rec.readings is not None else rec.background.choice_note,

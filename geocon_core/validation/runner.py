@@ -143,17 +143,22 @@ def _refresh_readings(out: Path, cfg: ScoreConfig, clip: str) -> dict | None:
 
 
 def _peer_one(clip: str, folder: str, max_frames: int) -> dict:
-    """Worker: the peer (:mod:`.peer`) on a scored case's clip, saved as ``peer.json`` beside its
-    record. A clip the peer cannot read is saved with its error (keep rate None), never dropped."""
+    """Worker: the peers (:mod:`.peer`: the GVGC keep rate and Epipolar-DPO's Sampson distance) on a
+    scored case's clip, saved as ``peer.json`` beside its record. A clip a peer cannot read is saved
+    with its error (its score None), never dropped."""
     import cv2
 
-    from .peer import PEER_FILE, PEER_VERSION, peer_keep_rate
+    from .peer import PEER_FILE, PEER_VERSION, epipolar_score, peer_keep_rate
 
     cv2.setNumThreads(1)
     try:
         saved: dict[str, Any] = peer_keep_rate(clip, max_frames).to_dict()
     except Exception as exc:  # recorded, as a failed case is
         saved = {"keep_rate": None, "version": PEER_VERSION, "error": f"{type(exc).__name__}: {exc}"}
+    try:
+        saved["epipolar"] = epipolar_score(clip, max_frames).to_dict()
+    except Exception as exc:  # the second peer's failure is recorded beside the first's
+        saved["epipolar"] = {"sampson": None, "error": f"{type(exc).__name__}: {exc}"}
     saved["clip"] = clip
     tmp = Path(folder) / (PEER_FILE + ".part")
     tmp.write_text(json.dumps(saved, indent=1) + "\n")

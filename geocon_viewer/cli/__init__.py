@@ -19,6 +19,7 @@ so ``geocon --help`` loads neither Rerun nor Viser.
 ``footage``         the footage cache of the validation: status, fill from local clones
 ``pose-log``        a pose log from a COLMAP model or a DUSt3R scene (:mod:`.commands_pose`)
 ``plant``           a failure planted into a real clip, with its clean twin (:mod:`.commands_plant`)
+``pairs``           preference pairs per prompt for training (:mod:`.commands_pairs`)
 ``doctor``          which backends, viewers and extras are usable here (:mod:`.commands_doctor`)
 ==================  ============================================================================
 """
@@ -55,6 +56,7 @@ from . import (  # noqa: E402
     commands_dataset,
     commands_demo,
     commands_doctor,
+    commands_pairs,
     commands_plant,
     commands_pose,
     commands_score,
@@ -108,6 +110,7 @@ app.command("validate", cls=PathsChecked)(commands_validate.validate)
 app.command("footage", cls=PathsChecked)(commands_validate.footage)
 app.command("pose-log", cls=PathsChecked)(commands_pose.pose_log)
 app.command("plant", cls=PathsChecked)(commands_plant.plant)
+app.command("pairs", cls=PathsChecked)(commands_pairs.pairs)
 app.command("doctor", cls=PathsChecked)(commands_doctor.doctor)
 
 if _SIGINT_BEFORE_LOADING is not None:  # loaded: Ctrl-C is handled as before (main() sets its own)
@@ -138,6 +141,7 @@ MEMORY_ADVICE = {
     "view": "view the record of a shorter clip, or use --headless (no viewer is opened)",
     "teach": "give fewer --frames",
     "plant": "give fewer --frames",
+    "pairs": "give fewer --workers",
 }
 """What each command can do with less memory, naming only its own options (the advice of the
 one-sentence out-of-memory error; other commands are told to close other programs)."""

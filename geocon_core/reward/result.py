@@ -1,0 +1,104 @@
+"""The reward of one clip, read from its record: a number where higher is more consistent.
+
+The reward is the mean, over the clip's scored frame pairs, of the inlier ratio of the
+background model the translation gate chose (H for a camera that only turns, F for one that
+moves), movers masked and matches that move on their own left out, as the record holds them.
+Its interval is a seeded percentile bootstrap over the pairs. It reads the same record that
+``geocon score`` writes, so the same frames and preset give the same reward either way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..config import RewardConfig
+from ..record import ClipRecord
+from .guards import GuardReading
+
+__all__ = ["RewardResult", "pair_values", "reward_of_record", "bootstrap_mean"]
+
+
+@dataclass(frozen=True)
+class RewardResult:
+    """One clip's reward. ``score`` 0..1, higher = more consistent, None when the clip cannot be
+    judged (then ``reason`` says why in one sentence and ``guard`` names the guard that tripped,
+    or "background" when the scorer could not judge it); ``interval`` its bootstrap interval;
+    ``readings`` the numbers behind it (background IR and GE, pairs, the verdict and clip score
+    of the preset, the guards' measurements)."""
+
+    name: str
+    score: float | None
+    interval: tuple[float, float] | None
+    judged: bool
+    reason: str | None
+    guard: str | None
+    readings: dict[str, Any] = field(default_factory=dict)
+    pair_scores: tuple[float, ...] = ()
+    """The inlier ratio of each frame pair the score is the mean of (what a margin is read on)."""
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "score": None if self.score is None else round(self.score, 6),
+            "interval": None if self.interval is None else [round(v, 6) for v in self.interval],
+            "judged": self.judged,
+            "reason": self.reason,
+            "guard": self.guard,
+            "readings": self.readings,
+            "pairs": len(self.pair_scores),
+            "seconds": round(self.seconds, 3),
+        }
+
+
+def bootstrap_mean(values: np.ndarray, cfg: RewardConfig, seed: int | None = None) -> tuple[float, float]:
+    """The percentile bootstrap interval of the mean of ``values`` at ``cfg.level``."""
+    rng = np.random.default_rng(cfg.seed if seed is None else seed)
+    idx = rng.integers(0, len(values), size=(cfg.bootstrap, len(values)))
+    means = values[idx].mean(axis=1)
+    a = (1.0 - cfg.level) / 2.0
+    return float(np.quantile(means, a)), float(np.quantile(means, 1.0 - a))
+
+
+def pair_values(record: ClipRecord) -> np.ndarray:
+    """The inlier ratio of every scored pair (all gaps) under the background's chosen family."""
+    family = record.background.model
+    values = [
+        fit.ir
+        for p in record.pairs
+        if p.skip is None and (fit := p.fit(family)) is not None and fit.valid and fit.ir is not None
+    ]
+    return np.asarray(values, dtype=np.float64)
+
+
+def reward_of_record(
+    record: ClipRecord, cfg: RewardConfig, guards: GuardReading | None = None, name: str | None = None
+) -> RewardResult:
+    """The reward of a scored clip (:class:`RewardResult`); ``guards``, when read, are reported and
+    a tripped guard makes the clip cannot judge whatever its geometry."""
+    finding = record.finding()
+    bg = record.background
+    readings: dict[str, Any] = {
+        "model": bg.model,
+        "ir": bg.ir,
+        "ge": bg.ge,
+        "verdict": finding.verdict,
+        "clip_score": finding.clip_score,
+        "valid_pairs": bg.valid_pairs,
+        "total_pairs": bg.total_pairs,
+    }
+    if guards is not None:
+        readings["guards"] = guards.to_dict()
+    label = name or record.video.path
+    if guards is not None and guards.tripped is not None:
+        return RewardResult(label, None, None, False, guards.reason, guards.tripped, readings)
+    values = pair_values(record)
+    if finding.verdict == "cannot judge" or len(values) == 0:
+        reason = finding.reason if finding.verdict == "cannot judge" else "no frame pair has a background model"
+        return RewardResult(label, None, None, False, reason, "background", readings)
+    score = float(values.mean())
+    interval = bootstrap_mean(values, cfg)
+    return RewardResult(label, score, interval, True, None, None, readings, tuple(float(v) for v in values))
