@@ -39,29 +39,57 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from geocon_core.intervals import wilson_interval  # noqa: E402
-from geocon_core.reward import RewardScorer, decode_clip  # noqa: E402
+from geocon_core.reward import RewardScorer, decode_clip, sample_evenly  # noqa: E402
+from geocon_core.scoring import score_frames  # noqa: E402
 from geocon_core.validation.peer import epipolar_score, peer_keep_rate  # noqa: E402
 
 FRAMES = 48
+CACHE_VERSION = 4
+EXPLORE_GAPS = (1, 4, 16)
+"""The gaps the per-pair readings are cached at (the tune half compares subsets of them)."""
 PLANTED = re.compile(r"^(?P<stem>.+)\.(?P<kind>slide|morph|redraw|breathing)-(?P<level>low|middle|high)-s\d+\.mp4$")
 
 
-def _scores(clip: Path, scorer: RewardScorer) -> dict:
+def _scores(clip: Path, scorer: RewardScorer, peers: bool = True) -> dict:
     cache = clip.with_name(clip.name + ".reward.json")
     if cache.is_file():
-        return json.loads(cache.read_text())
+        saved = json.loads(cache.read_text())
+        if saved.get("version") == CACHE_VERSION and (saved.get("gvgc_run") or not peers):
+            return saved
     frames = decode_clip(clip)[:FRAMES]
     r = scorer.score(frames, name=clip.name, channel_order="bgr")
-    keep = peer_keep_rate(clip, FRAMES).keep_rate
+    pairs = {}
+    if r.judged:  # the per-pair readings behind the score, for the tune half's comparisons
+        bgr = np.ascontiguousarray(frames[sample_evenly(len(frames), scorer.reward.max_frames)])
+        explore = scorer.config.with_(gaps=EXPLORE_GAPS)
+        record = score_frames(bgr, explore, name=clip.name, channel_order="bgr", workers=1)
+        fam = record.background.model
+        m = record.matches
+        res = m.h_res if fam == "H" else m.f_res_px
+        own = m.h_ind if fam == "H" else m.f_ind
+        rows = []
+        for p in record.pairs:
+            f = p.fit(fam)
+            if p.skip is not None or f is None or not f.valid or f.ir is None:
+                continue
+            lo, hi = int(m.offsets[p.index]), int(m.offsets[p.index + 1])
+            kept = res[lo:hi][~own[lo:hi]]
+            kernels = [float(np.mean(1.0 / (1.0 + (kept / s) ** 2))) if len(kept) else None for s in (0.5, 1.0, 2.0)]
+            rows.append([p.gap, p.n_matches, f.ir, f.ge, *kernels, float(np.median(kept)) if len(kept) else None])
+        pairs = {"family": fam, "rows": rows}
+    keep = peer_keep_rate(clip, FRAMES).keep_rate if peers else None
     epi = epipolar_score(iter(frames)).sampson
     row = {
+        "version": CACHE_VERSION,
         "reward": r.score,
         "reason": r.reason,
         "gvgc": keep,
+        "gvgc_run": peers,
         "epipolar": epi,
         "seconds": round(r.seconds, 2),
         "readings": {k: v for k, v in r.readings.items() if k != "guards"},
         "guards": r.readings.get("guards"),
+        "pairs": pairs,
     }
     cache.write_text(json.dumps(row))
     return row
@@ -91,7 +119,7 @@ def _split(stem: str) -> str:
     return split_of(f"real2:{names[0]}") if names else "unknown"
 
 
-def preference(dirs: list[Path], out: Path | None, split: str | None = None) -> None:
+def preference(dirs: list[Path], out: Path | None, split: str | None = None, peers: bool = True) -> None:
     scorer = RewardScorer(workers=1)
     rows: dict[tuple[str, str], dict[str, list[bool]]] = {}
     unjudged = 0
@@ -100,13 +128,13 @@ def preference(dirs: list[Path], out: Path | None, split: str | None = None) -> 
             clean = folder / f"{folder.name}.clean.mp4"
             if not clean.is_file() or (split is not None and _split(folder.name) != split):
                 continue
-            c = _scores(clean, scorer)
+            c = _scores(clean, scorer, peers)
             unjudged += c["reward"] is None
             for clip in sorted(folder.glob("*.mp4")):
                 m = PLANTED.match(clip.name)
                 if m is None:
                     continue
-                p = _scores(clip, scorer)
+                p = _scores(clip, scorer, peers)
                 cell = rows.setdefault((m["kind"], m["level"]), {"reward": [], "gvgc": [], "epipolar": []})
                 for method in cell:
                     cell[method].append(_better(method, c[method], p[method]))
@@ -186,6 +214,9 @@ def main() -> None:
     ap.add_argument("what", choices=("preference", "copies", "throughput"))
     ap.add_argument("dirs", nargs="*", type=Path)
     ap.add_argument("--json", type=Path)
+    ap.add_argument(
+        "--no-gvgc", action="store_true", help="leave the GVGC keep rate out (its 40,000 SIFT features dominate)"
+    )
     ap.add_argument("--split", choices=("tune", "check"), help="only the sources of this half of the stick")
     ap.add_argument("--clips", type=int, default=24)
     ap.add_argument("--workers", type=int, default=2)
@@ -193,7 +224,7 @@ def main() -> None:
     if a.what == "throughput":
         throughput(a.clips, a.workers)
     elif a.what == "preference":
-        preference(a.dirs, a.json, a.split)
+        preference(a.dirs, a.json, a.split, not a.no_gvgc)
     else:
         copies(a.dirs)
 

@@ -219,3 +219,22 @@ def test_prompt_serves_as_the_group_column(clips, tmp_path):
     m = tmp_path / "p.csv"
     m.write_text("path,prompt\nturn.mp4,a cat\nmove.mp4,a cat\n")
     assert [r.group for r in read_manifest(m)] == ["a cat", "a cat"]
+
+
+def test_the_soft_share_reads_sub_pixel_residuals_that_the_inlier_ratio_ties(png_folder):
+    """A record whose matches are moved by a known sub-pixel amount: the inlier ratio stays 1,
+    the soft share falls exactly as its formula says."""
+    from dataclasses import replace
+
+    from geocon_core.reward import pair_values
+
+    _, frames = png_folder
+    record = score_frames(frames, preset("reward"), channel_order="bgr", workers=1)
+    m = record.matches
+    fam = record.background.model
+    name = "h_res" if fam == "H" else "f_res_px"
+    shifted = replace(m, **{name: np.full_like(getattr(m, name), 0.5)})
+    moved = replace(record, matches=shifted)
+    assert np.allclose(pair_values(moved, 1.0), 1.0 / (1.0 + 0.25)), "every match 0.5 px off weighs 0.8"
+    assert (pair_values(moved, 0.0) == pair_values(record, 0.0)).all(), "IR reads the record's inliers"
+    assert (pair_values(record, 1.0) <= 1.0).all() and pair_values(record, 1.0).mean() > 0.8

@@ -648,6 +648,11 @@ class RewardConfig:
     min_sharpness: float = 8.0
     """Too blurred: the median over sampled frames of the variance of the Laplacian of the grey
     guard image below this."""
+    soft_px: float = 1.0
+    """The reward's scale: each background match weighs ``1 / (1 + (r / soft_px)^2)`` (``r`` its
+    residual to the pair's model, px of the canvas), so a residual of a fraction of a pixel
+    counts, where an inlier ratio at a threshold saturates at 1 on most real clips and ties.
+    0: the inlier ratio at the preset's threshold."""
     judge_cuts: bool = False
     """A clip with a hard cut or a cross-fade is judged; False: it cannot be judged (a cut makes
     two scenes, and a generator rewarded on it learns to cut)."""

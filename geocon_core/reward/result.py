@@ -1,8 +1,11 @@
 """The reward of one clip, read from its record: a number where higher is more consistent.
 
-The reward is the mean, over the clip's scored frame pairs, of the inlier ratio of the
-background model the translation gate chose (H for a camera that only turns, F for one that
-moves), movers masked and matches that move on their own left out, as the record holds them.
+The reward is the mean, over the clip's scored frame pairs, of a soft inlier share: each
+background match weighs ``1 / (1 + (r / soft_px)^2)``, ``r`` its residual to the model the
+translation gate chose (H for a camera that only turns, F for one that moves), movers masked and
+matches that move on their own left out, as the record holds them. Unlike the inlier ratio at a
+threshold, which is 1.0 on most real clips and ties, it reads residuals of a fraction of a pixel
+(``RewardConfig.soft_px``; 0 gives the inlier ratio).
 Its interval is a seeded percentile bootstrap over the pairs. It reads the same record that
 ``geocon score`` writes, so the same frames and preset give the same reward either way.
 """
@@ -37,7 +40,7 @@ class RewardResult:
     guard: str | None
     readings: dict[str, Any] = field(default_factory=dict)
     pair_scores: tuple[float, ...] = ()
-    """The inlier ratio of each frame pair the score is the mean of (what a margin is read on)."""
+    """The reading of each frame pair the score is the mean of (what a margin is read on)."""
     seconds: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
@@ -63,14 +66,28 @@ def bootstrap_mean(values: np.ndarray, cfg: RewardConfig, seed: int | None = Non
     return float(np.quantile(means, a)), float(np.quantile(means, 1.0 - a))
 
 
-def pair_values(record: ClipRecord) -> np.ndarray:
-    """The inlier ratio of every scored pair (all gaps) under the background's chosen family."""
+def pair_values(record: ClipRecord, soft_px: float = 0.0) -> np.ndarray:
+    """Each scored pair's reading (all gaps) under the background's chosen family: with
+    ``soft_px`` > 0 the mean over its matches of ``1 / (1 + (r / soft_px)^2)`` (``r`` the match's
+    residual: transfer error for H, Sampson distance in px for F; matches that move on their own
+    left out, as they are of IR), else its inlier ratio."""
     family = record.background.model
-    values = [
-        fit.ir
-        for p in record.pairs
-        if p.skip is None and (fit := p.fit(family)) is not None and fit.valid and fit.ir is not None
-    ]
+    m = record.matches
+    res = m.h_res if family == "H" else m.f_res_px
+    own = m.h_ind if family == "H" else m.f_ind
+    values = []
+    for p in record.pairs:
+        fit = p.fit(family) if p.skip is None else None
+        if fit is None or not fit.valid or fit.ir is None:
+            continue
+        if soft_px <= 0.0:
+            values.append(fit.ir)
+            continue
+        lo, hi = int(m.offsets[p.index]), int(m.offsets[p.index + 1])
+        kept = res[lo:hi][~own[lo:hi]].astype(np.float64)
+        kept = kept[np.isfinite(kept)]
+        if len(kept):
+            values.append(float(np.mean(1.0 / (1.0 + (kept / soft_px) ** 2))))
     return np.asarray(values, dtype=np.float64)
 
 
@@ -95,7 +112,7 @@ def reward_of_record(
     label = name or record.video.path
     if guards is not None and guards.tripped is not None:
         return RewardResult(label, None, None, False, guards.reason, guards.tripped, readings)
-    values = pair_values(record)
+    values = pair_values(record, cfg.soft_px)
     if finding.verdict == "cannot judge" or len(values) == 0:
         reason = finding.reason if finding.verdict == "cannot judge" else "no frame pair has a background model"
         return RewardResult(label, None, None, False, reason, "background", readings)
