@@ -25,7 +25,7 @@ from geocon_core.reward import (
     score_reward,
     write_pairs,
 )
-from geocon_core.scoring import score_clip, score_frames
+from geocon_core.scoring import score_frames
 from geocon_core.synth import ClipPlan, write_clip
 from geocon_viewer.cli import app
 

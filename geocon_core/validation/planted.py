@@ -203,9 +203,8 @@ def _planted_row(
         notes.append("no peer score")
     if auc.second_peer is not None and auc.second_difference is not None:
         notes.append(f"Epipolar-DPO {auc_text(auc.second_peer)}")
-        notes.append(
-            difference_text(auc.second_difference, points=False, more="separates these clips better", peer="Epipolar-DPO")
-        )
+        better = "separates these clips better"
+        notes.append(difference_text(auc.second_difference, points=False, more=better, peer="Epipolar-DPO"))
     judged = sum(r.clip_score is None for r in pos + neg)
     notes += [f"{judged} not judged counted at 0.5"] if judged else []
     if paired:
