@@ -75,6 +75,8 @@ def pair_values(record: ClipRecord, soft_px: float = 0.0) -> np.ndarray:
     m = record.matches
     res = m.h_res if family == "H" else m.f_res_px
     own = m.h_ind if family == "H" else m.f_ind
+    if own is None:  # MatchArrays fills it in; records always hold one
+        own = np.zeros(len(res), bool)
     values = []
     for p in record.pairs:
         fit = p.fit(family) if p.skip is None else None
