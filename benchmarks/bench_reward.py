@@ -38,6 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from geocon_core.config import preset  # noqa: E402
 from geocon_core.intervals import wilson_interval  # noqa: E402
 from geocon_core.reward import RewardScorer, decode_clip, sample_evenly  # noqa: E402
 from geocon_core.scoring import score_frames  # noqa: E402
@@ -50,8 +51,15 @@ EXPLORE_GAPS = (1, 4, 16)
 PLANTED = re.compile(r"^(?P<stem>.+)\.(?P<kind>slide|morph|redraw|breathing)-(?P<level>low|middle|high)-s\d+\.mp4$")
 
 
-def _scores(clip: Path, scorer: RewardScorer, peers: bool = True) -> dict:
-    cache = clip.with_name(clip.name + ".reward.json")
+VARIANTS = {
+    "": {},
+    "sift": {"matcher": "sift", "max_features": 8000, "ratio": 0.8},
+}
+"""Candidate settings of the ``reward`` preset compared on the tune half (``--variant``)."""
+
+
+def _scores(clip: Path, scorer: RewardScorer, peers: bool = True, variant: str = "") -> dict:
+    cache = clip.with_name(clip.name + (f".reward-{variant}.json" if variant else ".reward.json"))
     if cache.is_file():
         saved = json.loads(cache.read_text())
         if saved.get("version") == CACHE_VERSION and (saved.get("gvgc_run") or not peers):
@@ -119,8 +127,10 @@ def _split(stem: str) -> str:
     return split_of(f"real2:{names[0]}") if names else "unknown"
 
 
-def preference(dirs: list[Path], out: Path | None, split: str | None = None, peers: bool = True) -> None:
-    scorer = RewardScorer(workers=1)
+def preference(
+    dirs: list[Path], out: Path | None, split: str | None = None, peers: bool = True, variant: str = ""
+) -> None:
+    scorer = RewardScorer(config=preset("reward").with_(**VARIANTS[variant]), workers=1)
     rows: dict[tuple[str, str], dict[str, list[bool]]] = {}
     unjudged = 0
     for d in dirs:
@@ -128,13 +138,13 @@ def preference(dirs: list[Path], out: Path | None, split: str | None = None, pee
             clean = folder / f"{folder.name}.clean.mp4"
             if not clean.is_file() or (split is not None and _split(folder.name) != split):
                 continue
-            c = _scores(clean, scorer, peers)
+            c = _scores(clean, scorer, peers, variant)
             unjudged += c["reward"] is None
             for clip in sorted(folder.glob("*.mp4")):
                 m = PLANTED.match(clip.name)
                 if m is None:
                     continue
-                p = _scores(clip, scorer, peers)
+                p = _scores(clip, scorer, peers, variant)
                 cell = rows.setdefault((m["kind"], m["level"]), {"reward": [], "gvgc": [], "epipolar": []})
                 for method in cell:
                     cell[method].append(_better(method, c[method], p[method]))
@@ -155,11 +165,13 @@ def preference(dirs: list[Path], out: Path | None, split: str | None = None, pee
         out.write_text(json.dumps({"table": table, "clean_unjudged": unjudged}, indent=1))
 
 
-def copies(dirs: list[Path]) -> None:
+def copies(dirs: list[Path], split: str | None = None) -> None:
     scorer = RewardScorer(workers=1)
-    wins = {"frozen": [], "slowed": [], "blurred": []}
+    wins: dict[str, list[bool]] = {"frozen": [], "slowed": [], "blurred": []}
     for d in dirs:
         for clip in sorted(d.glob("*/*.mp4")):
+            if split is not None and _split(clip.parent.name) != split:
+                continue
             frames = decode_clip(clip)[:FRAMES]
             own = scorer.score(frames, channel_order="bgr")
             n = len(frames)
@@ -217,6 +229,7 @@ def main() -> None:
     ap.add_argument(
         "--no-gvgc", action="store_true", help="leave the GVGC keep rate out (its 40,000 SIFT features dominate)"
     )
+    ap.add_argument("--variant", choices=tuple(VARIANTS), default="", help="a candidate setting of the reward preset")
     ap.add_argument("--split", choices=("tune", "check"), help="only the sources of this half of the stick")
     ap.add_argument("--clips", type=int, default=24)
     ap.add_argument("--workers", type=int, default=2)
@@ -224,9 +237,9 @@ def main() -> None:
     if a.what == "throughput":
         throughput(a.clips, a.workers)
     elif a.what == "preference":
-        preference(a.dirs, a.json, a.split, not a.no_gvgc)
+        preference(a.dirs, a.json, a.split, not a.no_gvgc, a.variant)
     else:
-        copies(a.dirs)
+        copies(a.dirs, a.split)
 
 
 if __name__ == "__main__":
