@@ -171,6 +171,20 @@ def test_a_blank_clip_cannot_be_judged_and_says_why():
     assert "fewer than 40 background tracks" in r.reasons["drift"]
 
 
+def test_a_fit_that_opencv_refuses_reads_as_no_camera_not_a_crash(slid, monkeypatch):
+    """OpenCV's USAC asserts on some degenerate track sets (seen once on real footage) instead of
+    returning no model: that pair of keyframes has no camera, and the clip still gets its readings."""
+    from geocon_core.regions import readings
+
+    def refuse(*_args, **_kwargs):
+        raise cv2.error("OpenCV(4.x) usac: Assertion failed (!model.empty()) in setModelParameters")
+
+    monkeypatch.setattr(readings.cv2, "findFundamentalMat", refuse)
+    monkeypatch.setattr(readings.cv2, "findHomography", refuse)
+    r = read_regions(slid, CFG)
+    assert all(v is None for v in r.values.values()) and set(r.reasons) == set(readings.READING_NAMES)
+
+
 def test_the_same_tracks_give_the_same_numbers(slid):
     a, b = read_regions(slid, CFG), read_regions(slid, CFG)
     assert a == b

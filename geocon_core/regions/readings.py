@@ -154,6 +154,17 @@ class _Best:
     finding: RegionFinding | None = None
 
 
+def _fitted(fit: Any, *args: Any, **kwargs: Any) -> np.ndarray | None:
+    """The model of an OpenCV robust fit (``fit(*args, **kwargs)`` returns (model, mask)), or None
+    where there is none: OpenCV's USAC asserts on some degenerate track sets instead of returning
+    no model, and one such pair of keyframes must read as "no camera", not end the clip's scoring."""
+    try:
+        model, _ = fit(*args, **kwargs)
+    except cv2.error:
+        return None
+    return None if model is None or getattr(model, "size", 0) == 0 else model
+
+
 def _camera(
     pa: np.ndarray, pb: np.ndarray, cfg: RegionsConfig, seed: int, *, h_only: bool = False, model: str | None = None
 ) -> tuple[str, np.ndarray] | None:
@@ -163,11 +174,11 @@ def _camera(
     if model == "H":
         h_only = True
     cv2.setRNGSeed(seed)
-    H, inl = (
-        cv2.findHomography(pa, pb, cv2.USAC_MAGSAC, cfg.ransac_px, maxIters=cfg.ransac_iterations, confidence=0.999)
-        if model != "F"
-        else (None, None)
-    )
+    H = None
+    if model != "F":
+        H = _fitted(
+            cv2.findHomography, pa, pb, cv2.USAC_MAGSAC, cfg.ransac_px, maxIters=cfg.ransac_iterations, confidence=0.999
+        )
     if H is not None:
         proj = cv2.perspectiveTransform(pa.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
         r = pb - proj
@@ -176,7 +187,7 @@ def _camera(
             return "H", r
     if len(pa) < 16 or h_only:
         return None
-    F, inl = cv2.findFundamentalMat(pa, pb, cv2.USAC_MAGSAC, cfg.ransac_px, 0.999, cfg.ransac_iterations)
+    F = _fitted(cv2.findFundamentalMat, pa, pb, cv2.USAC_MAGSAC, cfg.ransac_px, 0.999, cfg.ransac_iterations)
     if F is None or F.shape != (3, 3):
         return None
     ones = np.ones((len(pa), 1))
@@ -421,7 +432,7 @@ def _movers(
                     continue
                 pa, pb = tr.xy[sel, ka].astype(np.float64), tr.xy[sel, kb].astype(np.float64)
                 cv2.setRNGSeed(seed + 7 * ka + kb)
-                Hm, _ = cv2.findHomography(pa, pb, cv2.USAC_MAGSAC, cfg.ransac_px, maxIters=cfg.ransac_iterations)
+                Hm = _fitted(cv2.findHomography, pa, pb, cv2.USAC_MAGSAC, cfg.ransac_px, maxIters=cfg.ransac_iterations)
                 if Hm is None:
                     continue
                 r = pb - cv2.perspectiveTransform(pa.reshape(-1, 1, 2), Hm).reshape(-1, 2)
