@@ -40,7 +40,7 @@ from .decode import (
     resolve_clip,
     timing_note,
 )
-from .memory import as_bgr_frames, to_numpy
+from .memory import HeldFrames, as_bgr_frames, to_numpy
 from .reader import (
     ClipInfo,
     Frame,
@@ -55,6 +55,7 @@ from .reader import (
     locate_clip,
     probe_clip,
     probe_frames,
+    source_frames,
     to_working,
 )
 from .video import (
@@ -68,6 +69,8 @@ __all__ = [
     "ClipError",
     "ClipKind",
     "as_bgr_frames",
+    "HeldFrames",
+    "source_frames",
     "to_numpy",
     "probe_frames",
     "DEFAULT_FPS",

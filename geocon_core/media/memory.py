@@ -13,13 +13,25 @@ whether they come from memory or from a folder of PNG files.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .decode import ClipError
+from .decode import DEFAULT_FPS, ClipError
 
-__all__ = ["as_bgr_frames", "to_numpy"]
+__all__ = ["HeldFrames", "as_bgr_frames", "to_numpy"]
+
+
+@dataclass(frozen=True, eq=False)
+class HeldFrames:
+    """A clip held in memory, where :func:`~geocon_core.scoring.score_clip` takes a path:
+    ``frames`` (T, h, w, 3) uint8 BGR (:func:`as_bgr_frames`), ``name`` standing in for the path
+    in the record, ``fps`` for its rate."""
+
+    frames: np.ndarray
+    name: str = "frames"
+    fps: float = DEFAULT_FPS
 
 
 def to_numpy(frames: Any) -> np.ndarray:

@@ -88,6 +88,7 @@ __all__ = [
     "iter_frames",
     "probe_clip",
     "probe_frames",
+    "source_frames",
     "find_fades",
     "canvas_layout",
     "layout_of",
@@ -549,6 +550,18 @@ def _damage_warnings(
         )
         return (f"the GIF {where}; scored on the {n} frames that decoded",)
     return ()
+
+
+def source_frames(path: str | Path, max_frames: int | None = None) -> Iterator[np.ndarray]:
+    """The clip's decoded BGR frames as stored (no crop, no working size), at most ``max_frames``:
+    videos, GIFs and folders of PNG / JPEG frames, one at a time."""
+    name = str(path)
+    _, files = resolve_clip(Path(path), name)
+    frames = image_frames(files, name) if files is not None else open_video(name)[1]
+    for n, bgr in enumerate(frames):
+        if max_frames is not None and n >= max_frames:
+            break
+        yield bgr
 
 
 def check_clip(path: str | Path) -> None:

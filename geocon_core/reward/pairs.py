@@ -121,15 +121,9 @@ def read_manifest(path: str | Path) -> list[ManifestRow]:
 
 def decode_clip(path: Path) -> np.ndarray:
     """The clip's frames as decoded, (T, h, w, 3) uint8 BGR (at most :data:`MAX_FRAMES_READ`)."""
-    from ..media import image_frames, open_video, resolve_clip
+    from ..media import source_frames
 
-    kind, files = resolve_clip(path, str(path))
-    source = image_frames(files, str(path)) if files is not None else open_video(str(path))[1]
-    frames = []
-    for bgr in source:
-        frames.append(bgr)
-        if len(frames) > MAX_FRAMES_READ:
-            break
+    frames = list(source_frames(path, MAX_FRAMES_READ + 1))
     if len(frames) > MAX_FRAMES_READ:
         raise ClipError(f"{path}: more than {MAX_FRAMES_READ} frames; cut a training sample's length")
     if len(frames) < 2:

@@ -36,7 +36,7 @@ from ..geometry import (
     make_matcher,
 )
 from ..masks import check_masks_path, make_mask_source
-from ..media import DEFAULT_FPS, ClipInfo, Frame, as_bgr_frames, iter_frames, probe_clip, probe_frames
+from ..media import DEFAULT_FPS, ClipInfo, Frame, HeldFrames, as_bgr_frames, iter_frames, probe_clip, probe_frames
 from ..pose import (
     PoseBackend,
     PoseEstimate,
@@ -214,8 +214,15 @@ def _pose_backend(cfg: ScoreConfig, checkpoint: str | Path | None, clone: str | 
     return make_pose_backend(cfg.pose_backend, cfg.pose)
 
 
+def _probe(path: str | Path | HeldFrames, cfg: ScoreConfig) -> tuple[ClipInfo, np.ndarray | None]:
+    """The clip's :class:`~geocon_core.media.ClipInfo`, and its frames when they are held in memory."""
+    if isinstance(path, HeldFrames):
+        return probe_frames(path.frames, path.name, cfg, fps=path.fps), path.frames
+    return probe_clip(path, cfg), None
+
+
 def score_clip(
-    path: str | Path,
+    path: str | Path | HeldFrames,
     config: ScoreConfig | None = None,
     *,
     pose_log: str | Path | None = None,
@@ -230,7 +237,9 @@ def score_clip(
     timings: dict[str, float] | None = None,
     on_frame: Callable[[FrameDiagnostics], None] | None = None,
 ) -> ClipRecord:
-    """Score one clip. ``pose_log`` replaces the pose backend by an external pose (JSON, see
+    """Score one clip: ``path`` names a file or folder, or holds frames in memory
+    (:class:`~geocon_core.media.HeldFrames`, as :func:`score_frames` makes). ``pose_log``
+    replaces the pose backend by an external pose (JSON, see
     :mod:`geocon_core.pose`); ``masks`` is a path to external object masks (see
     :mod:`geocon_core.masks`), otherwise ``config.masks`` chooses the built-in segmentation or
     none; ``flow_checkpoint`` is the weights file of a neural flow backend (``config.flow ==
@@ -244,82 +253,6 @@ def score_clip(
     receives seconds per stage (summed over worker threads); ``on_frame``, if given, receives a
     :class:`~geocon_core.record.overlays.FrameDiagnostics` per frame, in frame order, on the calling
     thread. Raises :class:`~geocon_core.media.reader.ClipError` for unusable input."""
-    return _score(
-        partial(probe_clip, path),
-        None,
-        str(path),
-        config,
-        pose_log=pose_log,
-        masks=masks,
-        flow_checkpoint=flow_checkpoint,
-        sam2_checkpoint=sam2_checkpoint,
-        dense=dense,
-        dust3r_checkpoint=dust3r_checkpoint,
-        dust3r_path=dust3r_path,
-        workers=workers,
-        progress=progress,
-        timings=timings,
-        on_frame=on_frame,
-    )
-
-
-def score_frames(
-    frames: Any,
-    config: ScoreConfig | None = None,
-    *,
-    name: str = "frames",
-    fps: float = DEFAULT_FPS,
-    channel_order: str = "rgb",
-    masks: str | Path | None = None,
-    flow_checkpoint: str | Path | None = None,
-    sam2_checkpoint: str | Path | None = None,
-    workers: int | None = None,
-    progress: Callable[[int, int], None] | None = None,
-    timings: dict[str, float] | None = None,
-) -> ClipRecord:
-    """Score one clip's decoded frames held in memory, as :func:`score_clip` scores a file:
-    ``frames`` is a numpy array or a torch tensor (any device) of shape (T, H, W, 3),
-    (T, 3, H, W) or (T, H, W), uint8 or floats in [0, 1] (:func:`~geocon_core.media.as_bgr_frames`);
-    ``channel_order`` "rgb" or "bgr"; ``name`` stands in for the clip's path in the record and
-    ``fps`` for its rate. Writes nothing. The same frames give the same record as ``geocon
-    score`` on a folder of lossless PNG files of them, with the same configuration (the clip's
-    path, fingerprint and timings aside). Raises :class:`~geocon_core.media.ClipError` for
-    unusable frames."""
-    held = as_bgr_frames(frames, channel_order=channel_order, name=name)
-    return _score(
-        partial(probe_frames, held, name, fps=fps),
-        held,
-        name,
-        config,
-        masks=masks,
-        flow_checkpoint=flow_checkpoint,
-        sam2_checkpoint=sam2_checkpoint,
-        workers=workers,
-        progress=progress,
-        timings=timings,
-    )
-
-
-def _score(
-    probe: Callable[[ScoreConfig], ClipInfo],
-    held: np.ndarray | None,
-    path: str,
-    config: ScoreConfig | None,
-    *,
-    pose_log: str | Path | None = None,
-    masks: str | Path | None = None,
-    flow_checkpoint: str | Path | None = None,
-    sam2_checkpoint: str | Path | None = None,
-    dense: DenseCloudConfig | None = None,
-    dust3r_checkpoint: str | Path | None = None,
-    dust3r_path: str | Path | None = None,
-    workers: int | None = None,
-    progress: Callable[[int, int], None] | None = None,
-    timings: dict[str, float] | None = None,
-    on_frame: Callable[[FrameDiagnostics], None] | None = None,
-) -> ClipRecord:
-    """:func:`score_clip` and :func:`score_frames`: ``probe(cfg)`` makes the clip's
-    :class:`~geocon_core.media.ClipInfo`, ``held`` the frames when they are in memory."""
     cfg = config or ScoreConfig()
     if masks is not None:
         cfg = cfg.with_(masks="external")
@@ -335,7 +268,7 @@ def _score(
     flow = _flow_backend(cfg, flow_checkpoint)  # shared: thread-safe per instance
     sam2_model = _sam2_model(cfg, sam2_checkpoint)
     start = time.perf_counter()
-    info = probe(cfg)
+    info, held = _probe(path, cfg)
     timer.add("probe", start)
     n = info.num_frames
     matcher = make_matcher(cfg.matcher, max_features=cfg.max_features, ratio=cfg.ratio, anchors=(0, n - 1))
@@ -426,7 +359,7 @@ def _score(
         clouds = builder.clouds(K, {**resolved, (0, n - 1): pose})
         timer.add("dense", start)
     return assemble_record(
-        path,
+        info.path,
         info,
         cfg,
         K,
@@ -443,6 +376,41 @@ def _score(
         dense=clouds,
         cloud=cloud,
         pointmaps=stages.pointmaps,
+    )
+
+
+def score_frames(
+    frames: Any,
+    config: ScoreConfig | None = None,
+    *,
+    name: str = "frames",
+    fps: float = DEFAULT_FPS,
+    channel_order: str = "rgb",
+    masks: str | Path | None = None,
+    flow_checkpoint: str | Path | None = None,
+    sam2_checkpoint: str | Path | None = None,
+    workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    timings: dict[str, float] | None = None,
+) -> ClipRecord:
+    """Score one clip's decoded frames held in memory, as :func:`score_clip` scores a file:
+    ``frames`` is a numpy array or a torch tensor (any device) of shape (T, H, W, 3),
+    (T, 3, H, W) or (T, H, W), uint8 or floats in [0, 1] (:func:`~geocon_core.media.as_bgr_frames`);
+    ``channel_order`` "rgb" or "bgr"; ``name`` stands in for the clip's path in the record and
+    ``fps`` for its rate. Writes nothing. The same frames give the same record as ``geocon
+    score`` on a folder of lossless PNG files of them, with the same configuration (the clip's
+    path, fingerprint and timings aside). Raises :class:`~geocon_core.media.ClipError` for
+    unusable frames."""
+    held = HeldFrames(as_bgr_frames(frames, channel_order=channel_order, name=name), name, fps)
+    return score_clip(
+        held,
+        config,
+        masks=masks,
+        flow_checkpoint=flow_checkpoint,
+        sam2_checkpoint=sam2_checkpoint,
+        workers=workers,
+        progress=progress,
+        timings=timings,
     )
 
 

@@ -112,21 +112,10 @@ def read_peer(folder: Path) -> dict | None:
 
 def raw_frames(path: str | Path, max_frames: int | None = None) -> Iterator[np.ndarray]:
     """The clip's decoded BGR frames as stored (no crop, no working size), at most ``max_frames``:
-    what the peer sees. Videos, GIFs and folders of PNG / JPEG frames."""
-    from ..media import image_frames, open_video, resolve_clip
+    what the peers see (:func:`~geocon_core.media.source_frames`)."""
+    from ..media import source_frames
 
-    name = str(path)
-    kind, files = resolve_clip(Path(path), name)
-    frames: Iterator[np.ndarray]
-    if kind == "images":
-        assert files is not None
-        frames = image_frames(files, name)
-    else:
-        frames = open_video(name)[1]
-    for n, bgr in enumerate(frames):
-        if max_frames is not None and n >= max_frames:
-            break
-        yield bgr
+    return source_frames(path, max_frames)
 
 
 def _features(sift: cv2.SIFT, bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
