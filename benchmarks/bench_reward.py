@@ -31,6 +31,7 @@ import resource
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -38,32 +39,47 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from geocon_core.config import preset  # noqa: E402
+from geocon_core.config import IndependentConfig, RewardConfig, preset  # noqa: E402
 from geocon_core.intervals import wilson_interval  # noqa: E402
 from geocon_core.reward import RewardScorer, decode_clip, sample_evenly  # noqa: E402
 from geocon_core.scoring import score_frames  # noqa: E402
 from geocon_core.validation.peer import epipolar_score, peer_keep_rate  # noqa: E402
 
 FRAMES = 48
-CACHE_VERSION = 4
+CACHE_VERSION = 6
 EXPLORE_GAPS = (1, 4, 16)
 """The gaps the per-pair readings are cached at (the tune half compares subsets of them)."""
 PLANTED = re.compile(r"^(?P<stem>.+)\.(?P<kind>slide|morph|redraw|breathing)-(?P<level>low|middle|high)-s\d+\.mp4$")
 
 
-VARIANTS = {
+VARIANTS: dict[str, dict[str, Any]] = {
     "": {},
     "sift": {"matcher": "sift", "max_features": 8000, "ratio": 0.8},
+    "unmasked": {"masks": "none", "independent": IndependentConfig(enabled=False)},
+    "windows-H": {"reward": {"window_models": "H"}},
+    "windows-F": {"reward": {"window_models": "F"}},
+    "windows-gate": {"reward": {"window_models": "gate"}},
+    "pairs": {"reward": {"reading": "pairs"}},
 }
-"""Candidate settings of the ``reward`` preset compared on the tune half (``--variant``)."""
+"""Candidate settings compared on the tune half (``--variant``): of the ``reward`` preset, or under
+``"reward"`` of the reward's reading (:class:`~geocon_core.config.RewardConfig`)."""
+
+
+def _scorer(variant: str) -> RewardScorer:
+    settings = dict(VARIANTS[variant])
+    reading = settings.pop("reward", {})
+    return RewardScorer(config=preset("reward").with_(**settings), reward=RewardConfig(**reading), workers=1)
 
 
 def _scores(clip: Path, scorer: RewardScorer, peers: bool = True, variant: str = "") -> dict:
     cache = clip.with_name(clip.name + (f".reward-{variant}.json" if variant else ".reward.json"))
+    saved: dict = {}
     if cache.is_file():
         saved = json.loads(cache.read_text())
         if saved.get("version") == CACHE_VERSION and (saved.get("gvgc_run") or not peers):
             return saved
+    if not saved.get("gvgc_run"):
+        saved = {}  # the peers' readings of an older cache are kept: they do not depend on the reward
     frames = decode_clip(clip)[:FRAMES]
     r = scorer.score(frames, name=clip.name, channel_order="bgr")
     pairs = {}
@@ -85,14 +101,17 @@ def _scores(clip: Path, scorer: RewardScorer, peers: bool = True, variant: str =
             kernels = [float(np.mean(1.0 / (1.0 + (kept / s) ** 2))) if len(kept) else None for s in (0.5, 1.0, 2.0)]
             rows.append([p.gap, p.n_matches, f.ir, f.ge, *kernels, float(np.median(kept)) if len(kept) else None])
         pairs = {"family": fam, "rows": rows}
-    keep = peer_keep_rate(clip, FRAMES).keep_rate if peers else None
-    epi = epipolar_score(iter(frames)).sampson
+    if saved:
+        keep, epi, ran = saved["gvgc"], saved["epipolar"], True
+    else:
+        keep = peer_keep_rate(clip, FRAMES).keep_rate if peers else None
+        epi, ran = epipolar_score(iter(frames)).sampson, peers
     row = {
         "version": CACHE_VERSION,
         "reward": r.score,
         "reason": r.reason,
         "gvgc": keep,
-        "gvgc_run": peers,
+        "gvgc_run": ran,
         "epipolar": epi,
         "seconds": round(r.seconds, 2),
         "readings": {k: v for k, v in r.readings.items() if k != "guards"},
@@ -130,7 +149,7 @@ def _split(stem: str) -> str:
 def preference(
     dirs: list[Path], out: Path | None, split: str | None = None, peers: bool = True, variant: str = ""
 ) -> None:
-    scorer = RewardScorer(config=preset("reward").with_(**VARIANTS[variant]), workers=1)
+    scorer = _scorer(variant)
     rows: dict[tuple[str, str], dict[str, list[bool]]] = {}
     unjudged = 0
     for d in dirs:
@@ -190,6 +209,14 @@ def copies(dirs: list[Path], split: str | None = None) -> None:
         print(f"{name} copies preferred over their clip: {sum(w)} of {len(w)}")
 
 
+def _rss_now() -> float:
+    """The process's resident memory now, MiB (Linux)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
 def throughput(clips: int, workers: int) -> None:
     from geocon_core.synth import ClipPlan, write_clip
 
@@ -203,6 +230,8 @@ def throughput(clips: int, workers: int) -> None:
         paths += list(set(tmp.glob("*.mp4")) - before) or [p for p in tmp.glob(f"{plan.family.lower()}*.mp4")][:1]
     batch = [decode_clip(p)[:48] for p in sorted(set(paths))]
     batch = (batch * (clips // len(batch) + 1))[:clips]
+    held = sum(f.nbytes for f in {id(f): f for f in batch}.values()) / 2**20
+    rss_held = _rss_now()
     scorer = RewardScorer(workers=workers)
     scorer.score_batch(batch[:workers], channel_order="bgr")  # warm: imports, OpenCL probes
     start = time.perf_counter()
@@ -216,7 +245,9 @@ def throughput(clips: int, workers: int) -> None:
     judged = sum(r.judged for r in results)
     print(
         f"reward: {clips} clips of 48 frames at 854x480 in {wall:.1f} s with {workers} workers: "
-        f"{60 * clips / wall:.1f} clips/min ({judged} judged); peak RSS {rss:.0f} MiB"
+        f"{60 * clips / wall:.1f} clips/min ({judged} judged); peak RSS {rss:.0f} MiB, of which "
+        f"{rss_held:.0f} MiB held before scoring (interpreter, libraries and the batch's {held:.0f} MiB "
+        f"of frames): the scorer adds {rss - rss_held:.0f} MiB at its peak"
     )
     print(f"Epipolar-DPO metric: {60 * clips / epi:.1f} clips/min on one thread ({epi / clips:.2f} s a clip)")
 

@@ -20,6 +20,7 @@ from geocon_core.reward import (
     RewardScorer,
     decode_clip,
     read_manifest,
+    reward_hash,
     reward_of_record,
     sample_evenly,
     score_reward,
@@ -106,7 +107,10 @@ def test_frames_in_memory_score_as_geocon_score_scores_their_png_folder(png_fold
     rcfg = RewardConfig()
     reward = score_reward(frames, channel_order="bgr")
     assert reward.judged, reward.reason
-    assert reward.score == reward_of_record(disk, rcfg).score, "the API's reward is the CLI record's"
+    sampled = np.ascontiguousarray(frames[sample_evenly(len(frames), rcfg.max_frames)])
+    assert reward.score == reward_of_record(disk, rcfg, frames=sampled).score, "the API's reward is the CLI record's"
+    with pytest.raises(ValueError, match="needs the frames"):
+        reward_of_record(disk, rcfg)
     assert reward.interval is not None and reward.interval[0] <= reward.score <= reward.interval[1]
     assert score_frames(frames, cfg, channel_order="bgr", workers=2).background.ir == mem.background.ir
 
@@ -187,6 +191,7 @@ def test_pairs_prefer_the_clean_clip_resume_and_never_choose_a_frozen_one(clips,
     assert summary.scored == 4 and summary.small_groups == 1
     assert [(x["chosen"], x["rejected"]) for x in lines] == [("turn.mp4", "breathing.mp4")]
     assert lines[0]["margin"] > 0 and lines[0]["margin_interval"][0] > 0
+    assert lines[0]["reward_hash"] == reward_hash(RewardConfig()) != reward_hash(RewardConfig(window=3))
     assert {p for p, _ in summary.unjudged} == {"frozen"}
     again = write_pairs(m, out, RewardScorer(workers=2))
     assert again.scored == 0 and again.resumed == 4 and out.read_text().splitlines() == [json.dumps(x) for x in lines]
@@ -238,3 +243,64 @@ def test_the_soft_share_reads_sub_pixel_residuals_that_the_inlier_ratio_ties(png
     assert np.allclose(pair_values(moved, 1.0), 1.0 / (1.0 + 0.25)), "every match 0.5 px off weighs 0.8"
     assert (pair_values(moved, 0.0) == pair_values(record, 0.0)).all(), "IR reads the record's inliers"
     assert (pair_values(record, 1.0) <= 1.0).all() and pair_values(record, 1.0).mean() > 0.8
+
+
+def _turning_texture(n: int, slide_px_per_frame: float = 0.0) -> np.ndarray:
+    """A textured plane seen by a camera that pans 2 px a frame (one homography between any two
+    frames), optionally with a disc that slides ``slide_px_per_frame`` further each frame."""
+    rng = np.random.default_rng(3)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (400, 700)).astype(np.float32), (0, 0), 2.0)
+    tex = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX)
+    yy, xx = np.mgrid[:300, :560]
+    disc = np.clip((80.0 - np.hypot(xx - 280, yy - 150)) / 10.0, 0.0, 1.0)[..., None]
+    out = []
+    for t in range(n):
+        shift = np.float32([[1, 0, -2.0 * t], [0, 1, 0]])
+        base = cv2.warpAffine(tex, shift, (560, 300), flags=cv2.INTER_CUBIC)
+        shift[0, 2] -= slide_px_per_frame * t
+        moved = cv2.warpAffine(tex, shift, (560, 300), flags=cv2.INTER_CUBIC)
+        grey = base[..., None] * (1 - disc) + moved[..., None] * disc
+        out.append(np.repeat(np.clip(grey, 0, 255).astype(np.uint8), 3, axis=2))
+    return np.stack(out)
+
+
+def test_windows_read_a_pan_as_one_homography_and_a_sliding_region_as_damage():
+    """Ground truth: a pan over a textured plane fits one homography per window (residuals of a
+    fraction of a pixel, soft share near 1); a disc sliding 0.5 px a frame is 2 px off the
+    background after a 4-step window, so its tracks weigh about 1/(1+4) and the window's share
+    falls by about the disc's share of the tracks."""
+    from geocon_core.reward.windows import window_values
+
+    cfg = RewardConfig()
+    clean = window_values(_turning_texture(16), "H", cfg)
+    slid = window_values(_turning_texture(16, 0.5), "H", cfg)
+    assert len(clean) == len(slid) == len(range(0, 16 - cfg.window, cfg.window_step))
+    assert clean.min() > 0.95, clean
+    disc_share = np.pi * 75**2 / (560 * 300)  # the disc's core, of the frame the tracks cover
+    assert (clean - slid).mean() == pytest.approx(disc_share * (1 - 1 / (1 + 2.0**2)), rel=0.5)
+    assert (slid < clean).all()
+    assert (window_values(_turning_texture(16), "H", cfg) == clean).all(), "the same frames, the same numbers"
+    f_clean = window_values(_turning_texture(16), "F", cfg)
+    assert len(f_clean) and f_clean.min() > 0.9, "a homography's matches satisfy a fundamental matrix too"
+
+
+def test_the_reward_prefers_a_clip_to_its_sliding_twin():
+    scorer = RewardScorer(workers=1)
+    clean = scorer.score(_turning_texture(24), channel_order="bgr")
+    slid = scorer.score(_turning_texture(24, 0.5), channel_order="bgr")
+    assert clean.judged and slid.judged, (clean.reason, slid.reason)
+    assert clean.score > slid.score and clean.readings["windows"] == len(clean.pair_scores)
+
+
+@pytest.mark.parametrize(
+    ("settings", "words"),
+    [
+        ({"reading": "flow"}, "reading must be"),
+        ({"window": 0}, "at least 1"),
+        ({"soft_px": 0.0}, "soft_px > 0"),
+        ({"window_models": "E"}, "window_models must be"),
+    ],
+)
+def test_bad_reward_settings_are_refused(settings, words):
+    with pytest.raises(ValueError, match=words):
+        RewardConfig(**settings)

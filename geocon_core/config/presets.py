@@ -428,9 +428,10 @@ PRESETS: dict[str, tuple[str, ScoreConfig]] = {
         "256x180, independent motion left "
         "out of IR, a gate that has a pose (consecutive hops when the first-last pose fails), gate windows "
         "every 16 frames; no objects' rigidity, no clip model, no multi-view check and no region readings "
-        "(their cost buys no preference on the planted pairs at this size); the reward is the mean "
-        "inlier ratio of the gate's family over the frame pairs, with a bootstrap interval, and guards "
-        "make frozen, repeated, blurred, textureless and cut clips cannot judge",
+        "(their cost buys no preference on the planted pairs at this size); the record gives the reward its "
+        "verdict, gate and background readings, the reward itself reads windows of fresh tracks on the same "
+        "frames (RewardConfig), with a bootstrap interval, and guards make frozen, repeated, blurred, "
+        "textureless and cut clips cannot judge",
         ScoreConfig(
             preset="reward",
             working_size=(854, 480),

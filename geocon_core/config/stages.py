@@ -653,6 +653,38 @@ class RewardConfig:
     residual to the pair's model, px of the canvas), so a residual of a fraction of a pixel
     counts, where an inlier ratio at a threshold saturates at 1 on most real clips and ties.
     0: the inlier ratio at the preset's threshold."""
+    reading: str = "windows"
+    """What the score averages: ``windows`` (:mod:`geocon_core.reward.windows`: corners seeded anew
+    every ``window_step`` frames, tracked ``window`` frame steps, each window's soft share against
+    one model of the gate's family; every track counts) or ``pairs`` (the soft share of the
+    preset's record, per frame pair, movers masked)."""
+    canvas: tuple[int, int] = (854, 480)
+    """The windows' canvas (w, h): frames are scaled down to fit it, never up; a portrait clip
+    fits it turned."""
+    window: int = 4
+    """Frame steps (of the sampled frames) a window's tracks span."""
+    window_step: int = 2
+    """A window starts every this many sampled frames."""
+    window_corners: int = 1000
+    """At most this many corners seeded per window (OpenCV's maxCorners)."""
+    window_quality: float = 0.005
+    """Corner quality level of the windows' seeds (OpenCV's qualityLevel)."""
+    window_spacing: int = 6
+    """Least distance between two seeds, px of the canvas."""
+    window_lk_side: int = 21
+    """Side of the Lucas-Kanade window, px."""
+    window_lk_levels: int = 3
+    """Pyramid levels above the canvas the tracker uses."""
+    window_fb_px: float = 0.5
+    """A track survives a step when tracking it back lands within this of where it was, px."""
+    window_fit_px: float = 1.0
+    """Threshold of the window's robust fit (MAGSAC), px of the canvas."""
+    window_min_tracks: int = 30
+    """A window with fewer surviving tracks is left out."""
+    window_models: str = "both"
+    """The model each window's tracks are read against: ``both`` (the mean of the soft shares
+    under a homography and under a fundamental matrix), ``H``, ``F``, or ``gate`` (the family the
+    preset's translation gate chose for the clip). See :mod:`geocon_core.reward.windows`."""
     judge_cuts: bool = False
     """A clip with a hard cut or a cross-fade is judged; False: it cannot be judged (a cut makes
     two scenes, and a generator rewarded on it learns to cut)."""
@@ -670,3 +702,11 @@ class RewardConfig:
             raise ValueError(f"level must lie in (0, 1), got {self.level}")
         if self.bootstrap < 50:
             raise ValueError(f"bootstrap needs at least 50 resamples, got {self.bootstrap}")
+        if self.reading not in ("windows", "pairs"):
+            raise ValueError(f"reading must be 'windows' or 'pairs', got {self.reading!r}")
+        if self.window < 1 or self.window_step < 1:
+            raise ValueError(f"window and window_step must be at least 1, got {self.window} and {self.window_step}")
+        if self.window_models not in ("both", "H", "F", "gate"):
+            raise ValueError(f"window_models must be 'both', 'H', 'F' or 'gate', got {self.window_models!r}")
+        if self.reading == "windows" and self.soft_px <= 0.0:
+            raise ValueError("the windows reading needs soft_px > 0")

@@ -70,7 +70,7 @@ def score_reward(
             name, None, None, False, guards.reason, guards.tripped, readings, seconds=time.perf_counter() - start
         )
     record = score_frames(bgr, cfg, name=name, fps=fps, channel_order="bgr", workers=1)
-    out = reward_of_record(record, rcfg, guards, name=name)
+    out = reward_of_record(record, rcfg, guards, name=name, frames=bgr)
     return replace(out, seconds=time.perf_counter() - start)
 
 

@@ -13,13 +13,16 @@ reason.
 
 A pair's line (JSON): ``group``, ``chosen``, ``rejected`` (paths as the manifest gives them),
 ``chosen_score``, ``rejected_score``, ``margin`` (their difference), ``margin_interval`` (its
-bootstrap interval, each clip's frame pairs resampled), ``preset`` and ``config_hash``: the
+bootstrap interval, each clip's frame pairs resampled), ``preset``, ``config_hash`` (the
+scorer's settings) and ``reward_hash`` (the reward's: sampling, guards, reading): the
 ``chosen`` / ``rejected`` names DPO trainers read.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
+import hashlib
 import json
 import os
 from collections.abc import Callable, Iterator
@@ -36,6 +39,7 @@ from .api import RewardScorer
 from .result import RewardResult
 
 __all__ = [
+    "reward_hash",
     "ManifestError",
     "ManifestRow",
     "PairsSummary",
@@ -119,6 +123,12 @@ def read_manifest(path: str | Path) -> list[ManifestRow]:
     return out
 
 
+def reward_hash(cfg: RewardConfig) -> str:
+    """First 16 hex digits of the SHA-256 of the reward settings' canonical JSON."""
+    text = json.dumps(dataclasses.asdict(cfg), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def decode_clip(path: Path) -> np.ndarray:
     """The clip's frames as decoded, (T, h, w, 3) uint8 BGR (at most :data:`MAX_FRAMES_READ`)."""
     from ..media import source_frames
@@ -189,7 +199,7 @@ def write_pairs(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     scores = out.with_name(out.name.removesuffix(".jsonl") + SCORES_SUFFIX)
-    key = f"{config_hash(scorer.config)}:{json.dumps(scorer.reward.__dict__, sort_keys=True)}"
+    key = f"{config_hash(scorer.config)}:{reward_hash(scorer.reward)}"
     summary = PairsSummary(clips=len(rows))
     done: dict[str, RewardResult] = {}
     if resume:
@@ -245,6 +255,7 @@ def write_pairs(
                 "margin_interval": [round(lo, 6), round(hi, 6)],
                 "preset": scorer.config.preset,
                 "config_hash": config_hash(scorer.config),
+                "reward_hash": reward_hash(scorer.reward),
             }
         )
     tmp = out.with_name(out.name + ".part")

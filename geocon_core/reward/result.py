@@ -1,13 +1,14 @@
-"""The reward of one clip, read from its record: a number where higher is more consistent.
+"""The reward of one clip: a number where higher is more consistent.
 
-The reward is the mean, over the clip's scored frame pairs, of a soft inlier share: each
-background match weighs ``1 / (1 + (r / soft_px)^2)``, ``r`` its residual to the model the
-translation gate chose (H for a camera that only turns, F for one that moves), movers masked and
-matches that move on their own left out, as the record holds them. Unlike the inlier ratio at a
-threshold, which is 1.0 on most real clips and ties, it reads residuals of a fraction of a pixel
-(``RewardConfig.soft_px``; 0 gives the inlier ratio).
-Its interval is a seeded percentile bootstrap over the pairs. It reads the same record that
-``geocon score`` writes, so the same frames and preset give the same reward either way.
+By default (``RewardConfig.reading = "windows"``) the reward is the mean over the clip's windows
+of fresh tracks of their soft share (:mod:`.windows`), and the preset's record supplies the
+verdict (a clip whose background cannot be judged is not rewarded), the gate's family and the
+background readings reported beside it. With ``reading = "pairs"`` it is the mean, over the
+record's scored frame pairs, of a soft inlier share: each background match weighs
+``1 / (1 + (r / soft_px)^2)``, ``r`` its residual to the model the translation gate chose, movers
+masked and matches that move on their own left out (``soft_px`` 0 gives the inlier ratio).
+Its interval is a seeded percentile bootstrap over the windows (or pairs). The same frames and
+preset give the same reward from memory or from ``geocon score``'s record of them.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from ..config import RewardConfig
 from ..record import ClipRecord
 from .guards import GuardReading
+from .windows import window_values
 
 __all__ = ["RewardResult", "pair_values", "reward_of_record", "bootstrap_mean"]
 
@@ -94,10 +96,17 @@ def pair_values(record: ClipRecord, soft_px: float = 0.0) -> np.ndarray:
 
 
 def reward_of_record(
-    record: ClipRecord, cfg: RewardConfig, guards: GuardReading | None = None, name: str | None = None
+    record: ClipRecord,
+    cfg: RewardConfig,
+    guards: GuardReading | None = None,
+    name: str | None = None,
+    frames: np.ndarray | None = None,
 ) -> RewardResult:
     """The reward of a scored clip (:class:`RewardResult`); ``guards``, when read, are reported and
-    a tripped guard makes the clip cannot judge whatever its geometry."""
+    a tripped guard makes the clip cannot judge whatever its geometry. With ``cfg.reading``
+    ``windows`` the score reads the sampled BGR ``frames`` the record was scored from
+    (:func:`~geocon_core.reward.windows.window_values`, under the record's family); ``pairs``
+    reads the record alone."""
     finding = record.finding()
     bg = record.background
     readings: dict[str, Any] = {
@@ -114,9 +123,21 @@ def reward_of_record(
     label = name or record.video.path
     if guards is not None and guards.tripped is not None:
         return RewardResult(label, None, None, False, guards.reason, guards.tripped, readings)
-    values = pair_values(record, cfg.soft_px)
-    if finding.verdict == "cannot judge" or len(values) == 0:
-        reason = finding.reason if finding.verdict == "cannot judge" else "no frame pair has a background model"
+    if finding.verdict == "cannot judge":
+        return RewardResult(label, None, None, False, finding.reason, "background", readings)
+    if cfg.reading == "windows":
+        if frames is None:
+            raise ValueError("the windows reading needs the frames the record was scored from")
+        values = window_values(frames, bg.model, cfg) if bg.model in ("H", "F") else np.zeros(0)
+        readings["windows"] = len(values)
+    else:
+        values = pair_values(record, cfg.soft_px)
+    if len(values) == 0:
+        reason = (
+            "no window keeps enough tracks under a background model"
+            if cfg.reading == "windows"
+            else "no frame pair has a background model"
+        )
         return RewardResult(label, None, None, False, reason, "background", readings)
     score = float(values.mean())
     interval = bootstrap_mean(values, cfg)
