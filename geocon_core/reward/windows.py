@@ -21,7 +21,8 @@ parallax. Known bias: within a group of clips, one whose camera translates fast 
 content reads a little lower than one that turns, and movers count against their clip.
 
 Measured on the stick's tune half against the per-pair reading of the ``reward`` preset's
-record (docs/training.md): the clean twin is preferred more often for every planted kind.
+record (docs/training.md): the clean twin is preferred more often for breathing, morph and slide
+and as often for redraw; on the check half the two readings lie within each other's intervals.
 """
 
 from __future__ import annotations
