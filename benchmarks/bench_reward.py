@@ -3,6 +3,12 @@
     .venv/bin/python benchmarks/bench_reward.py preference PLANT_DIR [PLANT_DIR ...] [--split check] [--json out.json]
     .venv/bin/python benchmarks/bench_reward.py copies PLANT_DIR [...]        # frozen, slowed, blurred twins
     .venv/bin/python benchmarks/bench_reward.py throughput [--clips 24] [--workers 2]
+    .venv/bin/python benchmarks/bench_reward.py plants OUT_DIR --split check  # make a plant folder
+
+``plants``: every kind at low and middle severity (seed 0, the first 48 frames) planted into each
+annotated real-camera clip of ``../shared/real2`` in the half, as ``geocon validate --planted``
+chooses its sources, one folder per source (about a minute a source on one core; a rerun keeps
+what is there).
 
 A plant folder holds, per source clip, a folder with the clean twin (``<stem>.clean.mp4``) and the
 planted clips (``<stem>.<kind>-<level>-s<seed>.mp4``), as ``geocon plant`` writes them. Every
@@ -139,10 +145,11 @@ def _rate(k: int, n: int) -> str:
 
 def _split(stem: str) -> str:
     """The half of the stick a real2 source belongs to (``geocon_core.validation.cases.split_of``)."""
+    from geocon_core.media.decode import VIDEO_FILE_SUFFIXES
     from geocon_core.validation.cases import split_of
 
     real2 = ROOT.parent / "shared" / "real2"
-    names = [p.name for p in real2.glob(f"{stem}.*") if p.suffix in (".mp4", ".mkv", ".mov", ".webm")]
+    names = [p.name for p in real2.glob(f"{stem}.*") if p.suffix.lower() in VIDEO_FILE_SUFFIXES]
     return split_of(f"real2:{names[0]}") if names else "unknown"
 
 
@@ -252,9 +259,33 @@ def throughput(clips: int, workers: int) -> None:
     print(f"Epipolar-DPO metric: {60 * clips / epi:.1f} clips/min on one thread ({epi / clips:.2f} s a clip)")
 
 
+def plants(out: Path, split: str | None) -> None:
+    from geocon_core.plant import plant_clip
+    from geocon_core.validation.cases import ValidationPlan, planted_cases, read_annotations
+
+    plan = ValidationPlan(planted=True, split=split or "all", real2=ROOT.parent / "shared" / "real2")
+    cases = planted_cases(plan, read_annotations())
+    sources = [
+        Path(str(c.source)) for c in cases if c.failure is None and c.annotation and c.annotation.root == "real2"
+    ]
+    print(f"{len(sources)} sources into {out}", flush=True)
+    for i, clip in enumerate(sources, 1):
+        folder = out / clip.stem
+        folder.mkdir(parents=True, exist_ok=True)
+        for kind in ("breathing", "morph", "redraw", "slide"):
+            for level in ("middle", "low"):
+                if (folder / f"{clip.stem}.{kind}-{level}-s0.mp4").is_file():
+                    continue
+                try:
+                    plant_clip(clip, kind, level, 0, folder, frames=FRAMES)
+                except ValueError as exc:
+                    print(f"{clip.stem}: {kind} at {level} not planted: {exc}", flush=True)
+        print(f"[{i}/{len(sources)}] {clip.stem}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", choices=("preference", "copies", "throughput"))
+    ap.add_argument("what", choices=("preference", "copies", "throughput", "plants"))
     ap.add_argument("dirs", nargs="*", type=Path)
     ap.add_argument("--json", type=Path)
     ap.add_argument(
@@ -265,7 +296,11 @@ def main() -> None:
     ap.add_argument("--clips", type=int, default=24)
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()
-    if a.what == "throughput":
+    if a.what == "plants":
+        if len(a.dirs) != 1:
+            ap.error("plants takes one folder to write into")
+        plants(a.dirs[0], a.split)
+    elif a.what == "throughput":
         throughput(a.clips, a.workers)
     elif a.what == "preference":
         preference(a.dirs, a.json, a.split, not a.no_gvgc, a.variant)
