@@ -56,14 +56,19 @@ class GuardReading:
         }
 
 
-def guard_image(bgr: np.ndarray, side: int) -> tuple[np.ndarray, float]:
-    """The grey image the guards read (long side at most ``side``) and its scale from the frame."""
+def scaled_grey(bgr: np.ndarray, s: float) -> np.ndarray:
+    """The frame in grey, scaled by ``s`` (area filter) when ``s`` < 1; never enlarged."""
     h, w = bgr.shape[:2]
-    s = min(1.0, side / max(h, w))
     grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
     if s < 1.0:
         grey = cv2.resize(grey, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
-    return grey, s
+    return grey
+
+
+def guard_image(bgr: np.ndarray, side: int) -> tuple[np.ndarray, float]:
+    """The grey image the guards read (long side at most ``side``) and its scale from the frame."""
+    s = min(1.0, side / max(bgr.shape[:2]))
+    return scaled_grey(bgr, s), s
 
 
 def _motion(greys: list[np.ndarray], corners: np.ndarray | None) -> float:

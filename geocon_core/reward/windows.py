@@ -32,6 +32,7 @@ import numpy as np
 
 from ..config import RewardConfig
 from ..geometry import sampson_distance
+from .guards import scaled_grey
 
 __all__ = ["canvas_greys", "window_values"]
 
@@ -41,12 +42,7 @@ def canvas_greys(frames: np.ndarray, canvas: tuple[int, int]) -> list[np.ndarray
     never enlarged."""
     h, w = frames.shape[1:3]
     s = min(1.0, canvas[0] / w, canvas[1] / h) if w >= h else min(1.0, canvas[0] / h, canvas[1] / w)
-    size = (max(1, round(w * s)), max(1, round(h * s)))
-    out = []
-    for bgr in frames:
-        grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-        out.append(cv2.resize(grey, size, interpolation=cv2.INTER_AREA) if s < 1.0 else grey)
-    return out
+    return [scaled_grey(bgr, s) for bgr in frames]
 
 
 def _track(greys: list[np.ndarray], cfg: RewardConfig) -> tuple[np.ndarray, np.ndarray] | None:
